@@ -1,0 +1,29 @@
+# terrainml: two-command quick start (make demo, make test). Every target creates or refreshes .venv.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test bench venv clean
+
+venv: $(STAMP)
+
+# torch is installed first and pinned (CPU wheel); the extras then see it satisfied and never pull CUDA builds.
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet "torch==2.13.0"
+	$(BIN)/python -m pip install --quiet -e ".[cnn,dask,test,bench]" "torch==2.13.0"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/terrainml demo --out runs/demo
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -n 2 --timeout 1800 tests
+
+bench: $(STAMP)
+	$(BIN)/python -m benchmarks.run_all --out BENCHMARKS.md
+
+clean:
+	rm -rf $(VENV) runs/demo
