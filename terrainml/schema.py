@@ -100,7 +100,8 @@ def truth_wheel_columns(i: int) -> list[Column]:
 
 
 def valid_column(group: str) -> Column:
-    return Column(f"{group}_valid", "-", "bool", "validity", group in ("wheels", "imu"),
+    # not required on input: derived from finiteness when a producer does not supply it
+    return Column(f"{group}_valid", "-", "bool", "validity", False,
                   f"True where the {group} group has a fresh, finite sample")
 
 
@@ -192,11 +193,12 @@ def validate_run_table(df: pd.DataFrame, n_wheels: int | None = None, *, source:
         raise SchemaError(f"{source}: column 't_s' is not strictly increasing (row {bad})")
     for g in VALID_GROUPS:
         vname = f"{g}_valid"
-        if vname not in out.columns and any(c in out.columns for c in group_columns(g, n_wheels)):
+        present = [c for c in group_columns(g, n_wheels)
+                   if c in out.columns and (spec[c].required or g in ("cam", "cmd"))
+                   and c != "cam_confidence"]
+        if vname not in out.columns and present:
             # derive validity from finiteness when a producer did not supply it
-            data = out[[c for c in group_columns(g, n_wheels) if c in out.columns and spec[c].required
-                        or (c in out.columns and g in ("cam", "cmd"))]]
-            out[vname] = np.isfinite(data.to_numpy(dtype=float)).all(axis=1) if data.shape[1] else False
+            out[vname] = np.isfinite(out[present].to_numpy(dtype=float)).all(axis=1)
     return out
 
 
