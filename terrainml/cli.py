@@ -41,6 +41,18 @@ def demo(out: Path = typer.Option(Path("runs/demo"), help="Output folder for the
     run_demo(out, seed=seed, console=console)
 
 
+def _register_areas() -> None:
+    import importlib
+
+    from terrainml.commands import AREAS
+
+    for area in AREAS:
+        importlib.import_module(f"terrainml.commands.{area}").register(app)
+
+
+_register_areas()
+
+
 def main() -> None:  # pragma: no cover - console entry
     app()
 

@@ -1,0 +1,59 @@
+"""Run every benchmark and write BENCHMARKS.md (``make bench``).
+
+Each ``benchmarks/bench_*.py`` exposes ``run(quick: bool = False) -> str`` returning a Markdown
+section. Results name the machine they were measured on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+
+def machine_description() -> str:
+    import psutil
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return (f"{cpu}; {os.cpu_count()} logical cores; "
+            f"{psutil.virtual_memory().total / 2**30:.1f} GiB RAM; Python {platform.python_version()}; "
+            f"{platform.system()} {platform.release()}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--out", default="BENCHMARKS.md")
+    parser.add_argument("--only", nargs="*", help="benchmark module names (e.g. bench_ingest)")
+    parser.add_argument("--quick", action="store_true", help="smaller sizes, for smoke runs")
+    args = parser.parse_args(argv)
+    names = sorted(p.stem for p in Path(__file__).parent.glob("bench_*.py"))
+    if args.only:
+        names = [n for n in names if n in args.only]
+    sections = []
+    for name in names:
+        t0 = time.perf_counter()
+        print(f"[bench] {name} ...", file=sys.stderr, flush=True)
+        section = importlib.import_module(f"benchmarks.{name}").run(quick=args.quick)
+        sections.append(section.rstrip() + f"\n\n_{name} took {time.perf_counter() - t0:.0f} s._\n")
+        Path("benchmarks/results").mkdir(parents=True, exist_ok=True)
+        Path(f"benchmarks/results/{name}.md").write_text(section)
+    header = ("# Benchmarks\n\nProduced by `make bench` (`python -m benchmarks.run_all`). "
+              f"Machine: {machine_description()}.\n\n")
+    Path(args.out).write_text(header + "\n".join(sections))
+    print(f"wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
