@@ -73,6 +73,8 @@ BASE_COLUMNS: list[Column] = [
     Column("imu_az_mps2", "m/s^2", "float64", "imu", True, "specific force along body z (+9.81 at rest)"),
     Column("imu_yaw_rate_radps", "rad/s", "float64", "imu", True, "gyro rate about body z"),
     Column("imu_yaw_rad", "rad", "float64", "imu", False, "IMU fused yaw"),
+    Column("imu_roll_rate_radps", "rad/s", "float64", "imu", False, "gyro rate about body x"),
+    Column("imu_pitch_rate_radps", "rad/s", "float64", "imu", False, "gyro rate about body y"),
     Column("cam_vx_mps", "m/s", "float64", "cam", False, "camera-mount velocity along body x"),
     Column("cam_vy_mps", "m/s", "float64", "cam", False, "camera-mount velocity along body y"),
     Column("cam_yaw_rate_radps", "rad/s", "float64", "cam", False, "camera yaw rate about body z"),

@@ -1,0 +1,66 @@
+"""BorealTC layout reader on the real public data (../shared/datasets/borealtc)."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from terrainml.io.borealtc import BorealTCError, discover, load_borealtc, read_pro_csv, run_table
+
+ROOT = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "borealtc"
+pytestmark = pytest.mark.skipif(not ROOT.is_dir(), reason=f"real dataset not present at {ROOT}")
+
+
+def test_discovers_all_runs_and_missing_imu():
+    runs, classes = discover(ROOT)
+    assert classes == ["ASPHALT", "FLOORING", "ICE", "SANDY_LOAM", "SNOW"]
+    counts = {c: sum(r.terrain == c for r in runs) for c in classes}
+    # SOURCE.md: ASPHALT 7, FLOORING 10, ICE 13, SANDY_LOAM 14, SNOW 27
+    assert counts == {"ASPHALT": 7, "FLOORING": 10, "ICE": 13, "SANDY_LOAM": 14, "SNOW": 27}
+    missing = sorted(r.run_id for r in runs if r.imu_path is None)
+    assert missing == ["FLOORING_04", "FLOORING_06", "ICE_01"]
+
+
+def test_run_table_units_and_gravity():
+    runs, classes = discover(ROOT)
+    run = next(r for r in runs if r.run_id == "ASPHALT_00")
+    df = run_table(run, classes)
+    raw = read_pro_csv(run.pro_path)
+    assert df["t_s"].iloc[-1] == pytest.approx(raw["time"].iloc[-1], abs=0.2)
+    assert np.diff(df["t_s"]).mean() == pytest.approx(0.01)
+    assert df["imu_az_mps2"].mean() == pytest.approx(9.8, abs=0.3)
+    # left motor speed (m/s) / radius on wheels 1 and 3
+    assert df["wheel1_omega_radps"].median() * 0.1651 == pytest.approx(raw["velL"].median(), rel=0.05)
+    assert (df["wheel1_current_a"] == df["wheel3_current_a"]).all()
+    assert df.attrs["terrainml"]["classes"] == classes
+    assert (df["terrain"] == 0).all()
+
+
+def test_columns_found_by_header_name_not_position(tmp_path):
+    cls = tmp_path / "GRAVEL"
+    cls.mkdir()
+    (cls / "pro_00.csv").write_text("velR,time,curR,velL,curL\n" + "\n".join(
+        f"0.5,{k * 0.15},2.0,0.4,1.0" for k in range(40)))
+    (cls / "imu_00.csv").write_text("az,ay,ax,time,wz,wy,wx\n" + "\n".join(
+        f"9.8,0.0,0.1,{k * 0.01},0.2,0.0,0.0" for k in range(600)))
+    tables, report = load_borealtc(tmp_path)
+    df = tables[0]
+    assert report.classes == ["GRAVEL"]
+    assert df["wheel2_omega_radps"].iloc[10] == pytest.approx(0.5 / 0.1651)
+    assert df["wheel1_current_a"].iloc[10] == pytest.approx(1.0)
+    assert df["imu_yaw_rate_radps"].iloc[10] == pytest.approx(0.2)
+    assert df["imu_valid"].all() and df["wheels_valid"].all()
+
+
+def test_missing_column_named(tmp_path):
+    cls = tmp_path / "ICE"
+    cls.mkdir()
+    (cls / "pro_00.csv").write_text("time,curL,velL,velR\n0,1,1,1\n0.1,1,1,1\n")
+    with pytest.raises(BorealTCError, match=r"pro_00\.csv: missing column 'curR'"):
+        read_pro_csv(cls / "pro_00.csv")
+
+
+def test_not_a_folder(tmp_path):
+    with pytest.raises(BorealTCError, match="not a folder"):
+        discover(tmp_path / "nope")
