@@ -285,7 +285,7 @@ def _parse_spec(data: Any, source: str) -> RobotSpec:
 
 
 # --------------------------------------------------------------------- loading
-BUILTIN_ROBOTS = ("agrimaro", "husky")
+BUILTIN_ROBOTS = ("agrimaro", "husky", "skidsteer_tracked")
 
 
 def load_robot(spec: str | Path | RobotSpec | None = None) -> RobotSpec:
