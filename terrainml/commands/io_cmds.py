@@ -1,7 +1,119 @@
-"""CLI commands of one area (see terrainml.commands)."""
+"""CLI commands of the io area: ``terrainml ingest`` and ``terrainml inspect``.
+
+Exit codes: 0 when a usable table resulted (warnings printed), 2 when not (message names the file
+and topic); never a traceback.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
 
 import typer
+from rich.console import Console
+from rich.table import Table
+
+console = Console(stderr=True, soft_wrap=True)
+
+
+def _progress_callback(progress, task):
+    def cb(done: int, total: int) -> None:
+        progress.update(task, completed=done, total=total)
+    return cb
+
+
+def ingest(
+    log: Path = typer.Argument(..., help="Log to ingest: .mcap (ROS 2), .bag (ROS 1), .csv or .parquet."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output run table (.parquet)."),
+    topics: Optional[str] = typer.Option(None, "--topics", help="Topic map YAML (or built-in name: default, "
+                                         "husky_robot_localization). Default: the SYSTEM §5 map."),
+    rate_hz: float = typer.Option(100.0, "--rate-hz", help="Base rate of the output table (Hz)."),
+    robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec YAML or built-in name "
+                                        "(agrimaro, husky). Default: agrimaro."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
+) -> None:
+    """Ingest a log into the canonical run table (Parquet).
+
+    Example: ``terrainml ingest run.mcap --out runs/run.parquet --robot agrimaro``
+
+    Example (real Husky bag): ``terrainml ingest test1.bag --out husky.parquet --robot husky
+    --topics husky_robot_localization``
+    """
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from terrainml.io.ingest import load_run
+    from terrainml.schema import write_run_parquet
+
+    try:
+        with Progress(TextColumn("[bold]ingest[/] {task.description}"), BarColumn(), TimeRemainingColumn(),
+                      console=console, transient=True, disable=quiet) as progress:
+            task = progress.add_task(str(log), total=None)
+            result = load_run(log, robot=robot, topic_map=topics, rate_hz=rate_hz,
+                              progress=_progress_callback(progress, task))
+        rep = result.report
+        for w in rep.warnings:
+            if not quiet:
+                console.print(f"[yellow]warning:[/] {w}", highlight=False, soft_wrap=True)
+        for e in rep.errors:
+            console.print(f"[red]error:[/] {e}", highlight=False, soft_wrap=True)
+        if not rep.usable:
+            console.print(f"[red]{log}: no usable run table; nothing written[/]", highlight=False, soft_wrap=True)
+            raise typer.Exit(2)
+        write_run_parquet(result.table, out)
+    except typer.Exit:
+        raise
+    except Exception as exc:  # noqa: BLE001 - last line of defence: a message, never a traceback
+        console.print(f"[red]error:[/] {log}: {type(exc).__name__}: {exc}", highlight=False, soft_wrap=True)
+        raise typer.Exit(2)
+    if not quiet:
+        console.print(f"[green]wrote[/] {out}: {rep.rows} rows, {rep.span_s:.1f} s at {rep.rate_hz:g} Hz; valid "
+                      + ", ".join(f"{g} {f:.0%}" for g, f in rep.valid_fraction.items()), highlight=False, soft_wrap=True)
+
+
+def inspect(
+    log: Path = typer.Argument(..., help="Log to inspect: .mcap (ROS 2) or .bag (ROS 1)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
+) -> None:
+    """Topics, types, counts, rates, time span, gaps (> 2 periods), corrupt/skipped counts of a log.
+
+    Example: ``terrainml inspect run.mcap --json``
+    """
+    from terrainml.io.inspect import inspect_log
+    from terrainml.io.readers import LogReadError
+
+    try:
+        info = inspect_log(log)
+    except LogReadError as exc:
+        console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        raise typer.Exit(2)
+    except Exception as exc:  # noqa: BLE001
+        console.print(f"[red]error:[/] {log}: {type(exc).__name__}: {exc}", highlight=False, soft_wrap=True)
+        raise typer.Exit(2)
+    if as_json:
+        print(json.dumps(info, indent=2))
+    else:
+        out = Console(width=max(Console().width, 150))
+        out.print(f"[bold]{info['file']}[/] ({info['format']}, {info['size_bytes']:,} bytes): "
+                  f"{info['messages']:,} messages over {info['span_s']:.2f} s", highlight=False, soft_wrap=True)
+        table = Table("topic", "type", "count", "rate Hz", "gaps", "max gap s", "corrupt", "undecoded")
+        for topic, d in info["topics"].items():
+            table.add_row(topic, d["type"], f"{d['count']:,}",
+                          f"{d['rate_hz']:.1f}" if d["rate_hz"] else "-", str(d["gaps"]),
+                          f"{d['max_gap_s']:.3f}" if d["max_gap_s"] is not None else "-",
+                          str(d["corrupt"]), str(d["undecoded"]))
+        out.print(table)
+        if info["truncated"]:
+            out.print("[yellow]truncated file (no footer): messages before the cut were read[/]")
+        if info["corrupt_chunks"]:
+            out.print(f"[yellow]{info['corrupt_chunks']} corrupt chunk(s) skipped[/]")
+        for w in info["warnings"]:
+            out.print(f"[yellow]warning:[/] {w}", highlight=False, soft_wrap=True)
+    if info["messages"] == 0:
+        raise typer.Exit(2)
 
 
 def register(app: typer.Typer) -> None:
-    """Add this area's commands to the top-level app."""
+    """Add ``ingest`` and ``inspect`` to the top-level app."""
+    app.command("ingest")(ingest)
+    app.command("inspect")(inspect)

@@ -1,0 +1,93 @@
+"""Resampling asynchronous samples onto the uniform base-rate grid (SYSTEM §5), vectorised.
+
+Rules
+-----
+* ``linear``: linear interpolation between the bracketing samples (continuous signals);
+* ``previous``: the latest sample at or before the tick (encoders, labels, confidence);
+* ``angle``: unwrap, interpolate linearly, wrap to (-pi, pi];
+* a tick is **invalid** where the bracketing interval (linear) or the age of the held sample
+  (previous) exceeds ``max_gap_s``, before the first sample, after the last, or where a used
+  sample is not finite. Invalid ticks hold NaN.
+
+The gap threshold used by ingest is ``2 * max(base period, median source period)``: two base
+periods as SYSTEM §5 says for sensors at or above the base rate; for slower sensors (a 10 Hz wheel
+odometry) their own spacing is not a gap (documented departure).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_EPS = 1e-9
+
+
+def clean_times(t: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """Order that sorts ``t`` and drops duplicate stamps; returns (index, n_out_of_order, n_duplicates)."""
+    t = np.asarray(t)
+    out_of_order = int(np.count_nonzero(np.diff(t) < 0)) if len(t) > 1 else 0
+    order = np.argsort(t, kind="stable")
+    ts = t[order]
+    keep = np.ones(len(ts), bool)
+    if len(ts) > 1:
+        keep[1:] = np.diff(ts) > 0
+    return order[keep], out_of_order, int(np.count_nonzero(~keep))
+
+
+def gap_threshold_s(t_src_s: np.ndarray, rate_hz: float) -> float:
+    base = 1.0 / rate_hz
+    if len(t_src_s) < 2:
+        return 2.0 * base
+    return 2.0 * max(base, float(np.median(np.diff(t_src_s))))
+
+
+def resample(t_src: np.ndarray, values: np.ndarray, grid: np.ndarray, *, method: str = "linear",
+             max_gap_s: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+    """Resample ``values`` (n, k) sampled at sorted unique ``t_src`` (n,) onto ``grid`` (m,).
+
+    Returns (out (m, k) with NaN where invalid, valid (m, k) bool).
+    """
+    t_src = np.asarray(t_src, float)
+    v = np.asarray(values, float)
+    squeeze = v.ndim == 1
+    if squeeze:
+        v = v[:, None]
+    m, k = len(grid), v.shape[1]
+    if len(t_src) == 0:
+        out = np.full((m, k), np.nan)
+        return (out[:, 0], np.zeros(m, bool)) if squeeze else (out, np.zeros((m, k), bool))
+    if method == "angle":
+        finite = np.isfinite(v)
+        vu = np.where(finite, v, 0.0)
+        vu = np.unwrap(vu, axis=0)
+        vu[~finite] = np.nan
+        out, valid = resample(t_src, vu, grid, method="linear", max_gap_s=max_gap_s)
+        out = np.pi - np.mod(np.pi - out, 2.0 * np.pi)
+        out[~valid] = np.nan
+        return (out[:, 0], valid[:, 0]) if squeeze else (out, valid)
+    n = len(t_src)
+    idx = np.searchsorted(t_src, grid + _EPS, side="right")     # samples at or before the tick
+    lo = np.clip(idx - 1, 0, n - 1)
+    have_prev = idx >= 1
+    finite = np.isfinite(v)
+    if method == "previous":
+        age = grid - t_src[lo]
+        ok_t = have_prev & (age <= max_gap_s + _EPS)
+        out = v[lo].copy()
+        valid = ok_t[:, None] & finite[lo]
+    elif method == "linear":
+        hi = np.clip(idx, 0, n - 1)
+        exact = have_prev & (np.abs(grid - t_src[lo]) <= _EPS)
+        inside = have_prev & (idx < n)
+        span = t_src[hi] - t_src[lo]
+        ok_t = exact | (inside & (span <= max_gap_s + _EPS))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            w = np.where(exact | (span <= 0), 0.0, (grid - t_src[lo]) / np.where(span > 0, span, 1.0))
+        with np.errstate(invalid="ignore"):
+            out = v[lo] + w[:, None] * (v[hi] - v[lo])
+        out[exact] = v[lo[exact]]
+        fin = finite[lo] & np.where(exact[:, None], True, finite[hi])
+        valid = ok_t[:, None] & fin
+    else:
+        raise ValueError(f"unknown resample method {method!r}")
+    out = np.where(valid, out, np.nan)
+    return (out[:, 0], valid[:, 0]) if squeeze else (out, valid)
