@@ -1,7 +1,139 @@
-"""CLI commands of one area (see terrainml.commands)."""
+"""CLI of the lookup area: ``terrainml lookup build|show|plot`` (SYSTEM §10, §15)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
 
 import typer
+
+lookup_app = typer.Typer(
+    name="lookup",
+    help="Desired-slip lookup: class x {traction, braking, steady} targets from terramechanics "
+         "and the robot spec (SYSTEM §10).\n\nExample: `terrainml lookup show --json`",
+    no_args_is_help=True,
+    add_completion=False,
+)
+
+_ROBOT_HELP = "Robot spec: a YAML path or a built-in name (agrimaro, husky); default agrimaro."
+
+
+def _err(msg: str) -> None:
+    from rich.console import Console
+
+    Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {msg}", highlight=False)
+
+
+def _load_table(robot: Optional[str], table_path: Optional[Path]):
+    """Build a table for ``robot`` or read ``table_path``; exit 2 with a clear message on error."""
+    from terrainml.lookup.table import DesiredSlipTable, LookupTableError
+    from terrainml.robot import RobotSpecError
+
+    try:
+        if table_path is not None:
+            return DesiredSlipTable.load(table_path, robot=robot)
+        return DesiredSlipTable.build(robot)
+    except (LookupTableError, RobotSpecError) as exc:
+        _err(str(exc))
+        raise typer.Exit(2) from None
+
+
+def _rich_table(table) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=f"Desired slip, robot '{table.robot_spec.get('name')}' "
+                    f"(spec sha256 {table.robot_sha256[:12]})")
+    for col, just in (("id", "right"), ("class", "left"), ("traction", "right"),
+                      ("braking", "right"), ("steady", "right"), ("kind T/B", "left"),
+                      ("notes", "left")):
+        t.add_column(col, justify=just)
+    for r in table.rows:
+        t.add_row(str(r.id), r.name, f"{r.traction:+.3f}", f"{r.braking:+.3f}",
+                  f"{r.steady:+.3f}", f"{r.traction_kind}/{r.braking_kind}",
+                  "; ".join(r.notes))
+    Console().print(t)
+
+
+@lookup_app.command("build")
+def build(
+    out: Path = typer.Option(..., "--out", help="Output JSON file for the table."),
+    robot: Optional[str] = typer.Option(None, "--robot", help=_ROBOT_HELP),
+) -> None:
+    """Compute the desired-slip table for a robot and write it as JSON.
+
+    The JSON holds the targets, the class parameters they came from, the robot spec and its sha256, and a checksum (verified on load).
+
+    Example: ``terrainml lookup build --robot husky --out table.json``
+    """
+    table = _load_table(robot, None)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        table.save(out)
+    except OSError as exc:
+        _err(f"{out}: cannot write the table ({exc.strerror or exc})")
+        raise typer.Exit(2) from None
+    _rich_table(table)
+    from rich.console import Console
+
+    Console(stderr=True, soft_wrap=True).print(f"wrote {out}")
+
+
+@lookup_app.command("show")
+def show(
+    robot: Optional[str] = typer.Option(None, "--robot", help=_ROBOT_HELP),
+    as_json: bool = typer.Option(False, "--json",
+                                 help='Print {"classes": [{"id", "name", "traction", "braking", '
+                                      '"steady"}, ...]} instead of a table.'),
+    table_path: Optional[Path] = typer.Option(None, "--table",
+                                              help="Show a saved table (verified) instead of "
+                                                   "building one."),
+) -> None:
+    """Print the desired-slip table (rich table, or JSON with --json).
+
+    Example: ``terrainml lookup show --json``
+    """
+    table = _load_table(robot, table_path)
+    if as_json:
+        print(json.dumps(table.to_summary()))
+    else:
+        _rich_table(table)
+
+
+@lookup_app.command("plot")
+def plot(
+    out: Path = typer.Option(..., "--out", help="Output PNG file."),
+    robot: Optional[str] = typer.Option(None, "--robot", help=_ROBOT_HELP),
+    table_path: Optional[Path] = typer.Option(None, "--table", help="Mark a saved table's "
+                                                                    "targets."),
+) -> None:
+    """Draw mu_net(s) per class with the chosen targets (like thesis Fig. 8.1).
+
+    Traction (^), braking (v) and steady (o) points are marked on each class's curve.
+
+    Example: ``terrainml lookup plot --out lookup.png``
+    """
+    from terrainml.lookup.plot import plot_table
+
+    table = _load_table(robot, table_path)
+    try:
+        path = plot_table(out, robot=robot if robot is not None else
+                          _robot_of(table), table=table)
+    except OSError as exc:
+        _err(f"{out}: cannot write the figure ({exc.strerror or exc})")
+        raise typer.Exit(2) from None
+    from rich.console import Console
+
+    Console(stderr=True, soft_wrap=True).print(f"wrote {path}")
+
+
+def _robot_of(table):
+    from terrainml.robot import RobotSpec
+
+    return RobotSpec.from_dict(table.robot_spec, source="table")
 
 
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the top-level app."""
+    app.add_typer(lookup_app, name="lookup")

@@ -1,0 +1,466 @@
+"""Desired-slip table: class x {traction, braking, steady} from terramechanics and the robot spec
+(SYSTEM §10, thesis §8.2).
+
+For every terrain class the table evaluates the vehicle's net traction coefficient
+
+    mu_net(s) = sum_i (H_i(s) - R_i(s)) / sum_i W_i          s in [-0.8, 0.8]
+
+with H and R from :mod:`terrainml.lookup.terramechanics` (the one source of truth the simulator
+uses too), evaluated at every wheel's static load ``W_i`` (``robot.static_wheel_loads_n()``:
+mass and centre of mass), the robot's wheel radius and width, and the same slip on every wheel.
+With equal loads this is the single-wheel curve mu_net = DP / W of SYSTEM §6.2; with unequal
+loads it is the load-weighted vehicle curve (the drawbar-pull coefficient of the whole robot).
+
+Targets (SYSTEM §10):
+
+* traction ``s_T``: slip of the traction peak point (argmax of mu_net on s > 0) when the peak is
+  interior; otherwise (the curve still rises, or is flat within ``PLATEAU_TOL`` of its maximum,
+  at s = 0.8) the *knee*, the smallest s with mu_net >= 0.9 max;
+* braking ``s_B < 0``: the same on the braking branch (argmin of mu_net on s < 0, or the
+  smallest |s| with mu_net <= 0.9 min);
+* steady ``s_S``: the root of mu_net(s) = 0 on s >= 0 (thrust balances motion resistance at
+  cruise: the minimal slip that keeps speed).
+
+Rules that keep the table physical, enforced at build time (a violation by the physics is
+clamped and recorded in the class's ``notes``) and verified again by :meth:`from_json`:
+
+* ``s_T >= s_S + 0.03``;
+* rigid-surface classes (tyre-road force model: ``pavement``, ``compacted_dirt``) have their
+  traction target in [0.10, 0.20];
+* no target beyond 0.6 in magnitude.
+
+The JSON form carries the table, the class parameters it came from, the slip grid, the wheel
+loads, the robot spec and its sha256, and a checksum of the whole content.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from terrainml.classes import TERRAIN_CLASSES
+from terrainml.robot import RobotSpec, load_robot
+
+__all__ = ["ClassTargets", "DesiredSlipTable", "LookupTableError", "RIGID_CLASSES",
+           "mu_net_curve", "STATES"]
+
+SCHEMA = "terrainml.desired_slip_table"
+SCHEMA_VERSION = 1
+STATES = ("idle", "steady", "traction", "braking")
+
+S_MIN, S_MAX, N_GRID = -0.8, 0.8, 1601          # 0.001 slip resolution
+KNEE_FRACTION = 0.9                             # knee: first slip reaching 90 % of the extreme
+PLATEAU_TOL = 0.01                              # peak within 1 % of the end value = no peak
+MIN_TRACTION_MARGIN = 0.03                      # rule: s_T >= s_S + 0.03
+RIGID_PEAK_RANGE = (0.10, 0.20)                 # rule: rigid-surface traction peaks
+MAX_MAGNITUDE = 0.6                             # rule: |target| <= 0.6
+RIGID_CLASSES = ("pavement", "compacted_dirt")  # tyre-road (Burckhardt) classes, SYSTEM §6.1
+
+
+class LookupTableError(ValueError):
+    """A table that cannot be built, read or verified."""
+
+
+@dataclass(frozen=True)
+class ClassTargets:
+    """One row of the table (slip values are SAE slip, dimensionless)."""
+
+    id: int
+    name: str
+    traction: float
+    braking: float
+    steady: float
+    traction_kind: str = "peak"      # "peak" | "knee"
+    braking_kind: str = "peak"
+    mu_net_traction_max: float = float("nan")   # mu_net at the traction extreme
+    mu_net_braking_min: float = float("nan")    # mu_net at the braking extreme
+    notes: tuple[str, ...] = ()
+    params: dict = field(default_factory=dict)  # the class's TerrainParams, as a dict
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["notes"] = list(self.notes)
+        return d
+
+
+def _tm():
+    """The terramechanics module (imported lazily so policy-only users do not need it)."""
+    from terrainml.lookup import terramechanics
+
+    return terramechanics
+
+
+def slip_grid() -> np.ndarray:
+    """The table's slip grid, shape (1601,), -0.8 .. 0.8 in steps of 0.001."""
+    return np.linspace(S_MIN, S_MAX, N_GRID)
+
+
+def mu_net_curve(params: Any, robot: RobotSpec, slip: np.ndarray,
+                 loads_n: Sequence[float] | None = None) -> np.ndarray:
+    """Vehicle net traction coefficient ``sum (H_i - R_i) / sum W_i`` at equal slip on all wheels.
+
+    Parameters
+    ----------
+    params : TerrainParams of one class.
+    robot : RobotSpec (wheel radius and width; loads from mass and CoM unless given).
+    slip : array, shape (M,), SAE slip.
+    loads_n : optional per-wheel static loads, N (default ``robot.static_wheel_loads_n()``).
+
+    Returns
+    -------
+    ndarray, shape (M,), dimensionless.
+    """
+    tm = _tm()
+    loads = list(robot.static_wheel_loads_n() if loads_n is None else loads_n)
+    s = np.asarray(slip, dtype=float)
+    total = np.zeros_like(s)
+    w_sum = 0.0
+    # equal loads give equal curves: evaluate each distinct load once
+    for w in sorted(set(round(x, 9) for x in loads)):
+        k = sum(1 for x in loads if round(x, 9) == w)
+        if w <= 0.0:
+            continue
+        total += k * w * np.asarray(tm.net_traction_coefficient(params, w, s, robot), dtype=float)
+        w_sum += k * w
+    if w_sum <= 0.0:
+        raise LookupTableError(f"robot {robot.name!r}: no wheel carries load "
+                               f"(static loads {loads}); check mass and centre of mass")
+    return total / w_sum
+
+
+def _params_dict(params: Any) -> dict:
+    if dataclasses.is_dataclass(params):
+        d = dataclasses.asdict(params)
+    else:  # pragma: no cover - TerrainParams is a dataclass by contract
+        d = dict(vars(params))
+    return {k: (v if not isinstance(v, float) or math.isfinite(v) else None) for k, v in d.items()}
+
+
+def _extreme(s: np.ndarray, mu: np.ndarray, sign: float) -> tuple[float, str, float]:
+    """Peak or knee on one branch. ``sign`` +1 for traction (max), -1 for braking (min).
+
+    ``s`` is ordered away from zero (|s| increasing). Returns (slip, kind, mu at extreme).
+    """
+    y = sign * mu
+    k = int(np.argmax(y))
+    y_max = float(y[k])
+    y_end = float(y[-1])
+    interior = k < len(y) - 1 and (y_max - y_end) > PLATEAU_TOL * max(abs(y_max), 1e-9)
+    if interior:
+        return float(s[k]), "peak", float(mu[k])
+    # knee: first |s| reaching 90 % of the branch maximum (of the magnitude when it is > 0)
+    level = KNEE_FRACTION * y_max if y_max > 0 else y_max
+    j = int(np.argmax(y >= level))
+    return float(s[j]), "knee", float(mu[k])
+
+
+def _steady_root(params: Any, robot: RobotSpec, loads: Sequence[float],
+                 s_pos: np.ndarray, mu_pos: np.ndarray) -> float | None:
+    """Smallest s >= 0 with mu_net(s) = 0 (refined with brentq), None when mu_net < 0 throughout."""
+    if mu_pos[0] >= 0.0:
+        return 0.0
+    above = np.flatnonzero(mu_pos >= 0.0)
+    if above.size == 0:
+        return None
+    j = int(above[0])
+    a, b = float(s_pos[j - 1]), float(s_pos[j])
+    from scipy.optimize import brentq
+
+    def f(x: float) -> float:
+        return float(mu_net_curve(params, robot, np.array([x]), loads)[0])
+
+    try:
+        return float(brentq(f, a, b, xtol=1e-7))
+    except ValueError:  # pragma: no cover - grid bracket always changes sign
+        return 0.5 * (a + b)
+
+
+def _build_row(cid: int, params: Any, robot: RobotSpec, loads: Sequence[float]) -> ClassTargets:
+    name = TERRAIN_CLASSES[cid]
+    s = slip_grid()
+    mu = mu_net_curve(params, robot, s, loads)
+    if not np.all(np.isfinite(mu)):
+        raise LookupTableError(f"class {name}: terramechanics gave non-finite mu_net")
+    i0 = int(np.argmin(np.abs(s)))
+    s_pos, mu_pos = s[i0:], mu[i0:]
+    s_neg, mu_neg = s[: i0 + 1][::-1], mu[: i0 + 1][::-1]   # 0 .. -0.8
+    notes: list[str] = []
+
+    s_t, kind_t, mu_t = _extreme(s_pos[1:], mu_pos[1:], +1.0)
+    s_b, kind_b, mu_b = _extreme(s_neg[1:], mu_neg[1:], -1.0)
+    if mu_t <= 0.0:
+        notes.append(f"mu_net never positive (max {mu_t:.3f}): the robot cannot keep speed on "
+                     "this class by thrust alone; traction target is the least-negative point")
+    root = _steady_root(params, robot, loads, s_pos, mu_pos)
+    if root is None:
+        s_s = max(0.0, s_t - MIN_TRACTION_MARGIN)
+        notes.append(f"no root of mu_net(s) = 0 in [0, {S_MAX}]: steady set to s_T - "
+                     f"{MIN_TRACTION_MARGIN}")
+    else:
+        s_s = root
+
+    # --- rules (SYSTEM §10); violations by the physics are clamped and recorded
+    if name in RIGID_CLASSES:
+        lo, hi = RIGID_PEAK_RANGE
+        if not lo <= s_t <= hi:
+            new = min(max(s_t, lo), hi)
+            notes.append(f"rigid-surface traction {kind_t} at s={s_t:.3f} outside "
+                         f"[{lo}, {hi}]: clamped to {new:.3f}")
+            s_t = new
+    for label, val in (("traction", s_t), ("braking", s_b), ("steady", s_s)):
+        if abs(val) > MAX_MAGNITUDE:
+            new = math.copysign(MAX_MAGNITUDE, val)
+            notes.append(f"{label} target {val:.3f} beyond |{MAX_MAGNITUDE}|: clamped")
+            if label == "traction":
+                s_t = new
+            elif label == "braking":
+                s_b = new
+            else:
+                s_s = new
+    if s_t < s_s + MIN_TRACTION_MARGIN - 1e-12:
+        new_t = s_s + MIN_TRACTION_MARGIN
+        if new_t <= MAX_MAGNITUDE and not (name in RIGID_CLASSES and new_t > RIGID_PEAK_RANGE[1]):
+            notes.append(f"traction {s_t:.3f} < steady {s_s:.3f} + {MIN_TRACTION_MARGIN}: "
+                         f"raised to {new_t:.3f}")
+            s_t = new_t
+        else:
+            new_s = s_t - MIN_TRACTION_MARGIN
+            notes.append(f"traction {s_t:.3f} < steady {s_s:.3f} + {MIN_TRACTION_MARGIN} and "
+                         f"cannot be raised: steady lowered to {new_s:.3f}")
+            s_s = new_s
+    return ClassTargets(id=cid, name=name, traction=round(s_t, 6), braking=round(s_b, 6),
+                        steady=round(s_s, 6), traction_kind=kind_t, braking_kind=kind_b,
+                        mu_net_traction_max=round(mu_t, 6), mu_net_braking_min=round(mu_b, 6),
+                        notes=tuple(notes), params=_params_dict(params))
+
+
+def _checksum(doc: dict) -> str:
+    body = {k: v for k, v in doc.items() if k != "checksum_sha256"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, allow_nan=False).encode()).hexdigest()
+
+
+class DesiredSlipTable:
+    """Class x {traction, braking, steady} desired-slip targets for one robot (SYSTEM §10).
+
+    Build with :meth:`build`; read with :meth:`from_json`. ``target(class_id, state)`` is a dict
+    lookup (cheap enough for every 10 ms tick).
+
+    Attributes
+    ----------
+    rows : tuple of ClassTargets, ordered by class id.
+    robot_sha256 : sha256 of the robot spec the table was built for.
+    robot_spec : dict, that spec.
+    wheel_loads_n : tuple of static wheel loads used, N.
+    """
+
+    def __init__(self, rows: Iterable[ClassTargets], *, robot_spec: dict, robot_sha256: str,
+                 wheel_loads_n: Sequence[float], meta: dict | None = None) -> None:
+        self.rows = tuple(sorted(rows, key=lambda r: r.id))
+        if not self.rows:
+            raise LookupTableError("a desired-slip table needs at least one class")
+        self.robot_spec = dict(robot_spec)
+        self.robot_sha256 = str(robot_sha256)
+        self.wheel_loads_n = tuple(float(w) for w in wheel_loads_n)
+        self.meta = dict(meta or {})
+        self._by_id = {r.id: r for r in self.rows}
+        self._targets: dict[tuple[int, str], float] = {}
+        for r in self.rows:
+            self._targets[(r.id, "idle")] = 0.0
+            self._targets[(r.id, "steady")] = float(r.steady)
+            self._targets[(r.id, "traction")] = float(r.traction)
+            self._targets[(r.id, "braking")] = float(r.braking)
+        self._rank = {r.id: (abs(r.traction), abs(r.steady), abs(r.braking)) for r in self.rows}
+        names = {r.name: r.id for r in self.rows}
+        self.fallback_class_id: int = (names["pavement"] if "pavement" in names
+                                       else min(self._rank, key=self._rank.__getitem__))
+
+    # ------------------------------------------------------------------ build
+    @classmethod
+    def build(cls, robot: RobotSpec | str | None = None,
+              class_ids: Sequence[int] | None = None, params: dict | None = None
+              ) -> "DesiredSlipTable":
+        """Compute the table for a robot from the nominal class parameters.
+
+        Parameters
+        ----------
+        robot : RobotSpec, built-in name or YAML path (default the reference robot).
+        class_ids : classes to include (default all eight of SYSTEM §6.1).
+        params : optional {class_id: TerrainParams} overriding the nominal parameters.
+        """
+        robot = load_robot(robot)
+        tm = _tm()
+        loads = robot.static_wheel_loads_n()
+        if any(not math.isfinite(w) for w in loads) or sum(loads) <= 0:
+            raise LookupTableError(f"robot {robot.name!r}: invalid static wheel loads {loads}")
+        if min(loads) <= 0.0:
+            raise LookupTableError(
+                f"robot {robot.name!r}: a wheel has no static load ({[round(w, 1) for w in loads]}"
+                " N): the centre of mass lies outside the wheel support polygon")
+        ids = list(range(len(TERRAIN_CLASSES))) if class_ids is None else [int(c) for c in class_ids]
+        rows = []
+        for cid in ids:
+            p = (params or {}).get(cid) or tm.nominal_params(cid)
+            rows.append(_build_row(cid, p, robot, loads))
+        from terrainml import __version__
+
+        meta = {"terrainml_version": __version__,
+                "slip_grid": {"min": S_MIN, "max": S_MAX, "n": N_GRID},
+                "rules": {"min_traction_margin": MIN_TRACTION_MARGIN,
+                          "rigid_peak_range": list(RIGID_PEAK_RANGE),
+                          "rigid_classes": list(RIGID_CLASSES),
+                          "max_magnitude": MAX_MAGNITUDE, "knee_fraction": KNEE_FRACTION,
+                          "plateau_tol": PLATEAU_TOL}}
+        return cls(rows, robot_spec=robot.to_dict(), robot_sha256=robot.sha256(),
+                   wheel_loads_n=loads, meta=meta)
+
+    # ------------------------------------------------------------------ lookup
+    @property
+    def class_ids(self) -> tuple[int, ...]:
+        return tuple(r.id for r in self.rows)
+
+    def class_name(self, class_id: int) -> str:
+        return self.row(class_id).name
+
+    def row(self, class_id: int) -> ClassTargets:
+        try:
+            return self._by_id[int(class_id)]
+        except KeyError:
+            raise LookupTableError(f"class id {class_id} not in the desired-slip table "
+                                   f"(classes {list(self._by_id)})") from None
+
+    def target(self, class_id: int, state: str) -> float:
+        """Unsigned-direction target of a class in a state (``idle`` -> 0; braking < 0)."""
+        try:
+            return self._targets[(class_id, state)]
+        except KeyError:
+            if state not in STATES:
+                raise ValueError(f"unknown wheel state {state!r}; expected one of "
+                                 f"{', '.join(STATES)}") from None
+            return self._targets[(self.row(class_id).id, state)]
+
+    def aggressiveness_rank(self, class_id: int) -> tuple[float, float, float]:
+        """(|traction|, |steady|, |braking|): smaller is less aggressive (policy, SYSTEM §10)."""
+        return self._rank[int(class_id)]
+
+    def check_rules(self) -> list[str]:
+        """Violations of the SYSTEM §10 rules (empty when the table is physical)."""
+        bad = []
+        for r in self.rows:
+            if not r.traction >= r.steady + MIN_TRACTION_MARGIN - 1e-9:
+                bad.append(f"{r.name}: traction {r.traction} < steady {r.steady} + "
+                           f"{MIN_TRACTION_MARGIN}")
+            if r.name in RIGID_CLASSES and not (RIGID_PEAK_RANGE[0] - 1e-9 <= r.traction
+                                                <= RIGID_PEAK_RANGE[1] + 1e-9):
+                bad.append(f"{r.name}: rigid-surface traction {r.traction} outside "
+                           f"{list(RIGID_PEAK_RANGE)}")
+            for label in ("traction", "braking", "steady"):
+                v = getattr(r, label)
+                if not (math.isfinite(v) and abs(v) <= MAX_MAGNITUDE + 1e-9):
+                    bad.append(f"{r.name}: {label} {v} beyond |{MAX_MAGNITUDE}|")
+            if not r.braking < 0.0 or not r.traction > 0.0 or not r.steady >= 0.0:
+                bad.append(f"{r.name}: signs must be traction > 0, braking < 0, steady >= 0")
+        return bad
+
+    # ------------------------------------------------------------------ io
+    def to_summary(self) -> dict:
+        """``{"classes": [{"id", "name", "traction", "braking", "steady"}, ...]}``."""
+        return {"classes": [{"id": r.id, "name": r.name, "traction": round(r.traction, 4),
+                             "braking": round(r.braking, 4), "steady": round(r.steady, 4)}
+                            for r in self.rows]}
+
+    def to_dict(self) -> dict:
+        doc = {"schema": SCHEMA, "schema_version": SCHEMA_VERSION,
+               "robot": {"name": self.robot_spec.get("name"), "sha256": self.robot_sha256,
+                         "spec": self.robot_spec},
+               "wheel_loads_n": list(self.wheel_loads_n),
+               "meta": self.meta,
+               "classes": [r.to_dict() for r in self.rows]}
+        doc["checksum_sha256"] = _checksum(doc)
+        return doc
+
+    def to_json(self, indent: int | None = 2) -> str:
+        return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
+
+    @classmethod
+    def from_json(cls, text: str, *, robot: RobotSpec | str | None = None,
+                  source: str = "<json>") -> "DesiredSlipTable":
+        """Read and verify a table: schema, checksum, robot spec hash, rules.
+
+        Parameters
+        ----------
+        text : the JSON written by :meth:`to_json`.
+        robot : optional robot the table must have been built for (sha256 compared).
+        source : name used in error messages (a file path).
+        """
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise LookupTableError(f"{source}: not valid JSON ({exc})") from None
+        if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
+            raise LookupTableError(f"{source}: not a terrainml desired-slip table "
+                                   f"(schema {doc.get('schema') if isinstance(doc, dict) else None!r})")
+        if doc.get("schema_version") != SCHEMA_VERSION:
+            raise LookupTableError(f"{source}: schema version {doc.get('schema_version')!r}, "
+                                   f"this terrainml reads {SCHEMA_VERSION}")
+        if doc.get("checksum_sha256") != _checksum(doc):
+            raise LookupTableError(f"{source}: checksum mismatch: the table was modified after "
+                                   "it was written")
+        try:
+            spec = doc["robot"]["spec"]
+            sha = doc["robot"]["sha256"]
+            spec_sha = RobotSpec.from_dict(spec, source=f"{source}:robot").sha256()
+            rows = [ClassTargets(id=int(c["id"]), name=str(c["name"]),
+                                 traction=float(c["traction"]), braking=float(c["braking"]),
+                                 steady=float(c["steady"]),
+                                 traction_kind=str(c.get("traction_kind", "peak")),
+                                 braking_kind=str(c.get("braking_kind", "peak")),
+                                 mu_net_traction_max=float(c.get("mu_net_traction_max")
+                                                           or float("nan")),
+                                 mu_net_braking_min=float(c.get("mu_net_braking_min")
+                                                          or float("nan")),
+                                 notes=tuple(c.get("notes", ())), params=dict(c.get("params", {})))
+                    for c in doc["classes"]]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise LookupTableError(f"{source}: malformed desired-slip table ({exc})") from None
+        if spec_sha != sha:
+            raise LookupTableError(f"{source}: robot spec sha256 {spec_sha[:12]} does not match "
+                                   f"the recorded {str(sha)[:12]}")
+        if robot is not None:
+            want = load_robot(robot)
+            if want.sha256() != sha:
+                raise LookupTableError(
+                    f"{source}: table was built for robot {spec.get('name')!r} "
+                    f"(sha256 {str(sha)[:12]}), not for {want.name!r} "
+                    f"(sha256 {want.sha256()[:12]}); rebuild it with `terrainml lookup build`")
+        table = cls(rows, robot_spec=spec, robot_sha256=sha,
+                    wheel_loads_n=doc.get("wheel_loads_n", []), meta=doc.get("meta", {}))
+        bad = table.check_rules()
+        if bad:
+            raise LookupTableError(f"{source}: table breaks the SYSTEM §10 rules: "
+                                   + "; ".join(bad))
+        return table
+
+    def save(self, path) -> None:
+        from pathlib import Path
+
+        Path(path).write_text(self.to_json() + "\n")
+
+    @classmethod
+    def load(cls, path, *, robot: RobotSpec | str | None = None) -> "DesiredSlipTable":
+        from pathlib import Path
+
+        p = Path(path)
+        if not p.is_file():
+            raise LookupTableError(f"{p}: desired-slip table file not found")
+        return cls.from_json(p.read_text(), robot=robot, source=str(p))
+
+    def __repr__(self) -> str:
+        body = ", ".join(f"{r.name}: T{r.traction:+.3f} B{r.braking:+.3f} S{r.steady:+.3f}"
+                         for r in self.rows)
+        return f"DesiredSlipTable({self.robot_spec.get('name')!r}; {body})"

@@ -1,0 +1,56 @@
+"""``terrainml lookup build|show|plot`` (CLI contract of the lookup issue)."""
+
+from __future__ import annotations
+
+import json
+
+from typer.testing import CliRunner
+
+from terrainml.cli import app
+from terrainml.lookup.table import DesiredSlipTable
+from terrainml.robot import load_robot
+
+runner = CliRunner()
+
+
+def test_show_json_has_the_contract_shape():
+    res = runner.invoke(app, ["lookup", "show", "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert list(doc) == ["classes"]
+    assert [c["id"] for c in doc["classes"]] == list(range(8))
+    first = doc["classes"][0]
+    assert list(first) == ["id", "name", "traction", "braking", "steady"]
+    assert first["name"] == "pavement" and 0.10 <= first["traction"] <= 0.20
+    assert all(c["braking"] < 0 < c["traction"] for c in doc["classes"])
+
+
+def test_build_writes_a_verified_table_and_show_reads_it(tmp_path):
+    out = tmp_path / "sub" / "table.json"
+    res = runner.invoke(app, ["lookup", "build", "--robot", "husky", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    table = DesiredSlipTable.load(out, robot="husky")
+    assert table.robot_sha256 == load_robot("husky").sha256()
+    res = runner.invoke(app, ["lookup", "show", "--table", str(out), "--robot", "husky"])
+    assert res.exit_code == 0 and "pavement" in res.stdout
+
+
+def test_unusable_inputs_exit_2_with_a_message_and_no_traceback(tmp_path):
+    res = runner.invoke(app, ["lookup", "show", "--robot", str(tmp_path / "missing.yaml")])
+    assert res.exit_code == 2 and "missing.yaml" in res.output
+    assert "Traceback" not in res.output
+    bad = tmp_path / "table.json"
+    bad.write_text("{not json")
+    res = runner.invoke(app, ["lookup", "show", "--table", str(bad)])
+    assert res.exit_code == 2 and "table.json" in res.output and "Traceback" not in res.output
+    out = tmp_path / "t.json"
+    runner.invoke(app, ["lookup", "build", "--out", str(out)])
+    res = runner.invoke(app, ["lookup", "show", "--table", str(out), "--robot", "husky"])
+    assert res.exit_code == 2 and "rebuild" in res.output
+
+
+def test_plot_writes_a_png(tmp_path):
+    out = tmp_path / "fig.png"
+    res = runner.invoke(app, ["lookup", "plot", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 20_000
