@@ -1,0 +1,274 @@
+"""The simulator: vehicle + terrain + low-level control + sensors, with a closed-loop hook.
+
+Example
+-------
+>>> from terrainml.sim import Simulator, make_scenario
+>>> sim = Simulator(make_scenario("straight", "short_grass", duration_s=10.0), seed=1)
+>>> result = sim.run()
+>>> result.mean_true_slip(5.0, 10.0).round(2)          # doctest: +SKIP
+
+Closed loop: ``sim.run(controller=f)`` calls ``f(sample)`` every control tick (100 Hz) with the
+current *measured* sample (a dict of canonical run-table columns, SYSTEM §5, plus ``t_s``); ``f``
+returns per-wheel wheel-speed command offsets (rad/s, shape (N,)) that are added to the inverse
+kinematics' set-points (thesis eq. 8.3) or ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from terrainml.robot import RobotSpec, load_robot
+from terrainml.sim import physics as ph
+from terrainml.sim.control import DriveGains, _ik_kernel
+from terrainml.sim.scenarios import Scenario
+from terrainml.sim.sensors import LOG_RATE_HZ, SensorConfig, SensorModel
+from terrainml.sim.terrain import ALPHA_GRID, LOAD_FACTORS, TerrainRealisation, realise
+from terrainml.sim.truth import slip_sae, wheel_states
+
+CONTROL_RATE_HZ = 100.0
+Controller = Callable[[dict], "np.ndarray | None"]
+
+
+@dataclass
+class SimResult:
+    """Truth log (200 Hz), commands (100 Hz), sensors and run summary of one simulated run."""
+
+    robot: RobotSpec
+    scenario: Scenario
+    terrain: TerrainRealisation
+    sensors: SensorModel
+    log: np.ndarray                 # (n_rows, n_cols) see terrainml.sim.physics
+    cmd: np.ndarray                 # (n_ticks, 3) commanded twist at 100 Hz (tick k at t = k/100)
+    omega_cmd: np.ndarray           # (n_ticks, N) wheel speed set-points incl. controller offsets
+    seed: int
+    energy_j: float
+    distance_m: float
+    stuck_events: int
+    summary: dict = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ truth views
+    @property
+    def n_wheels(self) -> int:
+        return self.robot.n_wheels
+
+    def wblock(self, name: str) -> np.ndarray:
+        n = self.n_wheels
+        j = ph.WLOG.index(name)
+        return self.log[:, ph.N_LOG_BODY + j * n: ph.N_LOG_BODY + (j + 1) * n]
+
+    @property
+    def t_s(self) -> np.ndarray:
+        return self.log[:, ph.L_T]
+
+    def true_slip(self) -> np.ndarray:
+        """(n_rows, N) SYSTEM §7.1 slip of true wheel speed vs true wheel-centre longitudinal velocity."""
+        return slip_sae(self.wblock("omega") * self.robot.wheel_radius_m, self.wblock("v_long"))
+
+    def wheel_long_accel(self) -> np.ndarray:
+        """(n_rows, N) inertial acceleration of each wheel centre along its heading (m/s^2)."""
+        lg = self.log
+        # origin acceleration -> wheel point: a_i = a_o + rdot k x d_i - r^2 d_i  (d_i from origin)
+        wx = np.array([w.x_m for w in self.robot.wheels])
+        wy = np.array([w.y_m for w in self.robot.wheels])
+        r = lg[:, ph.L_R][:, None]
+        rd = lg[:, ph.L_RDOT][:, None]
+        ax = lg[:, ph.L_AX][:, None] - rd * wy - r * r * wx
+        ay = lg[:, ph.L_AY][:, None] + rd * wx - r * r * wy
+        d = self.wblock("delta")
+        return ax * np.cos(d) + ay * np.sin(d)
+
+    def true_states(self, rows: np.ndarray | None = None) -> np.ndarray:
+        """(n, N) SYSTEM §7.2 state codes from true acceleration (rows: default every 100 Hz row)."""
+        rows = np.arange(0, len(self.log), 2) if rows is None else rows
+        vl = self.wblock("v_long")[rows]
+        p = self.wheel_long_accel()[rows] * vl
+        return wheel_states(self.t_s[rows], p, vl)
+
+    def mean_true_slip(self, t0: float, t1: float) -> np.ndarray:
+        m = (self.t_s >= t0) & (self.t_s <= t1)
+        return self.true_slip()[m].mean(axis=0)
+
+    def class_under_robot(self, rows: np.ndarray | None = None) -> np.ndarray:
+        rows = np.arange(len(self.log)) if rows is None else rows
+        return self.terrain.layout.class_at(self.log[rows, ph.L_X], self.log[rows, ph.L_Y])
+
+
+class Simulator:
+    """One simulated run. Build with a :class:`Scenario`; call :meth:`run` (or :meth:`step` per tick).
+
+    Parameters
+    ----------
+    scenario : what to drive where (:func:`terrainml.sim.scenarios.make_scenario`).
+    robot : RobotSpec (reference robot if None).
+    seed : int or ``numpy.random.SeedSequence``; everything random derives from it.
+    spread : terrain parameter spread around the class nominal (SYSTEM §6.1, ±15%).
+    params : explicit TerrainParams per layout cell (overrides the draw; e.g. nominal for calibration).
+    dt_s : physics step (s), at most 1/500.
+    """
+
+    def __init__(self, scenario: Scenario, robot: RobotSpec | str | None = None, seed=0, *,
+                 spread: float = 0.15, params=None, dt_s: float = 0.001, gains: DriveGains = DriveGains(),
+                 sensor_config: SensorConfig = SensorConfig()):
+        if dt_s > 1.0 / 500.0:
+            raise ValueError(f"dt_s must be <= 0.002 s (>= 500 Hz), got {dt_s}")
+        self.robot = load_robot(robot)
+        self.scenario = scenario
+        self.seed_seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
+        self.seed = int(self.seed_seq.entropy) if not isinstance(seed, np.random.SeedSequence) else -1
+        ss_terrain, ss_sensor = self.seed_seq.spawn(2)
+        self.terrain = realise(scenario.layout, self.robot, np.random.default_rng(ss_terrain), spread, params)
+        rb = self.robot
+        n = rb.n_wheels
+        self.dt = float(dt_s)
+        self.n_sub = int(round(1.0 / CONTROL_RATE_HZ / self.dt))
+        self.log_every = int(round(1.0 / LOG_RATE_HZ / self.dt))
+        if self.n_sub * self.dt * CONTROL_RATE_HZ != 1.0 and abs(self.n_sub * self.dt * CONTROL_RATE_HZ - 1) > 1e-9:
+            raise ValueError("dt_s must divide the 10 ms control period")
+        self.n_ticks = int(round(scenario.duration_s * CONTROL_RATE_HZ))
+        self.n_rows = self.n_ticks * 2 + 1
+        self.sensors = SensorModel(self.n_rows, n, np.random.default_rng(ss_sensor), sensor_config)
+        self.wx = np.array([w.x_m for w in rb.wheels], float)
+        self.wy = np.array([w.y_m for w in rb.wheels], float)
+        self.steerable = np.array([w.steerable for w in rb.wheels], bool)
+        self._steer_i = self.steerable.astype(np.int64)
+        self.com = np.array([rb.com_x_m, rb.com_y_m])
+        self.geom = np.array([rb.mass_kg, rb.yaw_inertia_kgm2, rb.wheel_radius_m, rb.wheel_inertia_kgm2,
+                              rb.com_height_m, self.terrain.load_ref_n])
+        self.ctrl = np.array([gains.kp_nms_per_rad, gains.ki_nm_per_rad, rb.max_wheel_torque_nm,
+                              rb.steering_rate_max_radps, rb.steering_deadband_rad, gains.steer_tau_s,
+                              gains.omega_lag_tau_s])
+        a = np.vstack([np.ones(n), self.wx, self.wy])
+        self.load_pinv = np.ascontiguousarray(np.linalg.pinv(a))
+        self.static_loads = np.array(rb.static_wheel_loads_n())
+        lay = scenario.layout
+        self.lay_grid = np.ascontiguousarray(lay.grid.astype(np.int64))
+        self.lay_cell = float(lay.cell_m)
+        self.lay_ox, self.lay_oy = (float(v) for v in lay.origin_xy_m)
+        self._alpha0 = float(ALPHA_GRID[0])
+        self._alpha_step = float(ALPHA_GRID[1] - ALPHA_GRID[0])
+        # state
+        self.body = np.zeros(9)
+        self.wheel = np.zeros((ph.N_WROWS, n))
+        self.wheel[ph.W_LOAD] = self.static_loads
+        self.acc = np.zeros(3)
+        self.log = np.zeros((self.n_rows, ph.N_LOG_BODY + len(ph.WLOG) * n))
+        self._init_log_row()
+        self.log_row = 1
+        self.tick = 0
+        self.cmd = np.zeros((self.n_ticks, 3))
+        self.omega_cmd = np.zeros((self.n_ticks, n))
+        self.delta_cmd = np.zeros(n)
+        self._stuck_time = 0.0
+        self.stuck_events = 0
+        self._stuck_flag = False
+        self._mount = (rb.camera.x_m, rb.camera.y_m) if rb.camera is not None else (0.0, 0.0)
+
+    def _init_log_row(self) -> None:
+        n = self.robot.n_wheels
+        base = ph.N_LOG_BODY
+        self.log[0, base + 6 * n: base + 7 * n] = self.static_loads
+        self.log[0, base + 7 * n: base + 8 * n] = self.scenario.layout.cell_index(
+            self.wx, self.wy)
+
+    # ------------------------------------------------------------------ stepping
+    @property
+    def t_s(self) -> float:
+        return self.tick / CONTROL_RATE_HZ
+
+    @property
+    def done(self) -> bool:
+        return self.tick >= self.n_ticks
+
+    def measured_sample(self, row: int | None = None) -> dict:
+        """Measured sensor sample (canonical column names) at a 100 Hz log row (default: latest)."""
+        row = self.log_row - 1 if row is None else row
+        row = row - (row % 2)
+        return sample_dict(self, self.log, np.array([row]), self.robot)
+
+    def step(self, controller: Controller | None = None) -> None:
+        """Advance one control tick (10 ms): command, inverse kinematics, controller, physics."""
+        if self.done:
+            raise RuntimeError("simulation finished")
+        k = self.tick
+        b = self.body
+        vx, vy, r = self.scenario.command(self.t_s, b[ph.B_X], b[ph.B_Y], b[ph.B_PSI])
+        omega = np.empty(self.robot.n_wheels)
+        delta = np.empty(self.robot.n_wheels)
+        _ik_kernel(vx, vy, r, self.wx, self.wy, self.robot.wheel_radius_m, self.delta_cmd, self._steer_i,
+                   1e-3, omega, delta)
+        if controller is not None:
+            off = controller(self.measured_sample())
+            if off is not None:
+                omega = omega + np.asarray(off, dtype=float).reshape(-1)
+        self.delta_cmd = delta
+        self.cmd[k] = (vx, vy, r)
+        self.omega_cmd[k] = omega
+        self.log_row = ph.run_substeps(
+            self.n_sub, self.dt, self.body, self.wheel, self.acc, omega, delta, self.wx, self.wy, self.com, self.geom, self.ctrl,
+            self.load_pinv, self.static_loads, self.terrain.h_coef, self.terrain.r_coef,
+            self.terrain.y_coef, self.terrain.hmax_coef, LOAD_FACTORS, self._alpha0,
+            self._alpha_step, self.terrain.rough_amp_m, self.terrain.rough_k_radpm,
+            self.terrain.rough_phase, self.lay_grid, self.lay_cell, self.lay_ox, self.lay_oy,
+            self.log, self.log_row, self.log_every)
+        self._update_stuck()
+        self.tick += 1
+
+    def _update_stuck(self) -> None:
+        """A stuck event: commanded >= 0.2 m/s but true speed < 20% of it for 1 s."""
+        c = self.cmd[self.tick]
+        vc = math.hypot(c[0], c[1])
+        row = self.log[self.log_row - 1]
+        if vc >= 0.2 and math.hypot(row[ph.L_VX], row[ph.L_VY]) < 0.2 * vc:
+            self._stuck_time += 1.0 / CONTROL_RATE_HZ
+        else:
+            self._stuck_time = 0.0
+            self._stuck_flag = False
+        if not self._stuck_flag and self._stuck_time >= 1.0:
+            self.stuck_events += 1
+            self._stuck_flag = True
+
+    def run(self, controller: Controller | None = None, progress: Callable[[float], None] | None = None) -> SimResult:
+        """Run to the scenario's end; ``controller`` as in the module docstring."""
+        while not self.done:
+            self.step(controller)
+            if progress is not None and self.tick % 500 == 0:
+                progress(self.tick / self.n_ticks)
+        return self.result()
+
+    def result(self) -> SimResult:
+        rows = self.log_row
+        return SimResult(self.robot, self.scenario, self.terrain, self.sensors, self.log[:rows].copy(),
+                         self.cmd[:self.tick].copy(), self.omega_cmd[:self.tick].copy(), self.seed,
+                         float(self.acc[0]), float(self.acc[1]), int(self.stuck_events),
+                         {"energy_j": float(self.acc[0]), "distance_m": float(self.acc[1]),
+                          "stuck_events": int(self.stuck_events), "duration_s": float(self.acc[2])})
+
+
+def sample_dict(sim_or_result, log: np.ndarray, rows: np.ndarray, robot: RobotSpec) -> dict:
+    """Measured sample(s) at 100 Hz log ``rows`` as canonical columns (arrays when len(rows) > 1)."""
+    sens: SensorModel = sim_or_result.sensors
+    n = robot.n_wheels
+    one = len(rows) == 1
+    out: dict = {"t_s": log[rows, ph.L_T]}
+    om = sens.wheel_omega(log, rows, n)
+    st = sens.steer(log, rows, n)
+    cur = sens.current(log, rows, n, robot.torque_constant_nm_per_a)
+    for i in range(n):
+        out[f"wheel{i + 1}_omega_radps"] = om[:, i]
+        out[f"wheel{i + 1}_steer_rad"] = st[:, i]
+        out[f"wheel{i + 1}_current_a"] = cur[:, i]
+    acc, gyro = sens.imu(log, rows)
+    out["imu_ax_mps2"], out["imu_ay_mps2"], out["imu_az_mps2"] = acc[:, 0], acc[:, 1], acc[:, 2]
+    out["imu_yaw_rate_radps"] = gyro[:, 2]
+    if robot.camera is not None:
+        mount = (robot.camera.x_m, robot.camera.y_m)
+        vmx, vmy, rate, yaw, conf = sens.cam_body(log, rows, mount)
+        out.update(cam_vx_mps=vmx, cam_vy_mps=vmy, cam_yaw_rate_radps=rate, cam_yaw_rad=yaw,
+                   cam_confidence=conf)
+    if one:
+        out = {k: float(v[0]) for k, v in out.items()}
+    return out
