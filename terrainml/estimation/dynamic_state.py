@@ -1,0 +1,146 @@
+"""Dynamic state per wheel: idle | steady | traction | braking (SYSTEM §7.2; thesis eq. 8.6).
+
+::
+
+    a_wheel_i = a_body + (-r^2) [x_i, y_i]            (acceleration of the wheel centre; the
+                                                        yaw-acceleration term is not in the state)
+    a_long_i  = a_wheel_i . [cos delta_i, sin delta_i]
+    Power_i   = a_long_i * v_long_i                    (m^2/s^3)
+
+``a_body = (ax, ay)`` is the EKF's inertial acceleration of the body origin in body axes
+(it already holds the centripetal term of the body's path), so on a steady arc the wheel-centre
+acceleration is perpendicular to the wheel's velocity and Power is ~0 (steady).
+
+Classification with hysteresis and minimum dwell (beyond the thesis):
+enter traction when Power > theta, leave it when Power < theta / 2; braking symmetric;
+idle when |v_long| < 0.05 m/s; a new state is taken only after it has persisted ``dwell_s``
+(0.2 s, a debounce), so no state is shorter than the dwell. This is the same definition as the
+simulator's truth (``terrainml.sim.truth.wheel_states``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from terrainml.schema import WHEEL_STATES
+
+IDLE, STEADY, TRACTION, BRAKING = range(4)  # codes in the order of schema.WHEEL_STATES
+STATE_NAMES = WHEEL_STATES
+THETA_M2PS3 = 0.02
+DWELL_S = 0.2
+IDLE_SPEED_MPS = 0.05
+
+
+def wheel_power(ax_mps2, ay_mps2, yaw_rate_radps, steer_rad, v_long_mps, wheel_x_m, wheel_y_m):
+    """Power_i = a_long_i v_long_i (m^2/s^3); broadcasts like :func:`slip.wheel_v_long`."""
+    r2 = np.asarray(yaw_rate_radps)[..., None] ** 2
+    a_x = np.asarray(ax_mps2)[..., None] - r2 * np.asarray(wheel_x_m)
+    a_y = np.asarray(ay_mps2)[..., None] - r2 * np.asarray(wheel_y_m)
+    d = np.asarray(steer_rad, dtype=float)
+    a_long = a_x * np.cos(d) + a_y * np.sin(d)
+    return a_long * np.asarray(v_long_mps)
+
+
+def raw_state(power, v_long, prev, theta: float = THETA_M2PS3, idle_speed: float = IDLE_SPEED_MPS):
+    """Hysteresis classification (no dwell) given the previous state codes; vectorised over wheels."""
+    power = np.asarray(power, dtype=float)
+    prev = np.asarray(prev)
+    half = 0.5 * theta
+    cand = np.full(power.shape, STEADY, dtype=np.int8)
+    cand = np.where(power > theta, TRACTION, cand)
+    cand = np.where(power < -theta, BRAKING, cand)
+    # hysteresis: stay in traction/braking until Power crosses theta/2
+    cand = np.where((prev == TRACTION) & (power > half), TRACTION, cand)
+    cand = np.where((prev == BRAKING) & (power < -half), BRAKING, cand)
+    cand = np.where(np.abs(v_long) < idle_speed, IDLE, cand)
+    cand = np.where(~np.isfinite(power) | ~np.isfinite(v_long), prev, cand)
+    return cand.astype(np.int8)
+
+
+class WheelStateMachine:
+    """Per-tick classifier with hysteresis and minimum dwell for N wheels.
+
+    Dwell as a debounce: a new raw state must persist for ``dwell_s`` before it is taken (the
+    definition the simulator's truth uses, ``terrainml.sim.truth.wheel_states``), so no state
+    is shorter than the dwell and a one-tick blip never shows. Hysteresis is relative to the
+    committed state. The first tick takes its raw state at once.
+
+    Parameters
+    ----------
+    n_wheels : int
+    theta : Power threshold (m^2/s^3).
+    dwell_s : minimum persistence of a new state before it is taken (s).
+    """
+
+    def __init__(self, n_wheels: int, theta: float = THETA_M2PS3, dwell_s: float = DWELL_S,
+                 idle_speed: float = IDLE_SPEED_MPS) -> None:
+        self.theta = float(theta)
+        self.dwell_s = float(dwell_s)
+        self.idle_speed = float(idle_speed)
+        self.state = np.full(n_wheels, IDLE, dtype=np.int8)
+        self.cand = [IDLE] * n_wheels
+        self.cand_since = [-math.inf] * n_wheels
+        self.started = False
+
+    def step(self, t_s: float, power, v_long) -> np.ndarray:
+        """Advance one tick; returns the state codes (N,) (copy).
+
+        Same rules as :func:`raw_state` plus the dwell, written with plain floats per wheel
+        (a handful of wheels: cheaper than numpy calls).
+        """
+        theta, half, idle = self.theta, 0.5 * self.theta, self.idle_speed
+        state = self.state
+        for i in range(len(state)):
+            p = float(power[i])
+            v = float(v_long[i])
+            cur = int(state[i])
+            if p != p or v != v:  # non-finite: keep the state
+                raw = cur
+            elif abs(v) < idle:
+                raw = IDLE
+            elif cur == TRACTION and p > half:  # hysteresis: leave traction below theta/2
+                raw = TRACTION
+            elif cur == BRAKING and p < -half:
+                raw = BRAKING
+            elif p > theta:
+                raw = TRACTION
+            elif p < -theta:
+                raw = BRAKING
+            else:
+                raw = STEADY
+            if not self.started:
+                state[i] = raw
+                self.cand[i] = raw
+                continue
+            if raw == cur:
+                self.cand[i] = cur
+            elif raw != self.cand[i]:
+                self.cand[i] = raw
+                self.cand_since[i] = t_s
+            if raw == self.cand[i] and raw != cur and t_s - self.cand_since[i] >= self.dwell_s:
+                state[i] = raw
+        self.started = True
+        return state.copy()
+
+
+def classify_states(t_s, power, v_long, theta: float = THETA_M2PS3, dwell_s: float = DWELL_S,
+                    idle_speed: float = IDLE_SPEED_MPS) -> np.ndarray:
+    """Offline version: state codes (n_ticks, N) from Power and v_long arrays (n_ticks, N).
+
+    Runs the same :class:`WheelStateMachine` tick by tick (the dwell makes it sequential), so
+    offline and online states are identical.
+    """
+    power = np.atleast_2d(np.asarray(power, dtype=float))
+    v_long = np.atleast_2d(np.asarray(v_long, dtype=float))
+    sm = WheelStateMachine(power.shape[1], theta, dwell_s, idle_speed)
+    out = np.empty(power.shape, dtype=np.int8)
+    for k, t in enumerate(np.asarray(t_s, dtype=float)):
+        out[k] = sm.step(t, power[k], v_long[k])
+    return out
+
+
+def state_names(codes) -> np.ndarray:
+    """Map state codes to names (``idle|steady|traction|braking``)."""
+    return np.asarray(STATE_NAMES, dtype=object)[np.asarray(codes, dtype=int)]

@@ -1,0 +1,169 @@
+"""Offline estimation of a whole run table: the EST table of contract 2.
+
+:func:`estimate_run` converts the run table to numpy once and loops over
+:meth:`OnlineEstimator.core` (the code the online path runs), so ``estimate_run(table)`` equals
+feeding the rows one by one to :meth:`OnlineEstimator.step`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from terrainml.estimation.ekf import EkfPreset
+from terrainml.estimation.online import OnlineEstimator, est_state_columns, passthrough_columns
+from terrainml.robot import RobotSpec, load_robot
+from terrainml.schema import WHEEL_STATES, infer_n_wheels, table_metadata
+
+
+@dataclass
+class Diagnostics:
+    """Per-tick filter diagnostics of an offline run.
+
+    Attributes
+    ----------
+    rows : list of str, measurement row names (e.g. ``cam_vx``), order of the arrays' columns.
+    innovation : ndarray (n_ticks, m), y = z - h(x) (NaN where the row was not used).
+    innovation_var : ndarray (n_ticks, m), S_ii (NaN where not used).
+    n_gated : int, camera rows rejected by the robust preset's gate.
+    preset : str
+    """
+
+    rows: list[str]
+    innovation: np.ndarray
+    innovation_var: np.ndarray
+    n_gated: int = 0
+    preset: str = ""
+    extra: dict = field(default_factory=dict)
+
+
+def _robot_for(table: pd.DataFrame, robot: RobotSpec | str | None) -> RobotSpec:
+    if robot is not None:
+        return load_robot(robot)
+    meta = table_metadata(table)
+    spec = meta.get("robot_spec")
+    if spec:
+        return RobotSpec.from_json(spec if isinstance(spec, str) else __import__("json").dumps(spec))
+    return load_robot(None)
+
+
+def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | str | None = None,
+                          preset: str | EkfPreset = "robust",
+                          progress: Callable[[int, int], None] | None = None,
+                          on_tick: Callable[[int, OnlineEstimator], None] | None = None,
+                          ) -> tuple[pd.DataFrame, Diagnostics]:
+    """Like :func:`estimate_run`, also returning :class:`Diagnostics` (innovations, S).
+
+    ``progress(k, n)`` is called about 100 times; ``on_tick(k, estimator)`` after every tick
+    (tests use it to inspect ``estimator.ekf.P``).
+    """
+    robot = _robot_for(table, robot)
+    n_wh = infer_n_wheels(table)
+    if n_wh != robot.n_wheels:
+        raise ValueError(f"run table has {n_wh} wheel(s) (wheel{{i}}_omega_radps columns) but robot "
+                         f"spec '{robot.name}' has {robot.n_wheels}")
+    cols = set(table.columns)
+    est = OnlineEstimator(robot, preset, has_imu_yaw="imu_yaw_rad" in cols,
+                          has_cam_yaw="cam_yaw_rad" in cols)
+    n = len(table)
+    m = len(est.row_columns)
+    N = robot.n_wheels
+    t = table["t_s"].to_numpy(dtype=float)
+    Z = np.full((n, m), np.nan)
+    for k, c in enumerate(est.row_columns):
+        if c in cols:
+            Z[:, k] = table[c].to_numpy(dtype=float)
+    gv = {}
+    for g in ("wheels", "imu", "cam", "steer"):
+        name = f"{g}_valid"
+        gv[g] = table[name].to_numpy(dtype=bool) if name in cols else np.ones(n, dtype=bool)
+    V = np.isfinite(Z)
+    for k, g in enumerate(est.row_groups):
+        V[:, k] &= gv[g]
+    groups = {g: [k for k in range(m) if est.row_groups[k] == g] for g in gv}
+    seen = {g: (V[:, idx].any(axis=1) if idx else np.zeros(n, dtype=bool)) for g, idx in groups.items()}
+    omega = np.column_stack([table[f"wheel{i}_omega_radps"].to_numpy(dtype=float) for i in range(1, N + 1)])
+    omega = np.where(gv["wheels"][:, None], omega, np.nan)
+
+    out_x = np.empty((n, est.model.n))
+    out_steer = np.empty((n, N))
+    out_slip = np.empty((n, N))
+    out_state = np.empty((n, N), dtype=np.int8)
+    out_vlong = np.empty((n, N))
+    out_nis = np.empty(n)
+    out_dof = np.empty(n, dtype=np.int64)
+    out_ok = np.empty(n, dtype=bool)
+    out_sa = np.empty(n, dtype=bool)
+    innov = np.empty((n, m))
+    innov_var = np.empty((n, m))
+    ekf = est.ekf
+    step_every = max(1, n // 100)
+    for k in range(n):
+        est.core(t[k], Z[k], V[k], omega[k], {g: bool(seen[g][k]) for g in seen})
+        out_x[k] = ekf.x
+        out_steer[k] = est.steer
+        out_slip[k] = est.slip
+        out_state[k] = est.state
+        out_vlong[k] = est.v_long
+        out_nis[k] = ekf.nis
+        out_dof[k] = ekf.nis_dof
+        out_ok[k] = est.estimator_ok
+        out_sa[k] = est.slip_available
+        innov[k] = ekf.y
+        innov_var[k] = ekf.S_diag
+        if on_tick is not None:
+            on_tick(k, est)
+        if progress is not None and k % step_every == 0:
+            progress(k, n)
+    if progress is not None:
+        progress(n, n)
+
+    data: dict[str, object] = {
+        "t_s": t, "ekf_x_m": out_x[:, 0], "ekf_y_m": out_x[:, 1], "ekf_yaw_rad": out_x[:, 2],
+        "ekf_vx_mps": out_x[:, 3], "ekf_vy_mps": out_x[:, 4], "ekf_yaw_rate_radps": out_x[:, 5],
+        "ekf_ax_mps2": out_x[:, 6], "ekf_ay_mps2": out_x[:, 7],
+    }
+    for i in range(N):
+        data[f"ekf_steer{i + 1}_rad"] = out_steer[:, i]
+    data["ekf_gyro_bias_radps"] = out_x[:, est.model.i_bias]
+    names = np.asarray(WHEEL_STATES, dtype=object)
+    for i in range(N):
+        data[f"slip{i + 1}"] = out_slip[:, i]
+    for i in range(N):
+        data[f"state{i + 1}"] = names[out_state[:, i]]
+    for i in range(N):
+        data[f"v_long{i + 1}_mps"] = out_vlong[:, i]
+    data.update({"nis": out_nis, "nis_dof": out_dof, "estimator_ok": out_ok, "slip_available": out_sa})
+    df = pd.DataFrame(data, columns=est_state_columns(N))
+    for i in range(N):
+        df[f"state{i + 1}"] = df[f"state{i + 1}"].astype(str)
+    for c in passthrough_columns(N, list(table.columns)):
+        df[c] = table[c].to_numpy()
+    df.attrs["terrainml"] = dict(table_metadata(table), estimation_preset=est.preset.name,
+                                 estimation_robot=robot.name)
+    diag = Diagnostics(rows=[r.name for r in est.model.rows], innovation=innov,
+                       innovation_var=innov_var, n_gated=ekf.n_gated, preset=est.preset.name)
+    return df, diag
+
+
+def estimate_run(table: pd.DataFrame, robot: RobotSpec | str | None = None,
+                 preset: str | EkfPreset = "robust") -> pd.DataFrame:
+    """Run the EKF, slip and dynamic state over a canonical run table.
+
+    Parameters
+    ----------
+    table : DataFrame (n_ticks, ...), canonical run table (SYSTEM §5).
+    robot : RobotSpec, name or path; None: the spec stored in the table's metadata, else the
+        reference robot.
+    preset : ``"robust"`` (default) or ``"thesis"``.
+
+    Returns
+    -------
+    DataFrame (n_ticks, ...) with the EST columns of contract 2: ``t_s, ekf_*, slip{i}, state{i},
+    v_long{i}_mps, nis, nis_dof, estimator_ok, slip_available`` plus pass-through columns
+    (wheel omega/current/steer, IMU, every ``*_valid``, ``terrain``, ``run_id``, ``gt_*``).
+    """
+    return estimate_run_detailed(table, robot, preset)[0]
