@@ -1,0 +1,1 @@
+"""Steady windows and feature sets (SYSTEM §8): :mod:`.windows`, :mod:`.sets`."""

@@ -1,0 +1,465 @@
+"""Steady 2 s windows cut from an EST table (SYSTEM §8), offline and online with one function.
+
+:func:`cut_windows` serves both paths:
+
+* offline (``online=False``): windows start at row 0 and hop ``spec.hop_s`` (2.0 s:
+  non-overlapping, thesis §8.1) over a whole EST table;
+* online (``online=True``): windows END at the last row and hop ``spec.online_hop_s`` (0.5 s)
+  backwards, so a ring buffer holding exactly one window length of rows gives exactly one
+  window, the latest. :class:`OnlineWindower` feeds EST rows one at a time through a ring
+  buffer and calls :func:`cut_windows` every hop.
+
+Every per-row conversion is elementwise and every per-window reduction runs on the same rows
+in the same order in both paths, so a window cut online is bit-identical to the same window cut
+offline (``tests/features/test_windows.py`` proves it within 1e-9 on features).
+
+Steady rules (SYSTEM §8); a window is kept only if all hold, and every rule counts the windows
+it rejects (a window may fail several rules, so the counts may add up to more than the number
+rejected):
+
+``time_gap``       the rows span (T - 1) / rate_hz seconds within half a period (no missing ticks)
+``wheel_state``    every wheel ``steady`` or ``idle`` for >= 90% of ticks
+``speed``          mean body speed hypot(ekf_vx, ekf_vy) >= 0.2 m/s
+``acceleration``   mean |ekf_ax| and mean |ekf_ay| < 0.15 m/s^2 (EKF body acceleration states,
+                   centripetal part included, as the design states: steady arcs tighter than
+                   0.15 m/s^2 lateral are rejected; ``spec.remove_centripetal`` uses dv/dt instead)
+``steering``       std of every wheel's steering angle (ekf_steer{i}_rad, else the encoder)
+                   < 0.05 rad
+``terrain_label``  at most one terrain label among the rows (unlabelled rows are ignored)
+``channel_valid``  every used channel valid (finite, its sensor group valid) for >= 95% of ticks
+
+Raw windows (the CNN's input and the feature sets' input) hold the channels
+``slip_1..N, current_1..N, vx, vy, r, imu_ax, imu_ay, imu_az`` as an array (C, T) per window,
+T = 200 at 100 Hz. A robot without camera (``robot.camera is None``: slip not observable) gets
+no slip channels; ``spec.channels`` restricts the set (e.g. wheel channels only when the IMU is
+missing). Channel names travel with the windows. Invalid samples inside a kept window (at most
+5%) are filled by linear interpolation over the window's valid samples (edge values held).
+
+Channel sources and validity:
+
+==============  =========================  ==================================================
+channel         EST column                 valid when
+==============  =========================  ==================================================
+``slip_i``      ``slip{i}``                finite, ``wheels_valid``, ``cam_valid``, ``estimator_ok``
+``current_i``   ``wheel{i}_current_a``     finite, ``current_valid``
+``vx, vy, r``   ``ekf_vx_mps`` ...         finite, ``estimator_ok``
+``imu_a*``      ``imu_a*_mps2``            finite, ``imu_valid``
+==============  =========================  ==================================================
+
+A missing ``*_valid`` / ``estimator_ok`` column counts as valid (finiteness still applies); a
+missing data column makes its channel invalid everywhere.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import deque
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from terrainml.robot import RobotSpec, load_robot
+
+__all__ = ["WindowSpec", "Windows", "cut_windows", "OnlineWindower", "RULES",
+           "default_channels", "channel_source"]
+
+RULES: tuple[str, ...] = ("time_gap", "wheel_state", "speed", "acceleration", "steering",
+                          "terrain_label", "channel_valid")
+STEADY_STATES = ("steady", "idle")
+BODY_CHANNELS = ("vx", "vy", "r")
+IMU_CHANNELS = ("imu_ax", "imu_ay", "imu_az")
+
+
+@dataclass(frozen=True)
+class WindowSpec:
+    """Window length, hops and steady-rule thresholds (defaults: SYSTEM §8).
+
+    Attributes
+    ----------
+    window_s : float, window length in s (2.0).
+    hop_s : float, offline hop in s (2.0: non-overlapping).
+    online_hop_s : float, online hop in s (0.5).
+    rate_hz : float, base rate of the EST table in Hz (100).
+    min_steady_fraction : float, share of ticks each wheel must be steady or idle (0.9).
+    min_speed_mps : float, minimum mean body speed in m/s (0.2).
+    max_mean_abs_accel_mps2 : float, bound on mean |ax| and mean |ay| in m/s^2 (0.15).
+    max_steer_std_rad : float, bound on each wheel's steering std in rad (0.05).
+    min_valid_fraction : float, share of ticks each used channel must be valid (0.95).
+    remove_centripetal : bool, test dv/dt (ax - r vy, ay + r vx) instead of the EKF's
+        acceleration states (False: the design's literal rule).
+    channels : tuple of str or None, channels to cut (None: all the robot has).
+    """
+
+    window_s: float = 2.0
+    hop_s: float = 2.0
+    online_hop_s: float = 0.5
+    rate_hz: float = 100.0
+    min_steady_fraction: float = 0.9
+    min_speed_mps: float = 0.2
+    max_mean_abs_accel_mps2: float = 0.15
+    max_steer_std_rad: float = 0.05
+    min_valid_fraction: float = 0.95
+    remove_centripetal: bool = False
+    channels: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("window_s", "hop_s", "online_hop_s", "rate_hz"):
+            if not float(getattr(self, name)) > 0:
+                raise ValueError(f"WindowSpec.{name} must be > 0, got {getattr(self, name)!r}")
+        if self.n_samples < 2:
+            raise ValueError("WindowSpec: a window needs at least 2 samples")
+        if self.channels is not None:
+            object.__setattr__(self, "channels", tuple(str(c) for c in self.channels))
+            for c in self.channels:
+                channel_source(c)  # ValueError naming an unknown channel
+
+    @property
+    def n_samples(self) -> int:
+        """Samples per window T = round(window_s * rate_hz)."""
+        return int(round(self.window_s * self.rate_hz))
+
+    def hop_samples(self, online: bool = False) -> int:
+        """Hop in samples (offline or online)."""
+        return max(1, int(round((self.online_hop_s if online else self.hop_s) * self.rate_hz)))
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["channels"] = None if self.channels is None else list(self.channels)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "WindowSpec":
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ValueError(f"WindowSpec: unknown field(s) {sorted(unknown)}")
+        d = dict(d)
+        if d.get("channels") is not None:
+            d["channels"] = tuple(d["channels"])
+        return cls(**d)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True)
+
+
+# ------------------------------------------------------------------------------ channels
+def default_channels(robot: RobotSpec) -> tuple[str, ...]:
+    """Raw-window channels for a robot: slips (only with a camera), currents, body, IMU."""
+    n = robot.n_wheels
+    slips = tuple(f"slip_{i}" for i in range(1, n + 1)) if robot.camera is not None else ()
+    currents = tuple(f"current_{i}" for i in range(1, n + 1))
+    return slips + currents + BODY_CHANNELS + IMU_CHANNELS
+
+
+def channel_source(channel: str) -> tuple[str, tuple[str, ...]]:
+    """EST column and validity columns of a channel, e.g. ``("slip1", ("wheels_valid", ...))``."""
+    if channel.startswith("slip_"):
+        i = int(channel[5:])
+        return f"slip{i}", ("wheels_valid", "cam_valid", "estimator_ok")
+    if channel.startswith("current_"):
+        i = int(channel[8:])
+        return f"wheel{i}_current_a", ("current_valid",)
+    body = {"vx": "ekf_vx_mps", "vy": "ekf_vy_mps", "r": "ekf_yaw_rate_radps"}
+    if channel in body:
+        return body[channel], ("estimator_ok",)
+    if channel in IMU_CHANNELS:
+        return f"{channel}_mps2", ("imu_valid",)
+    raise ValueError(f"unknown window channel {channel!r}; expected slip_i, current_i, vx, vy, r, "
+                     f"imu_ax, imu_ay, imu_az")
+
+
+def _float_col(est: pd.DataFrame, name: str, n: int) -> np.ndarray:
+    if name not in est.columns:
+        return np.full(n, np.nan)
+    return pd.to_numeric(est[name], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
+
+
+def _bool_col(est: pd.DataFrame, name: str, n: int) -> np.ndarray:
+    if name not in est.columns:
+        return np.ones(n, dtype=bool)
+    v = est[name]
+    if v.dtype == bool:
+        return v.to_numpy(dtype=bool)
+    f = pd.to_numeric(v, errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
+    return np.isfinite(f) & (f != 0)
+
+
+# ------------------------------------------------------------------------------ container
+@dataclass
+class Windows:
+    """A stack of raw windows with their metadata.
+
+    Attributes
+    ----------
+    X : ndarray (n_windows, n_channels, n_samples), float64, SI units of the channels.
+    channels : tuple of str, channel names (length n_channels).
+    meta : DataFrame (n_windows rows): ``run_id`` (str), ``terrain`` (int, -1 unlabelled),
+        ``t_start_s``, ``t_end_s`` (s), ``start_index`` (row of the EST table).
+    rate_hz : float, sample rate of the windows.
+    """
+
+    X: np.ndarray
+    channels: tuple[str, ...]
+    meta: pd.DataFrame
+    rate_hz: float = 100.0
+    attrs: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.X.shape[0])
+
+    def __array__(self, dtype=None, copy=None):
+        return self.X if dtype is None else self.X.astype(dtype)
+
+    @property
+    def y(self) -> np.ndarray:
+        """Terrain labels (int), shape (n_windows,)."""
+        return self.meta["terrain"].to_numpy(dtype=np.int64)
+
+    @property
+    def groups(self) -> np.ndarray:
+        """Run ids (CV groups), shape (n_windows,)."""
+        return self.meta["run_id"].astype(str).to_numpy(dtype=object)
+
+    def subset(self, idx) -> "Windows":
+        idx = np.asarray(idx)
+        return Windows(self.X[idx], self.channels, self.meta.iloc[idx].reset_index(drop=True),
+                       self.rate_hz, dict(self.attrs))
+
+    def select_channels(self, channels: Sequence[str]) -> "Windows":
+        """The same windows with channels reordered/selected by name (KeyError names the channel)."""
+        pos = []
+        for c in channels:
+            if c not in self.channels:
+                raise KeyError(f"window channel {c!r} not present (have {list(self.channels)})")
+            pos.append(self.channels.index(c))
+        return Windows(self.X[:, pos, :], tuple(channels), self.meta, self.rate_hz, dict(self.attrs))
+
+    @staticmethod
+    def concat(items: Iterable["Windows"], channels: Sequence[str] | None = None,
+               n_samples: int | None = None, rate_hz: float = 100.0) -> "Windows":
+        items = [w for w in items if w is not None]
+        nonempty = [w for w in items if len(w)]
+        if channels is None:
+            channels = items[0].channels if items else ()
+        channels = tuple(channels)
+        for w in nonempty:
+            if tuple(w.channels) != channels:
+                raise ValueError(f"cannot concatenate windows with channels {list(w.channels)} "
+                                 f"and {list(channels)}")
+        if nonempty:
+            X = np.concatenate([w.X for w in nonempty], axis=0)
+            meta = pd.concat([w.meta for w in nonempty], ignore_index=True)
+            rate_hz = nonempty[0].rate_hz
+        else:
+            T = n_samples or 0
+            X = np.zeros((0, len(channels), T))
+            meta = _empty_meta()
+        return Windows(X, channels, meta, rate_hz)
+
+
+def _empty_meta() -> pd.DataFrame:
+    return pd.DataFrame({"run_id": pd.Series([], dtype=object), "terrain": pd.Series([], dtype=np.int64),
+                         "t_start_s": pd.Series([], dtype=float), "t_end_s": pd.Series([], dtype=float),
+                         "start_index": pd.Series([], dtype=np.int64)})
+
+
+# ------------------------------------------------------------------------------ cutting
+def _window_starts(n_rows: int, T: int, hop: int, online: bool) -> np.ndarray:
+    if n_rows < T:
+        return np.zeros(0, dtype=np.int64)
+    if online:
+        starts = np.arange(n_rows - T, -1, -hop)[::-1]
+    else:
+        starts = np.arange(0, n_rows - T + 1, hop)
+    return starts.astype(np.int64)
+
+
+def _steer_std(steer: np.ndarray) -> np.ndarray:
+    """Std per wheel (rows) over finite samples; 0 where a wheel has none."""
+    out = np.zeros(steer.shape[0])
+    for i, row in enumerate(steer):
+        row = row[np.isfinite(row)]
+        if row.size:
+            out[i] = row.std()
+    return out
+
+
+def _fill_invalid(x: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Linear interpolation of invalid samples over the valid ones (edges held)."""
+    if ok.all():
+        return x
+    idx = np.arange(x.size, dtype=np.float64)
+    if not ok.any():
+        return np.zeros_like(x)
+    out = x.copy()
+    out[~ok] = np.interp(idx[~ok], idx[ok], x[ok])
+    return out
+
+
+def cut_windows(est: pd.DataFrame, robot: RobotSpec | str | None = None,
+                spec: WindowSpec | None = None, online: bool = False,
+                run_id: str | None = None) -> tuple[Windows, dict[str, int]]:
+    """Cut steady windows from an EST table (contract 2) or a ring buffer of EST rows.
+
+    Parameters
+    ----------
+    est : DataFrame (n_rows, ...), EST table rows in time order at ``spec.rate_hz``.
+    robot : RobotSpec, name or path (None: reference robot); gives N and the channel set.
+    spec : WindowSpec (None: defaults).
+    online : bool, False: windows from row 0 every ``hop_s``; True: windows ending at the last
+        row every ``online_hop_s`` backwards (a one-window buffer gives the latest window).
+    run_id : str, run id for the metadata when the table has no ``run_id`` column.
+
+    Returns
+    -------
+    windows : Windows, the kept windows (X shape (n_kept, C, T)).
+    counts : dict, ``n_windows`` (candidates), ``n_kept``, ``n_rejected`` and per rule of
+        :data:`RULES` the number of candidate windows that rule rejected.
+    """
+    spec = spec or WindowSpec()
+    robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
+    channels = tuple(spec.channels) if spec.channels is not None else default_channels(robot)
+    N = robot.n_wheels
+    n = len(est)
+    T = spec.n_samples
+    starts = _window_starts(n, T, spec.hop_samples(online), online)
+    counts = {"n_windows": int(len(starts)), "n_kept": 0, "n_rejected": 0}
+    counts.update({r: 0 for r in RULES})
+    C = len(channels)
+    if len(starts) == 0:
+        return Windows(np.zeros((0, C, T)), channels, _empty_meta(), spec.rate_hz), counts
+
+    # ---- per-row arrays (elementwise only: identical whatever rows surround a window)
+    t = _float_col(est, "t_s", n)
+    vx = _float_col(est, "ekf_vx_mps", n)
+    vy = _float_col(est, "ekf_vy_mps", n)
+    r = _float_col(est, "ekf_yaw_rate_radps", n)
+    ax = _float_col(est, "ekf_ax_mps2", n)
+    ay = _float_col(est, "ekf_ay_mps2", n)
+    if spec.remove_centripetal:
+        ax, ay = ax - r * vy, ay + r * vx
+    speed = np.hypot(vx, vy)
+    steady = np.ones((N, n), dtype=bool)
+    for i in range(1, N + 1):
+        col = f"state{i}"
+        if col in est.columns:
+            steady[i - 1] = est[col].astype(str).isin(STEADY_STATES).to_numpy()
+        else:
+            steady[i - 1] = False
+    steer = np.empty((N, n))
+    for i in range(1, N + 1):
+        name = f"ekf_steer{i}_rad" if f"ekf_steer{i}_rad" in est.columns else f"wheel{i}_steer_rad"
+        steer[i - 1] = _float_col(est, name, n) if name in est.columns else 0.0
+    if "terrain" in est.columns:
+        lab = pd.to_numeric(est["terrain"], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
+        lab = np.where(np.isfinite(lab) & (lab >= 0), lab, np.nan)
+    else:
+        lab = np.full(n, np.nan)
+    if "run_id" in est.columns and n:
+        run_ids = est["run_id"].astype(str).to_numpy(dtype=object)
+    else:
+        run_ids = np.full(n, run_id if run_id is not None else "", dtype=object)
+    data = np.empty((C, n))
+    valid = np.empty((C, n), dtype=bool)
+    for k, ch in enumerate(channels):
+        col, vcols = channel_source(ch)
+        x = _float_col(est, col, n)
+        ok = np.isfinite(x)
+        for vc in vcols:
+            ok &= _bool_col(est, vc, n)
+        data[k], valid[k] = x, ok
+    for c in channels:
+        if c.startswith(("slip_", "current_")) and int(c.split("_")[1]) > N:
+            raise ValueError(f"channel {c!r} names a wheel the robot '{robot.name}' does not have "
+                             f"(N = {N})")
+
+    # ---- per-window rules
+    dt = 1.0 / spec.rate_hz
+    X_kept, meta_rows = [], []
+    for s in starts:
+        e = s + T
+        fails = []
+        tw = t[s:e]
+        span = tw[-1] - tw[0]
+        if not (np.all(np.isfinite(tw)) and abs(span - (T - 1) * dt) <= 0.5 * dt):
+            fails.append("time_gap")
+        if np.any(steady[:, s:e].mean(axis=1) < spec.min_steady_fraction):
+            fails.append("wheel_state")
+        sp = speed[s:e]
+        sp = sp[np.isfinite(sp)]
+        if sp.size == 0 or not sp.mean() >= spec.min_speed_mps:
+            fails.append("speed")
+        axw, ayw = np.abs(ax[s:e]), np.abs(ay[s:e])
+        axw, ayw = axw[np.isfinite(axw)], ayw[np.isfinite(ayw)]
+        if (axw.size == 0 or ayw.size == 0 or not axw.mean() < spec.max_mean_abs_accel_mps2
+                or not ayw.mean() < spec.max_mean_abs_accel_mps2):
+            fails.append("acceleration")
+        if N and np.any(_steer_std(steer[:, s:e]) >= spec.max_steer_std_rad):
+            fails.append("steering")
+        lw = lab[s:e]
+        labels = np.unique(lw[np.isfinite(lw)])
+        if labels.size > 1:
+            fails.append("terrain_label")
+        if C and np.any(valid[:, s:e].mean(axis=1) < spec.min_valid_fraction):
+            fails.append("channel_valid")
+        if fails:
+            counts["n_rejected"] += 1
+            for f in fails:
+                counts[f] += 1
+            continue
+        xw = np.empty((C, T))
+        for k in range(C):
+            xw[k] = _fill_invalid(data[k, s:e], valid[k, s:e])
+        X_kept.append(xw)
+        meta_rows.append((str(run_ids[s]), int(labels[0]) if labels.size else -1,
+                          float(tw[0]), float(tw[-1]), int(s)))
+    counts["n_kept"] = len(X_kept)
+    if not X_kept:
+        return Windows(np.zeros((0, C, T)), channels, _empty_meta(), spec.rate_hz), counts
+    meta = pd.DataFrame(meta_rows, columns=["run_id", "terrain", "t_start_s", "t_end_s", "start_index"])
+    meta["run_id"] = meta["run_id"].astype(object)
+    return Windows(np.stack(X_kept), channels, meta, spec.rate_hz), counts
+
+
+class OnlineWindower:
+    """Feed EST rows one at a time; get the latest steady window every online hop.
+
+    Parameters
+    ----------
+    robot : RobotSpec, name or path.
+    spec : WindowSpec (None: defaults); windows of ``spec.n_samples`` rows every
+        ``spec.hop_samples(online=True)`` rows once the buffer is full.
+
+    Examples
+    --------
+    >>> w = OnlineWindower("agrimaro")
+    >>> for row in rows:                      # doctest: +SKIP
+    ...     out = w.push(row)                 # Windows with one window, or None
+    """
+
+    def __init__(self, robot: RobotSpec | str | None = None, spec: WindowSpec | None = None):
+        self.robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
+        self.spec = spec or WindowSpec()
+        self._rows: deque[dict[str, Any]] = deque(maxlen=self.spec.n_samples)
+        self.n_pushed = 0
+        self.counts = {"n_windows": 0, "n_kept": 0, "n_rejected": 0, **{r: 0 for r in RULES}}
+        self.last_start_index: int | None = None
+
+    def push(self, row: dict[str, Any]) -> Windows | None:
+        """Append one EST row; return the window ending here when a hop is due and it is steady."""
+        self._rows.append(row)
+        self.n_pushed += 1
+        T = self.spec.n_samples
+        if self.n_pushed < T or (self.n_pushed - T) % self.spec.hop_samples(online=True):
+            return None
+        frame = pd.DataFrame(list(self._rows))
+        wins, counts = cut_windows(frame, self.robot, self.spec, online=True)
+        for k, v in counts.items():
+            self.counts[k] += v
+        self.last_start_index = self.n_pushed - T
+        if len(wins) == 0:
+            return None
+        wins.meta["start_index"] = self.last_start_index
+        return wins

@@ -1,0 +1,373 @@
+"""Model artifacts: a folder of files plus a ``manifest.json`` that hashes every one of them.
+
+Layout of ``runs/NAME/`` (SYSTEM §9)::
+
+    manifest.json                 this module's manifest (written last)
+    svm/model.skops               SVM (skops, no pickle)
+    cnn/cnn_weights.safetensors   CNN weights (safetensors) } written by CNNClassifier.save
+    cnn/cnn_config.json           CNN config (JSON)         }
+    desired_slip_table.json       the lookup table the controller uses with this model
+    report.md, report.json, confusion_<model>.png, folds_<model>.csv, ...
+
+The manifest records: ``schema``/``schema_version``, terrainml version, UTC time, classes
+(ids and names, from the data), channels and the window spec, feature names per model, the
+robot spec and its sha256, the training-data fingerprint, a metrics summary, the models
+(name, kind, files) with the default one, and ``files``: sha256 and size of every other file
+in the folder. It is written in one canonical form (sorted keys, 2-space indent) and carries
+``manifest_sha256``, the sha256 of that canonical text without the field, so one changed byte
+anywhere in it is detected.
+
+:func:`load_artifact` verifies, before anything is deserialised: the manifest's canonical form,
+self-hash, schema and version; every listed file's presence, size and sha256; the robot spec's
+sha256. Then the SVM is loaded with ``skops.io.load`` after checking
+``skops.io.get_untrusted_types`` against :data:`ALLOWED_SKOPS_TYPES` (an explicit allow-list; an
+unknown type refuses), the CNN through safetensors + JSON. Nothing is unpickled. Every refusal
+raises :class:`ArtifactError` with a message naming the file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from terrainml.classes import TERRAIN_CLASSES
+from terrainml.features.windows import WindowSpec
+from terrainml.robot import RobotSpec
+
+__all__ = ["ArtifactError", "Artifact", "save_artifact", "load_artifact", "verify_artifact",
+           "read_manifest", "ALLOWED_SKOPS_TYPES", "MANIFEST_NAME", "SCHEMA", "SCHEMA_VERSION",
+           "sha256_file", "json_safe"]
+
+SCHEMA = "terrainml.model"
+SCHEMA_VERSION = 1
+MANIFEST_NAME = "manifest.json"
+TABLE_NAME = "desired_slip_table.json"
+SKOPS_NAME = "model.skops"
+
+#: Types skops may instantiate besides its own defaults (checked against
+#: ``skops.io.get_untrusted_types``). Anything else makes loading refuse.
+ALLOWED_SKOPS_TYPES: frozenset[str] = frozenset({
+    "terrainml.models.svm.SVMClassifier",
+    "terrainml.features.sets.FeatureSet",
+    "sklearn.calibration.CalibratedClassifierCV",
+    "sklearn.calibration._CalibratedClassifier",
+    "sklearn.calibration._SigmoidCalibration",
+    "sklearn.pipeline.Pipeline",
+    "sklearn.preprocessing._data.StandardScaler",
+    "sklearn.svm._classes.SVC",
+    "sklearn.preprocessing._label.LabelEncoder",
+    "sklearn.utils._bunch.Bunch",
+    "sklearn.model_selection._split.StratifiedGroupKFold",
+    "sklearn.model_selection._split.StratifiedKFold",
+    "builtins.slice",
+    "numpy.dtype",
+    "numpy.ndarray",
+    "numpy.int64",
+    "numpy.float64",
+    "numpy.str_",
+    "numpy.bool_",
+})
+
+
+class ArtifactError(ValueError):
+    """A model folder cannot be trusted or used (the message names the file)."""
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def json_safe(obj: Any) -> Any:
+    """Recursively convert numpy scalars/arrays to Python and non-finite floats to None."""
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, (np.bool_, bool)):
+        return bool(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def _canonical(doc: dict) -> str:
+    return json.dumps(doc, indent=2, sort_keys=True, allow_nan=False, ensure_ascii=True) + "\n"
+
+
+def _self_hash(doc: dict) -> str:
+    body = {k: v for k, v in doc.items() if k != "manifest_sha256"}
+    return hashlib.sha256(_canonical(body).encode()).hexdigest()
+
+
+# ---------------------------------------------------------------------------- saving
+def _model_kind(model: Any) -> str:
+    name = type(model).__name__
+    if name == "SVMClassifier":
+        return "svm"
+    if name == "CNNClassifier":
+        return "cnn"
+    raise ArtifactError(f"cannot persist a model of type {type(model).__module__}.{name}")
+
+
+def save_model_files(directory: Path, name: str, model: Any) -> tuple[str, list[Path]]:
+    """Write one model's files under ``directory/name``; returns (kind, files)."""
+    kind = _model_kind(model)
+    sub = Path(directory) / name
+    sub.mkdir(parents=True, exist_ok=True)
+    if kind == "svm":
+        import skops.io as sio
+
+        path = sub / SKOPS_NAME
+        sio.dump(model, path)
+        return kind, [path]
+    return kind, [Path(p) for p in model.save(sub)]
+
+
+def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Sequence[int],
+                  class_names: Sequence[str], channels: Sequence[str], window_spec: WindowSpec,
+                  robot: RobotSpec, training_fingerprint: str, metrics_summary: dict | None = None,
+                  default_model: str | None = None, preset: str = "robust",
+                  table: Any = None, extra: dict | None = None) -> dict:
+    """Write models and (when given) the desired-slip table, then the manifest over all files.
+
+    Parameters
+    ----------
+    directory : output folder (created).
+    models : {name: fitted model} (``SVMClassifier`` or ``CNNClassifier``), e.g. {"svm": m}.
+    classes : class ids (labels of the models), physical order.
+    class_names : names of the classes.
+    channels : raw-window channel names. window_spec : WindowSpec used to cut them.
+    robot : RobotSpec the data came from. training_fingerprint : sha256 of the training windows.
+    metrics_summary : {model: {metric: {mean, std}}}, stored as is.
+    default_model : model served by default (first of ``models`` when None).
+    preset : estimation preset used to build the data.
+    table : DesiredSlipTable or None.
+    extra : more JSON-able fields stored under ``extra``.
+
+    Other files already in ``directory`` (reports) are hashed into the manifest too; call
+    :func:`write_manifest` again after adding files.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    entries = {}
+    for name, model in models.items():
+        kind, files = save_model_files(directory, name, model)
+        entry = {"kind": kind, "files": [p.relative_to(directory).as_posix() for p in files]}
+        if kind == "svm":
+            entry["feature_names"] = model.feature_names_
+            entry["feature_subset"] = model.features_.subset
+            entry["best_params"] = model.best_params_
+        entries[name] = entry
+    if table is not None:
+        (directory / TABLE_NAME).write_text(table.to_json() + "\n")
+    from terrainml import __version__
+
+    doc = {
+        "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "terrainml_version": __version__,
+        "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "classes": [int(c) for c in classes], "class_names": [str(c) for c in class_names],
+        "channels": [str(c) for c in channels], "window_spec": window_spec.to_dict(),
+        "robot": {"name": robot.name, "sha256": robot.sha256(), "spec": robot.to_dict()},
+        "training_fingerprint": str(training_fingerprint), "preset": str(preset),
+        "models": entries, "default_model": default_model or next(iter(models)),
+        "desired_slip_table": TABLE_NAME if table is not None else None,
+        "metrics_summary": metrics_summary or {}, "extra": extra or {},
+    }
+    return write_manifest(directory, doc)
+
+
+def write_manifest(directory: str | Path, doc: dict | None = None) -> dict:
+    """(Re)write ``manifest.json`` hashing every file in ``directory`` (recursively).
+
+    ``doc`` None re-reads the existing manifest (without verifying files) and refreshes the
+    file list, e.g. after reports were added.
+    """
+    directory = Path(directory)
+    if doc is None:
+        doc = json.loads((directory / MANIFEST_NAME).read_text())
+    doc = {k: v for k, v in doc.items() if k not in ("files", "manifest_sha256")}
+    files = {}
+    for p in sorted(directory.rglob("*")):
+        if p.is_file() and p.name != MANIFEST_NAME:
+            rel = p.relative_to(directory).as_posix()
+            files[rel] = {"sha256": sha256_file(p), "bytes": p.stat().st_size}
+    doc["files"] = files
+    doc = json_safe(doc)
+    doc["manifest_sha256"] = _self_hash(doc)
+    (directory / MANIFEST_NAME).write_text(_canonical(doc))
+    return doc
+
+
+# ---------------------------------------------------------------------------- loading
+def read_manifest(directory: str | Path) -> dict:
+    """Read and verify ``manifest.json`` itself (canonical form, self-hash, schema)."""
+    directory = Path(directory)
+    path = directory / MANIFEST_NAME
+    if not directory.is_dir():
+        raise ArtifactError(f"{directory}: no such model folder (train one with `terrainml train`)")
+    if not path.is_file():
+        raise ArtifactError(f"{path}: manifest missing; not a terrainml model folder")
+    raw = path.read_bytes()
+    try:
+        text = raw.decode("utf-8")
+        doc = json.loads(text)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ArtifactError(f"{path}: corrupt manifest (not valid JSON: {exc})") from None
+    if not isinstance(doc, dict):
+        raise ArtifactError(f"{path}: corrupt manifest (not a JSON object)")
+    if doc.get("schema") != SCHEMA:
+        raise ArtifactError(f"{path}: not a terrainml model manifest (schema {doc.get('schema')!r})")
+    if doc.get("schema_version") != SCHEMA_VERSION:
+        raise ArtifactError(f"{path}: manifest schema version {doc.get('schema_version')!r}; this "
+                            f"terrainml reads version {SCHEMA_VERSION}")
+    if doc.get("manifest_sha256") != _self_hash(doc):
+        raise ArtifactError(f"{path}: manifest sha256 mismatch: the manifest was modified after "
+                            "it was written")
+    if text != _canonical(doc):
+        raise ArtifactError(f"{path}: manifest is not in its canonical form: it was modified "
+                            "after it was written")
+    return doc
+
+
+def verify_artifact(directory: str | Path) -> dict:
+    """Verify the manifest and the sha256 of every file it lists; return the manifest."""
+    directory = Path(directory)
+    doc = read_manifest(directory)
+    files = doc.get("files")
+    if not isinstance(files, dict) or not files:
+        raise ArtifactError(f"{directory / MANIFEST_NAME}: manifest lists no files")
+    for rel, info in files.items():
+        p = directory / rel
+        if not p.is_file():
+            raise ArtifactError(f"{p}: file listed in the manifest is missing")
+        if p.stat().st_size != info.get("bytes"):
+            raise ArtifactError(f"{p}: size {p.stat().st_size} B differs from the manifest's "
+                                f"{info.get('bytes')} B: the file was modified")
+        if sha256_file(p) != info.get("sha256"):
+            raise ArtifactError(f"{p}: sha256 mismatch: the file was modified after training")
+    for name, entry in doc.get("models", {}).items():
+        for rel in entry.get("files", []):
+            if rel not in files:
+                raise ArtifactError(f"{directory / rel}: model file of {name!r} not hashed in the manifest")
+    return doc
+
+
+def _load_skops(path: Path) -> Any:
+    import skops.io as sio
+
+    try:
+        untrusted = sio.get_untrusted_types(file=path)
+    except Exception as exc:  # noqa: BLE001 - skops raises many types on corrupt files
+        raise ArtifactError(f"{path}: not a readable skops file ({type(exc).__name__}: {exc})") from None
+    unknown = sorted(set(untrusted) - ALLOWED_SKOPS_TYPES)
+    if unknown:
+        raise ArtifactError(f"{path}: refuses to load types outside the allow-list: {unknown}")
+    try:
+        return sio.load(path, trusted=list(untrusted))
+    except Exception as exc:  # noqa: BLE001
+        raise ArtifactError(f"{path}: skops could not load the model ({type(exc).__name__}: {exc})") from None
+
+
+@dataclass
+class Artifact:
+    """A verified model folder.
+
+    Attributes
+    ----------
+    path : Path. manifest : dict. model_name, kind : served model and its kind.
+    model : fitted classifier on raw windows (``predict_proba(Windows)``).
+    robot : RobotSpec. table : DesiredSlipTable or None. window_spec : WindowSpec.
+    class_ids : list of int. class_names : list of str. channels : list of str.
+    preset : estimation preset. features : None (the models compute their own features).
+    """
+
+    path: Path
+    manifest: dict
+    model_name: str
+    kind: str
+    model: Any
+    robot: RobotSpec
+    table: Any
+    window_spec: WindowSpec
+    class_ids: list = field(default_factory=list)
+    class_names: list = field(default_factory=list)
+    channels: list = field(default_factory=list)
+    preset: str = "robust"
+    features: Any = None
+
+
+def load_artifact(directory: str | Path, model: str | None = None) -> Artifact:
+    """Verify a model folder and load one model (default: the manifest's ``default_model``).
+
+    Raises
+    ------
+    ArtifactError
+        Naming the file that is missing, modified, of an unknown schema or unsafe to load.
+    """
+    directory = Path(directory)
+    doc = verify_artifact(directory)
+    mpath = directory / MANIFEST_NAME
+    try:
+        name = model or doc["default_model"]
+        entry = doc["models"][name]
+        robot = RobotSpec.from_dict(doc["robot"]["spec"], source=f"{mpath}:robot")
+        spec = WindowSpec.from_dict(doc["window_spec"])
+    except KeyError as exc:
+        raise ArtifactError(f"{mpath}: no entry {exc} (models: {list(doc.get('models', {}))})") from None
+    except ValueError as exc:
+        raise ArtifactError(f"{mpath}: {exc}") from None
+    if robot.sha256() != doc["robot"].get("sha256"):
+        raise ArtifactError(f"{mpath}: robot spec sha256 mismatch")
+    kind = entry.get("kind")
+    if kind == "svm":
+        path = directory / next(f for f in entry["files"] if f.endswith(".skops"))
+        clf = _load_skops(path)
+    elif kind == "cnn":
+        try:
+            from terrainml.models.cnn import CNNClassifier
+        except ImportError as exc:
+            raise ArtifactError(f"{mpath}: model {name!r} needs the CNN ({exc})") from None
+        sub = directory / Path(entry["files"][0]).parent
+        try:
+            clf = CNNClassifier.load(sub)
+        except ValueError as exc:
+            raise ArtifactError(str(exc)) from None
+    else:
+        raise ArtifactError(f"{mpath}: unknown model kind {kind!r} for {name!r}")
+    table = None
+    if doc.get("desired_slip_table"):
+        tpath = directory / doc["desired_slip_table"]
+        from terrainml.lookup.table import DesiredSlipTable
+
+        try:
+            table = DesiredSlipTable.from_json(tpath.read_text(), robot=robot, source=str(tpath))
+        except ValueError as exc:
+            raise ArtifactError(str(exc)) from None
+    classes = [int(c) for c in doc["classes"]]
+    if sorted(np.asarray(clf.classes_).astype(int).tolist()) != sorted(classes):
+        raise ArtifactError(f"{mpath}: model classes {list(clf.classes_)} differ from the manifest's {classes}")
+    return Artifact(directory, doc, name, kind, clf, robot, table, spec, classes,
+                    list(doc.get("class_names", [])), list(doc.get("channels", [])),
+                    doc.get("preset", "robust"))
+
+
+def default_class_names(classes: Sequence[int]) -> list[str]:
+    return [TERRAIN_CLASSES[int(c)] if 0 <= int(c) < len(TERRAIN_CLASSES) else str(c) for c in classes]

@@ -1,0 +1,138 @@
+"""Training reports: ``report.md``, ``report.json``, confusion-matrix PNGs, per-fold CSVs, ablation.
+
+:func:`write_report` takes the results of :func:`terrainml.models.train.train` and writes, into
+the model folder:
+
+* ``report.json``: dataset summary (runs, windows, classes, rejection counts, fingerprint), per
+  model the CV summary (mean ± std per metric), per-fold metrics, pooled out-of-fold metrics
+  (confusion matrix, per-class recall), latency p50/p99, best hyper-parameters, and the
+  feature-set ablation;
+* ``report.md``: the same as readable tables (models side by side);
+* ``confusion_<model>.png`` (matplotlib, Agg backend; row-normalised, counts annotated);
+* ``folds_<model>.csv`` (one row per fold) and ``ablation.csv``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from terrainml.models.artifacts import json_safe
+
+__all__ = ["write_report", "plot_confusion", "markdown_table"]
+
+METRIC_ROWS = (("balanced_accuracy", "balanced accuracy"), ("accuracy", "accuracy"),
+               ("macro_f1", "macro-F1"), ("adjacent_accuracy", "adjacent-class accuracy"),
+               ("desired_slip_error_mean", "desired-slip error (mean)"), ("ece", "ECE"))
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    out = ["| " + " | ".join(map(str, header)) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(map(str, r)) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def _pm(summary: dict, key: str, digits: int = 3) -> str:
+    s = summary.get(key)
+    if not s or s.get("mean") is None or not np.isfinite(s["mean"]):
+        return "n/a"
+    return f"{s['mean']:.{digits}f} ± {s['std']:.{digits}f}"
+
+
+def plot_confusion(cm: np.ndarray, names: Sequence[str], path: Path, title: str) -> Path:
+    """Row-normalised confusion matrix with counts, saved as PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cm = np.asarray(cm, dtype=float)
+    rows = cm.sum(axis=1, keepdims=True)
+    norm = np.divide(cm, rows, out=np.zeros_like(cm), where=rows > 0)
+    k = len(names)
+    fig, ax = plt.subplots(figsize=(1.2 + 0.75 * k, 1.0 + 0.7 * k), dpi=100)
+    im = ax.imshow(norm, vmin=0, vmax=1, cmap="Blues")
+    ax.set_xticks(range(k), names, rotation=45, ha="right", fontsize=8)
+    ax.set_yticks(range(k), names, fontsize=8)
+    ax.set_xlabel("predicted")
+    ax.set_ylabel("true")
+    ax.set_title(title, fontsize=9)
+    for i in range(k):
+        for j in range(k):
+            if cm[i, j]:
+                ax.text(j, i, int(cm[i, j]), ha="center", va="center", fontsize=7,
+                        color="white" if norm[i, j] > 0.5 else "black")
+    fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+    fig.tight_layout()
+    fig.savefig(path, metadata={"Software": None})
+    plt.close(fig)
+    return path
+
+
+def write_report(out: str | Path, result: Any) -> dict:
+    """Write the report files for a :class:`terrainml.models.train.TrainResult`; return report.json's dict."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    names = list(result.class_names)
+    doc: dict[str, Any] = {"dataset": result.dataset_summary, "folds": result.n_folds, "seed": result.seed,
+                           "default_model": result.default_model, "models": {}, "ablation": None}
+    md = [f"# Training report: {out.name}", "",
+          f"Dataset: {result.dataset_summary['n_runs']} runs, {result.dataset_summary['n_windows']} windows, "
+          f"{len(names)} classes ({', '.join(names)}); robot `{result.dataset_summary['robot']}`; "
+          f"training-data fingerprint `{result.dataset_summary['fingerprint'][:16]}…`.", "",
+          f"Grouped {result.n_folds}-fold cross-validation by run (StratifiedGroupKFold, seed "
+          f"{result.seed}); no run is in two folds. Served model: **{result.default_model}**.", ""]
+    # side-by-side summary
+    header = ["metric (CV mean ± std)"] + list(result.models)
+    rows = [[label] + [_pm(result.models[m]["cv"].summary, key) for m in result.models]
+            for key, label in METRIC_ROWS]
+    rows.append(["inference latency p50 / p99 (ms/window)"] +
+                [f"{result.models[m]['latency']['p50_ms']:.3f} / {result.models[m]['latency']['p99_ms']:.3f}"
+                 for m in result.models])
+    rows.append(["final fit time (s)"] + [f"{result.models[m]['fit_time_s']:.1f}" for m in result.models])
+    md += ["## Models", "", markdown_table(header, rows), ""]
+    for name, r in result.models.items():
+        cv = r["cv"]
+        frame = cv.per_fold_frame()
+        frame.to_csv(out / f"folds_{name}.csv", index=False)
+        png = plot_confusion(np.asarray(cv.pooled["confusion_matrix"]), names, out / f"confusion_{name}.png",
+                             f"{name}: out-of-fold confusion (balanced acc. "
+                             f"{cv.pooled['balanced_accuracy']:.3f})")
+        doc["models"][name] = {"summary": cv.summary, "per_fold": frame.to_dict(orient="records"),
+                               "pooled": cv.pooled, "latency": r["latency"], "fit_time_s": r["fit_time_s"],
+                               "params": r.get("params", {}), "confusion_png": png.name}
+        md += [f"## {name}: per fold", "",
+               markdown_table(["fold", "windows", "runs", "bal. acc.", "acc.", "macro-F1", "adjacent",
+                               "slip err.", "ECE", "fit s"],
+                              [[int(f.fold), int(f.n_windows), int(f.n_test_runs), f"{f.balanced_accuracy:.3f}",
+                                f"{f.accuracy:.3f}", f"{f.macro_f1:.3f}", f"{f.adjacent_accuracy:.3f}",
+                                "n/a" if not np.isfinite(f.desired_slip_error_mean) else f"{f.desired_slip_error_mean:.4f}",
+                                f"{f.ece:.3f}", f"{f.fit_time_s:.1f}"] for f in frame.itertuples()]), "",
+               f"Per-class recall (pooled out-of-fold): " + ", ".join(
+                   f"{k} {v:.2f}" for k, v in zip(names, [cv.pooled["recall_per_class"].get(str(c), float('nan'))
+                                                          for c in cv.classes])), "",
+               f"![confusion {name}]({png.name})", ""]
+        if r.get("params"):
+            md += [f"Chosen hyper-parameters (final fit): `{json.dumps(json_safe(r['params']))}`", ""]
+    if result.ablation is not None and len(result.ablation):
+        ab = result.ablation
+        ab.to_csv(out / "ablation.csv", index=False)
+        doc["ablation"] = ab.to_dict(orient="records")
+        md += ["## Feature-set ablation (SVM, same folds)", "",
+               markdown_table(["feature set", "features", "bal. acc.", "macro-F1", "desired-slip error"],
+                              [[a.subset, int(a.n_features), f"{a.balanced_accuracy_mean:.3f} ± {a.balanced_accuracy_std:.3f}",
+                                f"{a.macro_f1_mean:.3f} ± {a.macro_f1_std:.3f}",
+                                "n/a" if not np.isfinite(a.desired_slip_error_mean) else f"{a.desired_slip_error_mean:.4f}"]
+                               for a in ab.itertuples()]), ""]
+    counts = result.dataset_summary.get("rejections", {})
+    if counts:
+        md += ["## Window rejections (steady rules, SYSTEM §8)", "",
+               markdown_table(["rule", "windows rejected"], [[k, v] for k, v in counts.items()]), ""]
+    doc = json_safe(doc)
+    (out / "report.json").write_text(json.dumps(doc, indent=2, sort_keys=True, allow_nan=False) + "\n")
+    (out / "report.md").write_text("\n".join(md) + "\n")
+    return doc

@@ -1,0 +1,167 @@
+"""RBF SVM on window features (SYSTEM §9), a scikit-learn classifier on raw windows.
+
+:class:`SVMClassifier` takes the same input as the CNN (raw windows (n, C, T): a
+:class:`~terrainml.features.windows.Windows` or an array with ``channel_names``), computes the
+:class:`~terrainml.features.sets.FeatureSet` internally and fits::
+
+    Pipeline(StandardScaler, SVC(kernel="rbf", class_weight="balanced"))
+
+* C and gamma by an inner grid search grouped by run (``StratifiedGroupKFold`` over the
+  ``groups`` given to ``fit``, seeded; no run in both parts of an inner split), scored by
+  balanced accuracy;
+* calibrated probabilities: ``CalibratedClassifierCV`` (sigmoid, ``ensemble=False``) whose
+  calibration data are the out-of-fold decision values of the same grouped inner splits;
+  ``predict`` is the argmax of the calibrated probabilities, so the policy and the labels agree.
+
+Fewer runs per class than ``inner_folds`` lower the number of inner folds (down to 2); a single
+run falls back to window-level stratified folds (documented: windows of one run then leak).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from typing import Sequence
+
+import numpy as np
+from sklearn.base import BaseEstimator, ClassifierMixin, clone
+from sklearn.calibration import CalibratedClassifierCV
+from sklearn.model_selection import GridSearchCV, StratifiedGroupKFold, StratifiedKFold
+from sklearn.pipeline import Pipeline
+from sklearn.preprocessing import StandardScaler
+from sklearn.svm import SVC
+from sklearn.utils.validation import check_is_fitted
+
+from terrainml.features.sets import FeatureSet
+
+__all__ = ["SVMClassifier", "inner_splits"]
+
+DEFAULT_C = (1.0, 10.0, 100.0, 1000.0, 10000.0)
+DEFAULT_GAMMA = ("scale", 0.0001, 0.0003, 0.001, 0.003, 0.01)
+
+
+def inner_splits(y: np.ndarray, groups: np.ndarray | None, n_splits: int, seed: int) -> list:
+    """Grouped, stratified, seeded splits (train_idx, test_idx) for inner search/calibration."""
+    y = np.asarray(y)
+    n = len(y)
+    if groups is None:
+        groups = np.arange(n)
+    groups = np.asarray(groups)
+    # runs per class limit the folds
+    per_class = [len(np.unique(groups[y == c])) for c in np.unique(y)]
+    k = int(max(2, min(n_splits, min(per_class))))
+    if len(np.unique(groups)) >= k and min(per_class) >= 2:
+        cv = StratifiedGroupKFold(n_splits=k, shuffle=True, random_state=seed)
+        return list(cv.split(np.zeros(n), y, groups))
+    counts = np.bincount(np.unique(y, return_inverse=True)[1])
+    k = int(max(2, min(k, counts.min())))
+    return list(StratifiedKFold(n_splits=k, shuffle=True, random_state=seed).split(np.zeros(n), y))
+
+
+class SVMClassifier(ClassifierMixin, BaseEstimator):
+    """Features -> StandardScaler -> RBF SVC (balanced), tuned by grouped search, calibrated.
+
+    Parameters
+    ----------
+    features : FeatureSet or None
+        Feature transformer (None: ``FeatureSet()`` with the reference robot's constants; use
+        ``FeatureSet.for_robot(robot, subset)``).
+    C_grid : sequence of float, SVC C values searched.
+    gamma_grid : sequence of float or "scale", SVC gamma values searched.
+    inner_folds : int >= 2, folds of the inner grouped search and calibration.
+    random_state : int, seed of the inner splits (and of nothing else: SVC is deterministic).
+    n_jobs : int or None, joblib jobs of the inner search.
+
+    Attributes
+    ----------
+    classes_ : ndarray (K,), labels seen in fit.
+    channel_names_ : list of str.
+    features_ : fitted FeatureSet.
+    best_params_ : dict, chosen ``C`` and ``gamma``.
+    inner_score_ : float, inner CV balanced accuracy of the chosen parameters.
+    model_ : CalibratedClassifierCV over the tuned pipeline.
+    fit_time_s_ : float.
+    """
+
+    def __init__(self, features: FeatureSet | None = None, C_grid: Sequence[float] = DEFAULT_C,
+                 gamma_grid: Sequence = DEFAULT_GAMMA, inner_folds: int = 3, random_state: int = 0,
+                 n_jobs: int | None = None):
+        self.features = features
+        self.C_grid = C_grid
+        self.gamma_grid = gamma_grid
+        self.inner_folds = inner_folds
+        self.random_state = random_state
+        self.n_jobs = n_jobs
+
+    def _pipeline(self) -> Pipeline:
+        return Pipeline([("scale", StandardScaler()),
+                         ("svc", SVC(kernel="rbf", class_weight="balanced"))])
+
+    def fit(self, X, y, groups=None, channel_names: Sequence[str] | None = None):
+        """Fit on raw windows.
+
+        Parameters
+        ----------
+        X : Windows or ndarray (n, C, T).
+        y : array (n,), class labels.
+        groups : array (n,) or None, run ids (inner splits never split a run); a ``Windows``
+            input without ``groups`` uses its run ids.
+        channel_names : names of the C channels when X is a plain array.
+        """
+        t0 = time.perf_counter()
+        if int(self.inner_folds) < 2:
+            raise ValueError("SVMClassifier: inner_folds must be >= 2")
+        if not len(self.C_grid) or not len(self.gamma_grid):
+            raise ValueError("SVMClassifier: C_grid and gamma_grid must not be empty")
+        y = np.asarray(y)
+        if groups is None and hasattr(X, "groups"):
+            groups = X.groups
+        fs = clone(self.features) if self.features is not None else FeatureSet()
+        if channel_names is not None:
+            fs.set_params(channel_names=tuple(channel_names))
+        F = fs.fit_transform(X)
+        if len(y) != len(F):
+            raise ValueError(f"SVMClassifier: {len(F)} windows but {len(y)} labels")
+        classes = np.unique(y)
+        if len(classes) < 2:
+            raise ValueError(f"SVMClassifier: need at least 2 classes, got {classes.tolist()}")
+        seed = int(self.random_state) if self.random_state is not None else 0
+        splits = inner_splits(y, groups, int(self.inner_folds), seed)
+        grid = {"svc__C": [float(c) for c in self.C_grid],
+                "svc__gamma": [g if isinstance(g, str) else float(g) for g in self.gamma_grid]}
+        search = GridSearchCV(self._pipeline(), grid, scoring="balanced_accuracy", cv=splits,
+                              n_jobs=self.n_jobs, refit=False, error_score="raise")
+        with warnings.catch_warnings():  # inner folds may miss a class: sklearn warns per split
+            warnings.simplefilter("ignore", UserWarning)
+            search.fit(F, y)
+        best = {k.split("__", 1)[1]: v for k, v in search.best_params_.items()}
+        base = self._pipeline().set_params(**{f"svc__{k}": v for k, v in best.items()})
+        model = CalibratedClassifierCV(base, method="sigmoid", cv=splits, ensemble=False)
+        model.fit(F, y)
+        self.features_ = fs
+        self.channel_names_ = list(fs.channel_names_)
+        self.classes_ = model.classes_
+        self.best_params_ = best
+        self.inner_score_ = float(search.best_score_)
+        self.model_ = model
+        self.fit_time_s_ = time.perf_counter() - t0
+        return self
+
+    def transform_features(self, X) -> np.ndarray:
+        """The fitted feature matrix of X, shape (n, n_features)."""
+        check_is_fitted(self, "model_")
+        return self.features_.transform(X)
+
+    def predict_proba(self, X) -> np.ndarray:
+        """Calibrated probabilities, shape (n_windows, K), columns in ``classes_`` order."""
+        return self.model_.predict_proba(self.transform_features(X))
+
+    def predict(self, X) -> np.ndarray:
+        """Most probable class per window (argmax of the calibrated probabilities)."""
+        p = self.predict_proba(X)
+        return self.classes_[np.argmax(p, axis=1)]
+
+    @property
+    def feature_names_(self) -> list[str]:
+        check_is_fitted(self, "model_")
+        return [str(s) for s in self.features_.get_feature_names_out()]
