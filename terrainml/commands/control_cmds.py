@@ -1,7 +1,76 @@
-"""CLI commands of one area (see terrainml.commands)."""
+"""CLI of the control area: ``terrainml control closed-loop`` (SYSTEM §12, §15)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
 
 import typer
+
+control_app = typer.Typer(help="Traction control in the simulator.", no_args_is_help=True)
+
+
+@control_app.command("closed-loop", help=(
+    "Simulate a straight run on one terrain with a traction-control policy and report energy "
+    "per metre, mean speed, mean tractive efficiency and stuck events (JSON).\n\n"
+    "Policies: none (no traction control), fixed (slip PID to 0.1), terrain-aware (slip PID to "
+    "the served desired slip: the online predictor with --model, else the true class with the "
+    "lookup table, reported as an oracle).\n\n"
+    "Example: terrainml control closed-loop --terrain dry_sand --policy terrain-aware "
+    "--model runs/svm --duration-s 60 --seed 0 --out sand_aware.json"))
+def closed_loop(
+    terrain: str = typer.Option(..., "--terrain", help="Terrain class name or id (e.g. dry_sand, 6)."),
+    policy: str = typer.Option("terrain-aware", "--policy", help="none, fixed or terrain-aware."),
+    model: Optional[Path] = typer.Option(None, "--model", help="Trained model folder (runs/NAME)."),
+    duration_s: float = typer.Option(60.0, "--duration-s", help="Simulated duration, s."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the terrain draw and sensor noise."),
+    speed_mps: float = typer.Option(1.0, "--speed-mps", help="Commanded cruise speed, m/s."),
+    kp: float = typer.Option(1.0, "--kp", help="Slip PID proportional gain, rad/s per unit slip."),
+    ki: float = typer.Option(0.0, "--ki", help="Slip PID integral gain, rad/s per (unit slip s)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Write the JSON report here."),
+) -> None:
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from terrainml.classes import class_id
+    from terrainml.control.closed_loop import POLICIES, run_closed_loop
+    from terrainml.control.pid import SlipPIDConfig
+
+    console = Console(stderr=True, soft_wrap=True)
+    if policy not in POLICIES:
+        console.print(f"[red]error:[/] --policy {policy!r}: expected one of {', '.join(POLICIES)}")
+        raise typer.Exit(2)
+    try:
+        class_id(terrain)
+    except ValueError as exc:
+        console.print(f"[red]error:[/] --terrain: {exc}")
+        raise typer.Exit(2)
+    if model is not None and not model.is_dir():
+        console.print(f"[red]error:[/] --model {model}: no such model folder")
+        raise typer.Exit(2)
+    try:
+        pid = SlipPIDConfig(kp=kp, ki=ki)
+    except ValueError as exc:
+        console.print(f"[red]error:[/] {exc}")
+        raise typer.Exit(2)
+    with Progress(console=console, transient=True) as bar:
+        task = bar.add_task(f"closed loop {terrain} / {policy}", total=1.0)
+        try:
+            report = run_closed_loop(terrain, policy, model=model, duration_s=duration_s, seed=seed,
+                                     speed_mps=speed_mps, pid=pid,
+                                     progress=lambda f: bar.update(task, completed=f))
+        except ValueError as exc:  # model refused, bad parameters
+            console.print(f"[red]error:[/] {exc}")
+            raise typer.Exit(2)
+    text = json.dumps(report, indent=2)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text + "\n")
+        console.print(f"wrote {out}")
+    print(text)
 
 
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the top-level app."""
+    app.add_typer(control_app, name="control")

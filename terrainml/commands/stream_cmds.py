@@ -1,7 +1,49 @@
-"""CLI commands of one area (see terrainml.commands)."""
+"""CLI of the stream area: ``terrainml predict`` (SYSTEM §11, §15)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
 
 import typer
+
+_EXAMPLE = """
+Examples:
+
+  terrainml predict --model runs/svm --source runs/demo/course.mcap --sink stdout
+
+  terrainml predict --model runs/svm --source udp://127.0.0.1:9870 --sink udp://127.0.0.1:9871
+
+  terrainml predict --model runs/svm --source - --sink can://virtual/vcan0 --sink mcap:served.mcap
+"""
 
 
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the top-level app."""
+
+    @app.command(help="Serve per-wheel desired slip, one JSON message per base-rate tick.\n\n"
+                      "Samples (canonical column names + t_s) come from a log, UDP datagrams or "
+                      "stdin; each tick emits a DesiredSlip (SYSTEM §11) to every sink. Logs and "
+                      "the end-of-stream summary go to stderr.\n" + _EXAMPLE)
+    def predict(
+        model: Path = typer.Option(..., "--model", help="Trained model folder (runs/NAME)."),
+        source: str = typer.Option(..., "--source",
+                                   help="RUN.mcap|.bag|.parquet|.csv, udp://HOST:PORT, or - (stdin JSON lines)."),
+        sink: List[str] = typer.Option(["stdout"], "--sink",
+                                       help="stdout, udp://HOST:PORT, can://IFACE/CHANNEL or "
+                                            "mcap:OUT.mcap; repeat for several."),
+        realtime: bool = typer.Option(False, "--realtime", help="Pace a log source at its own time stamps."),
+        robot: Optional[str] = typer.Option(None, "--robot",
+                                            help="Robot spec (name or YAML); default: the model's."),
+        preset: Optional[str] = typer.Option(None, "--preset", help="EKF preset; default: the model's."),
+        idle_timeout_s: Optional[float] = typer.Option(
+            None, "--idle-timeout-s", help="UDP source: stop after this many seconds without a datagram."),
+        verbose: bool = typer.Option(False, "--verbose", "-v", help="More log output on stderr."),
+    ) -> None:
+        from terrainml.stream.runner import run_predict
+
+        code = run_predict(model=model, source=source, sinks=list(sink), realtime=realtime,
+                           robot=robot, preset=preset, idle_timeout_s=idle_timeout_s,
+                           verbose=verbose)
+        if code:
+            raise typer.Exit(code)

@@ -1,0 +1,160 @@
+"""The ``DesiredSlip`` message served once per base-rate tick (SYSTEM §11).
+
+Fields (units)
+--------------
+t_s                  float, s        time of the tick (the input sample's ``t_s``)
+seq                  int             0, 1, 2, ... one per emitted tick (dropped samples emit nothing)
+slip_desired         float[N]        per-wheel desired slip, signed (SAE, eq. 8.7-8.9); 0 when idle
+slip_measured        float[N]        per-wheel measured slip from the estimator (SYSTEM §7.1)
+wheel_state          str[N]          ``idle|steady|traction|braking`` (SYSTEM §7.2)
+terrain_class        int             id of the class whose targets are served (0 = pavement in fallback)
+terrain_name         str             name of that class
+confidence           float, 0..1     probability of the served class (0 in fallback)
+class_probabilities  float[K]        probabilities of the last classification (all 0 if none)
+classification_age_s float, s        age of the last classification; -1 when none exists yet
+fallback             bool            True when the least aggressive row is served (SYSTEM §10)
+fallback_reason      str             "" or one of :data:`FALLBACK_REASONS`
+estimator_ok         bool            estimator healthy (no silent sensor group, finite state)
+processing_ms        float, ms       wall time spent on this tick inside the predictor
+
+JSON never contains NaN or infinity. :meth:`DesiredSlip.to_dict` replaces any non-finite
+number by its documented safe value (:data:`SAFE_VALUES`): slips 0.0, confidence 0.0,
+probabilities 0.0, classification age -1.0, processing time 0.0. The predictor itself never
+produces non-finite values; this is the last line of defence.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from terrainml.schema import WHEEL_STATES
+
+#: fallback reasons, in priority order (the first that applies is reported)
+FALLBACK_REASONS: tuple[str, ...] = (
+    "estimator_unhealthy",   # a sensor group silent > 0.2 s, or the estimator state is not finite
+    "classifier_error",      # the last classification attempt raised; no usable classification
+    "no_classification",     # start-up: no steady window has been classified yet
+    "stale_classification",  # the last classification is older than max_age_s (default 1.0 s)
+)
+
+#: value substituted for a non-finite number, per field
+SAFE_VALUES: dict[str, float] = {
+    "t_s": 0.0,
+    "slip_desired": 0.0,
+    "slip_measured": 0.0,
+    "confidence": 0.0,
+    "class_probabilities": 0.0,
+    "classification_age_s": -1.0,
+    "processing_ms": 0.0,
+}
+
+TOPIC = "/terrainml/desired_slip"
+
+
+def _finite(x: Any, safe: float) -> float:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return safe
+    return v if math.isfinite(v) else safe
+
+
+@dataclass
+class DesiredSlip:
+    """One served tick. See the module docstring for fields and units."""
+
+    t_s: float
+    seq: int
+    slip_desired: list[float]
+    slip_measured: list[float]
+    wheel_state: list[str]
+    terrain_class: int
+    terrain_name: str
+    confidence: float
+    class_probabilities: list[float]
+    classification_age_s: float
+    fallback: bool
+    fallback_reason: str
+    estimator_ok: bool
+    processing_ms: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    # ------------------------------------------------------------------ json
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict with the SYSTEM §11 field names; never NaN/inf."""
+        return {
+            "t_s": _finite(self.t_s, SAFE_VALUES["t_s"]),
+            "seq": int(self.seq),
+            "slip_desired": [_finite(v, SAFE_VALUES["slip_desired"]) for v in self.slip_desired],
+            "slip_measured": [_finite(v, SAFE_VALUES["slip_measured"]) for v in self.slip_measured],
+            "wheel_state": [s if s in WHEEL_STATES else "idle" for s in map(str, self.wheel_state)],
+            "terrain_class": int(self.terrain_class),
+            "terrain_name": str(self.terrain_name),
+            "confidence": min(1.0, max(0.0, _finite(self.confidence, SAFE_VALUES["confidence"]))),
+            "class_probabilities": [_finite(v, SAFE_VALUES["class_probabilities"])
+                                    for v in self.class_probabilities],
+            "classification_age_s": _finite(self.classification_age_s,
+                                             SAFE_VALUES["classification_age_s"]),
+            "fallback": bool(self.fallback),
+            "fallback_reason": str(self.fallback_reason),
+            "estimator_ok": bool(self.estimator_ok),
+            "processing_ms": _finite(self.processing_ms, SAFE_VALUES["processing_ms"]),
+        }
+
+    def to_json(self) -> str:
+        """One compact JSON object (no newline); raises if anything non-finite slipped through."""
+        return json.dumps(self.to_dict(), separators=(",", ":"), allow_nan=False)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "DesiredSlip":
+        keys = [f for f in cls.__dataclass_fields__ if f != "extra"]
+        missing = [k for k in keys if k not in d]
+        if missing:
+            raise ValueError(f"DesiredSlip: missing field(s) {', '.join(missing)}")
+        return cls(**{k: d[k] for k in keys})
+
+    @classmethod
+    def from_json(cls, text: str | bytes) -> "DesiredSlip":
+        return cls.from_dict(json.loads(text))
+
+
+FIELD_NAMES: tuple[str, ...] = tuple(f for f in DesiredSlip.__dataclass_fields__ if f != "extra")
+
+
+def json_schema(n_wheels: int | None = None, n_classes: int | None = None) -> dict[str, Any]:
+    """JSON schema (draft 2020-12) of the message, for Foxglove's ``jsonschema`` encoding."""
+
+    def arr(items: dict, n: int | None, desc: str) -> dict:
+        a: dict[str, Any] = {"type": "array", "items": items, "description": desc}
+        if n is not None:
+            a["minItems"] = a["maxItems"] = int(n)
+        return a
+
+    num = {"type": "number"}
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "terrainml.DesiredSlip",
+        "description": "Per-wheel desired slip served by terrainml predict (SYSTEM §11).",
+        "type": "object",
+        "properties": {
+            "t_s": {"type": "number", "description": "tick time, s"},
+            "seq": {"type": "integer", "description": "output sequence number"},
+            "slip_desired": arr(num, n_wheels, "desired slip per wheel (signed)"),
+            "slip_measured": arr(num, n_wheels, "measured slip per wheel"),
+            "wheel_state": arr({"type": "string", "enum": list(WHEEL_STATES)}, n_wheels,
+                               "dynamic state per wheel"),
+            "terrain_class": {"type": "integer", "description": "served class id"},
+            "terrain_name": {"type": "string"},
+            "confidence": {"type": "number", "minimum": 0, "maximum": 1},
+            "class_probabilities": arr(num, n_classes, "last classification's probabilities"),
+            "classification_age_s": {"type": "number", "description": "s; -1 when none yet"},
+            "fallback": {"type": "boolean"},
+            "fallback_reason": {"type": "string", "enum": ["", *FALLBACK_REASONS]},
+            "estimator_ok": {"type": "boolean"},
+            "processing_ms": {"type": "number", "description": "predictor time for this tick, ms"},
+        },
+        "required": list(FIELD_NAMES),
+    }

@@ -1,0 +1,428 @@
+"""The online predictor: one :class:`~terrainml.stream.message.DesiredSlip` per base-rate tick.
+
+Chain per tick (SYSTEM §11)::
+
+    sample ─ OrderGate ─ HealthMonitor ─ OnlineEstimator.step ─ RingBuffer ─┬─ policy ─ DesiredSlip
+                                                       every hop (0.5 s):    └─ classify latest window
+
+* Estimation is :class:`terrainml.estimation.online.OnlineEstimator` (the same step code the
+  offline ``estimate_run`` loops over); windows and features are the offline window and feature
+  code applied to the ring buffer's rows (see :mod:`terrainml.stream.classify`).
+* Classification runs at most once per hop, on the latest 2 s window, and only when that window
+  passes the offline steady rules. Any exception inside it is caught: the tick is served with
+  ``fallback=True, fallback_reason="classifier_error"`` until a later classification succeeds.
+* Nothing non-finite reaches the output: non-finite inputs invalidate their sensor group
+  (:mod:`terrainml.stream.health`), non-finite estimator outputs make ``estimator_ok`` false and
+  are replaced (slip 0, state ``idle``), and the message layer checks again.
+* Samples with duplicate or decreasing ``t_s`` are dropped and counted: :meth:`Predictor.step`
+  returns ``None`` for them (the only departure from "one output per input").
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+import time
+from collections import deque
+from pathlib import Path
+from typing import Any, Protocol, Sequence
+
+import numpy as np
+import pandas as pd
+
+from terrainml.classes import TERRAIN_CLASSES
+from terrainml.robot import RobotSpec, load_robot
+from terrainml.schema import WHEEL_STATES
+from terrainml.stream.health import HealthMonitor, InputCounters, OrderGate
+from terrainml.stream.message import DesiredSlip
+from terrainml.lookup.policy import PolicyDecision, TargetTable
+from terrainml.stream.policy import decide
+
+log = logging.getLogger("terrainml.stream")
+
+#: GIL switch interval while a background classification thread exists (Python's default 5 ms
+#: would let the worker hold the GIL for up to 5 ms of a 10 ms tick)
+GIL_SWITCH_INTERVAL_S = 2e-4
+
+
+class Estimator(Protocol):
+    def step(self, sample: dict) -> dict: ...
+
+
+class WindowClassifierLike(Protocol):
+    """What the predictor needs from a classifier: probabilities for a window, or None."""
+
+    class_ids: Sequence[int]
+
+    def classify(self, window: pd.DataFrame) -> np.ndarray | None: ...
+
+
+# --------------------------------------------------------------------------- ring buffer
+class RingBuffer:
+    """Fixed-capacity buffer of estimator rows (dicts) with O(1) append.
+
+    Numeric fields are kept in a preallocated float array, everything else (wheel states,
+    run id) in an object array; :meth:`frame` returns the rows in time order as a DataFrame,
+    the same layout as the offline EST table.
+    """
+
+    def __init__(self, capacity: int):
+        if capacity < 1:
+            raise ValueError("RingBuffer capacity must be >= 1")
+        self.capacity = int(capacity)
+        self._num_keys: list[str] | None = None
+        self._obj_keys: list[str] = []
+        self._num: np.ndarray | None = None
+        self._obj: np.ndarray | None = None
+        self._i = 0
+        self.count = 0
+
+    def _init(self, row: dict) -> None:
+        num, obj = [], []
+        for k, v in row.items():
+            if isinstance(v, (bool, np.bool_)):
+                num.append(k)
+            elif isinstance(v, (int, float, np.integer, np.floating)):
+                num.append(k)
+            else:
+                obj.append(k)
+        self._num_keys, self._obj_keys = num, obj
+        self._bool_keys = {k for k in num if isinstance(row[k], (bool, np.bool_))}
+        self._num = np.full((self.capacity, len(num)), np.nan)
+        self._obj = np.empty((self.capacity, len(obj)), dtype=object)
+
+    def append(self, row: dict) -> None:
+        if self._num_keys is None:
+            self._init(row)
+        i = self._i
+        num = self._num
+        for j, k in enumerate(self._num_keys):  # type: ignore[arg-type]
+            v = row.get(k, math.nan)
+            try:
+                num[i, j] = v  # type: ignore[index]
+            except (TypeError, ValueError):
+                num[i, j] = math.nan  # type: ignore[index]
+        for j, k in enumerate(self._obj_keys):
+            self._obj[i, j] = row.get(k)  # type: ignore[index]
+        self._i = (i + 1) % self.capacity
+        self.count = min(self.count + 1, self.capacity)
+
+    @property
+    def full(self) -> bool:
+        return self.count == self.capacity
+
+    def frame(self) -> pd.DataFrame:
+        """Rows in time order, oldest first: DataFrame, shape (count, n_fields)."""
+        if self._num_keys is None:
+            return pd.DataFrame()
+        if self.full:
+            order = np.r_[self._i:self.capacity, 0:self._i]
+        else:
+            order = np.arange(self.count)
+        num = self._num[order]  # type: ignore[index]
+        cols: dict[str, np.ndarray] = {}
+        for j, k in enumerate(self._num_keys):
+            cols[k] = num[:, j] > 0.5 if k in self._bool_keys else num[:, j]
+        for j, k in enumerate(self._obj_keys):
+            cols[k] = self._obj[order, j]  # type: ignore[index]
+        return pd.DataFrame(cols, copy=False)
+
+
+# --------------------------------------------------------------------------- predictor
+class Predictor:
+    """Online desired-slip predictor (SYSTEM §10-11).
+
+    Parameters
+    ----------
+    robot : RobotSpec
+    table : desired-slip table with ``target(class_id, state) -> float``
+        (:class:`terrainml.lookup.table.DesiredSlipTable`).
+    classifier : object with ``class_ids`` and ``classify(window_df) -> probs | None``
+        (:class:`terrainml.stream.classify.WindowClassifier`), or None (always fallback).
+    estimator : object with ``step(sample) -> dict`` (an EST row); default
+        ``OnlineEstimator(robot, preset)``.
+    rate_hz : base rate, Hz. window_s, hop_s : s (SYSTEM §8: 2.0 and 0.5 online).
+    max_age_s : s, classification older than this → fallback. silent_s : s, health rule.
+    classify_lag_ticks : 0 (default) classifies inline on the hop tick. L > 0 runs the
+        classification in a background thread and applies its result exactly L ticks later
+        (deterministic: the tick waits for it if needed); the tick path then only snapshots
+        the ring buffer, which keeps per-tick latency low when samples arrive in real time.
+        While the thread exists the interpreter's GIL switch interval is lowered to
+        :data:`GIL_SWITCH_INTERVAL_S` (restored by :meth:`close`).
+        The classification age still counts from the window's last tick.
+    class_names : names of all class ids (default the eight of SYSTEM §6.1).
+    """
+
+    def __init__(self, robot: RobotSpec, table: TargetTable,
+                 classifier: WindowClassifierLike | None = None,
+                 estimator: Estimator | None = None, *, preset: str = "robust",
+                 rate_hz: float = 100.0, window_s: float = 2.0, hop_s: float = 0.5,
+                 max_age_s: float = 1.0, silent_s: float = 0.2, classify_lag_ticks: int = 0,
+                 class_names: Sequence[str] = TERRAIN_CLASSES):
+        self.robot = robot
+        self.table = table
+        self.classifier = classifier
+        warm = estimator is None
+        if estimator is None:
+            from terrainml.estimation.online import OnlineEstimator
+
+            estimator = OnlineEstimator(robot, preset)
+        self.estimator = estimator
+        self.rate_hz = float(rate_hz)
+        self.window_s = float(window_s)
+        self.hop_s = float(hop_s)
+        self.max_age_s = float(max_age_s)
+        self.class_names = list(class_names)
+        self.counters = InputCounters()
+        self.gate = OrderGate(self.counters)
+        self.health = HealthMonitor(robot, silent_s=silent_s)
+        self.health.counters = self.counters
+        self.ring = RingBuffer(int(round(self.window_s * self.rate_hz)))
+        self.n = robot.n_wheels
+        self.seq = 0
+        self._last_attempt_t: float | None = None
+        self._probs: np.ndarray | None = None
+        self._class_t: float | None = None
+        self._classifier_error = False
+        self.n_classifications = 0
+        self.n_classifier_errors = 0
+        self.n_estimator_errors = 0
+        self.n_unsteady_windows = 0
+        self.classify_ms: deque[float] = deque(maxlen=10000)  # bounded: flat memory
+        self.wait_ms: deque[float] = deque(maxlen=10000)
+        self.classify_lag_ticks = int(classify_lag_ticks)
+        self._executor: Any = None
+        self._pending: Any = None
+        self._pending_age = 0
+        self._slip_keys = [f"slip{i}" for i in range(1, self.n + 1)]
+        self._state_keys = [f"state{i}" for i in range(1, self.n + 1)]
+        self._vlong_keys = [f"v_long{i}_mps" for i in range(1, self.n + 1)]
+        self._state_vars = ("ekf_vx_mps", "ekf_vy_mps", "ekf_yaw_rate_radps")
+        if warm:
+            self.warm_up(preset)
+
+    def warm_up(self, preset: str = "robust") -> None:
+        """Run a throwaway OnlineEstimator at rest, so the first real tick is not slow.
+
+        The EKF's compiled kernels load on first use (about 0.2 s); doing that here keeps the
+        first served tick inside its deadline. The predictor's own state is not touched.
+        """
+        n = self.n
+        sample: dict[str, Any] = {"t_s": 0.0, "imu_ax_mps2": 0.0, "imu_ay_mps2": 0.0,
+                                  "imu_az_mps2": 9.81, "imu_yaw_rate_radps": 0.0,
+                                  "cam_vx_mps": 0.0, "cam_vy_mps": 0.0, "cam_yaw_rate_radps": 0.0,
+                                  "cam_yaw_rad": 0.0}
+        for i in range(1, n + 1):
+            sample.update({f"wheel{i}_omega_radps": 0.0, f"wheel{i}_steer_rad": 0.0,
+                           f"wheel{i}_current_a": 0.0})
+        try:
+            from terrainml.estimation.online import OnlineEstimator
+
+            est = OnlineEstimator(self.robot, preset)
+            est.step(sample)
+            est.step({**sample, "t_s": 0.01})
+        except Exception as exc:  # noqa: BLE001 - warm-up is an optimisation only
+            log.debug("warm-up skipped: %s", exc)
+
+    # ------------------------------------------------------------------ build
+    @classmethod
+    def from_model_dir(cls, model_dir: str | Path, *, robot: RobotSpec | str | None = None,
+                       preset: str | None = None, **kwargs: Any) -> "Predictor":
+        """Predictor for a verified model artifact ``runs/NAME`` (model, manifest, slip table)."""
+        from terrainml.stream.classify import load_serving_model
+
+        served = load_serving_model(model_dir, robot=robot)
+        return cls(served.robot, served.table, served.classifier,
+                   preset=preset or served.preset, class_names=served.class_names,
+                   window_s=served.window_s, hop_s=served.hop_s, rate_hz=served.rate_hz,
+                   **kwargs)
+
+    # ------------------------------------------------------------------ tick
+    def step(self, sample: dict) -> DesiredSlip | None:
+        """Process one base-rate sample (canonical column names + ``t_s``).
+
+        Returns the tick's message, or None when the sample was dropped (non-finite,
+        duplicate or out-of-order ``t_s``; see ``self.counters``).
+        """
+        t_start = time.perf_counter()
+        if not self.gate.accept(sample):
+            return None
+        clean, fresh = self.health.sanitise(sample)
+        t = clean["t_s"]
+        healthy, _silent = self.health.update(t, fresh)
+
+        row = self._estimate(clean)
+        est_ok = healthy and row is not None and bool(row.get("estimator_ok", True))
+        slips, states, v_long = [0.0] * self.n, ["idle"] * self.n, [0.0] * self.n
+        if row is not None:
+            try:
+                est_ok = self._read_row(row, slips, states, v_long) and est_ok
+            except (TypeError, ValueError) as exc:  # a row we cannot read: unhealthy tick
+                self.n_estimator_errors += 1
+                log.warning("estimator row unreadable at t=%.3f s: %s", t, exc)
+                slips, states, v_long = [0.0] * self.n, ["idle"] * self.n, [0.0] * self.n
+                est_ok = False
+            self.ring.append(row)
+
+        self._maybe_classify(t)
+
+        age = None if self._class_t is None else t - self._class_t
+        try:
+            dec = decide(self._probs, self._class_ids(), age, est_ok, self.table, states=states,
+                         v_long=v_long, classifier_error=self._classifier_error,
+                         max_age_s=self.max_age_s)
+        except Exception as exc:  # noqa: BLE001 - a broken table/policy must not stop serving
+            log.warning("policy failed at t=%.3f s (serving zero slip): %s", t, exc)
+            dec = PolicyDecision(class_id=0, class_name=self._name(0), confidence=0.0,
+                                 slip_desired=(0.0,) * self.n, fallback=True,
+                                 reason="classifier_error")
+        slip_des = [v if math.isfinite(v) else 0.0 for v in dec.slip_desired]
+        msg = DesiredSlip(
+            t_s=t, seq=self.seq, slip_desired=slip_des, slip_measured=slips, wheel_state=states,
+            terrain_class=dec.class_id, terrain_name=self._name(dec.class_id),
+            confidence=dec.confidence, class_probabilities=self._full_probs(len(self.class_names)),
+            classification_age_s=-1.0 if age is None else float(age),
+            fallback=dec.fallback, fallback_reason=dec.reason, estimator_ok=est_ok,
+        )
+        self.seq += 1
+        msg.processing_ms = (time.perf_counter() - t_start) * 1e3
+        return msg
+
+    # ------------------------------------------------------------------ parts
+    def _read_row(self, row: dict, slips: list, states: list, v_long: list) -> bool:
+        """Fill per-wheel slip, state and v_long from an EST row; False if the state is not finite.
+
+        Non-finite slip becomes 0 (e.g. no camera: slip unavailable); a wheel with a
+        non-finite v_long is served as idle.
+        """
+        ok = True
+        for k in self._state_vars:
+            v = row.get(k, 0.0)
+            if v is None or not math.isfinite(float(v)):
+                ok = False
+        for i in range(self.n):
+            s = row.get(self._slip_keys[i])
+            slips[i] = float(s) if s is not None and math.isfinite(float(s)) else 0.0
+            st = row.get(self._state_keys[i], "idle")
+            v = row.get(self._vlong_keys[i], 0.0)
+            v = float(v) if v is not None and math.isfinite(float(v)) else math.nan
+            if math.isnan(v):
+                st, v = "idle", 0.0
+            states[i] = st if st in WHEEL_STATES else "idle"
+            v_long[i] = v
+        return ok
+
+    def _estimate(self, clean: dict) -> dict | None:
+        try:
+            return self.estimator.step(clean)
+        except Exception as exc:  # noqa: BLE001 - never crash the serving loop
+            self.n_estimator_errors += 1
+            if self.n_estimator_errors <= 3:
+                log.warning("estimator step failed at t=%.3f s: %s", clean.get("t_s", math.nan), exc)
+            return None
+
+    def _class_ids(self) -> list[int]:
+        if self.classifier is None:
+            return list(range(len(self.class_names)))
+        return [int(c) for c in self.classifier.class_ids]
+
+    def _name(self, cid: int) -> str:
+        return self.class_names[cid] if 0 <= cid < len(self.class_names) else str(cid)
+
+    def _full_probs(self, k: int) -> list[float]:
+        out = [0.0] * k
+        if self._probs is not None:
+            for cid, p in zip(self._class_ids(), self._probs):
+                if 0 <= cid < k:
+                    out[cid] = float(p)
+        return out
+
+    def _maybe_classify(self, t: float) -> None:
+        if self.classifier is None:
+            return
+        # 1. a pending background classification is applied exactly `classify_lag_ticks` later
+        if self._pending is not None:
+            fut, t_win, due = self._pending
+            self._pending_age += 1
+            if self._pending_age >= due:
+                self._pending = None
+                c0 = time.perf_counter()
+                try:
+                    self._apply(fut.result(), t_win)
+                except Exception as exc:  # noqa: BLE001
+                    self._fail(t_win, exc)
+                self.wait_ms.append((time.perf_counter() - c0) * 1e3)
+        # 2. at most one new classification per hop, on the latest full window
+        if not self.ring.full or self._pending is not None:
+            return
+        if self._last_attempt_t is not None and t - self._last_attempt_t < self.hop_s - 1e-9:
+            return
+        self._last_attempt_t = t
+        frame = self.ring.frame()
+        if self.classify_lag_ticks > 0:
+            if self._executor is None:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="classify")
+                # a short GIL switch interval lets the tick path preempt the worker quickly
+                self._old_switch_s = sys.getswitchinterval()
+                sys.setswitchinterval(min(self._old_switch_s, GIL_SWITCH_INTERVAL_S))
+            self._pending = (self._executor.submit(self._timed_classify, frame), t,
+                             self.classify_lag_ticks)
+            self._pending_age = 0
+            return
+        try:
+            self._apply(self._timed_classify(frame), t)
+        except Exception as exc:  # noqa: BLE001 - classification must never crash serving
+            self._fail(t, exc)
+
+    def _timed_classify(self, frame: pd.DataFrame) -> np.ndarray | None:
+        c0 = time.perf_counter()
+        try:
+            return self.classifier.classify(frame)  # type: ignore[union-attr]
+        finally:
+            self.classify_ms.append((time.perf_counter() - c0) * 1e3)
+
+    def _apply(self, probs: Any, t_win: float) -> None:
+        if probs is None:  # latest window not steady: keep the previous classification
+            self.n_unsteady_windows += 1
+            return
+        p = np.asarray(probs, dtype=float).ravel()
+        if p.shape[0] != len(self._class_ids()) or not np.all(np.isfinite(p)) or p.sum() <= 0:
+            raise ValueError(f"classifier returned invalid probabilities {p!r}")
+        p = np.clip(p, 0.0, None)
+        self._probs = p / p.sum()
+        self._class_t = t_win
+        self._classifier_error = False
+        self.n_classifications += 1
+
+    def _fail(self, t: float, exc: BaseException) -> None:
+        self.n_classifier_errors += 1
+        if self.n_classifier_errors <= 3:
+            log.warning("classification failed at t=%.3f s (serving fallback): %s", t, exc)
+        self._probs = None
+        self._class_t = None
+        self._classifier_error = True
+
+    def close(self) -> None:
+        """Stop the background classification thread (if any)."""
+        if self._executor is not None:
+            self._executor.shutdown(wait=True)
+            self._executor = None
+            sys.setswitchinterval(self._old_switch_s)
+
+    def stats(self) -> dict[str, Any]:
+        """Counters for the end-of-stream summary (stderr) and tests."""
+        return {**self.counters.as_dict(), "emitted": self.seq,
+                "classifications": self.n_classifications,
+                "classifier_errors": self.n_classifier_errors,
+                "unsteady_windows": self.n_unsteady_windows,
+                "estimator_errors": self.n_estimator_errors}
+
+
+def make_predictor(model: str | Path, robot: str | None = None, preset: str | None = None,
+                   **kwargs: Any) -> Predictor:
+    """Convenience for the CLI: ``Predictor.from_model_dir`` with a robot name or path."""
+    return Predictor.from_model_dir(model, robot=load_robot(robot) if robot else None,
+                                    preset=preset, **kwargs)

@@ -1,0 +1,200 @@
+"""The serving loop behind ``terrainml predict``: source -> Predictor -> sinks.
+
+Everything the user should see besides the messages (start-up line, warnings, the end-of-stream
+summary) goes to stderr; with ``--sink stdout`` stdout carries only JSON lines.
+"""
+
+from __future__ import annotations
+
+import gc
+import logging
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+from rich.console import Console
+
+from terrainml.stream.predictor import Predictor
+from terrainml.stream.sinks import GuardedSink, SinkError, open_sink
+from terrainml.stream.sources import SourceCounters, SourceError, open_source
+
+log = logging.getLogger("terrainml.stream")
+
+#: ``terrainml predict`` classifies in a background thread; results apply 10 ticks (0.1 s) later
+CLASSIFY_LAG_TICKS = 10
+
+
+def serve(predictor: Predictor, samples: Iterable[dict], sinks: Sequence[Any],
+          on_message: Any = None) -> int:
+    """Feed every sample to the predictor and every message to every sink; return #messages."""
+    n = 0
+    for sample in samples:
+        msg = predictor.step(sample)
+        if msg is None:
+            continue
+        for s in sinks:
+            s.send(msg)
+        if on_message is not None:
+            on_message(msg)
+        n += 1
+    return n
+
+
+def _setup_logging(verbose: bool) -> None:
+    root = logging.getLogger("terrainml")
+    if not any(getattr(h, "_terrainml", False) for h in root.handlers):
+        h = logging.StreamHandler(sys.stderr)
+        h.setFormatter(logging.Formatter("terrainml predict: %(levelname)s %(message)s"))
+        h._terrainml = True  # type: ignore[attr-defined]
+        root.addHandler(h)
+    root.setLevel(logging.INFO if verbose else logging.WARNING)
+
+
+def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = False,
+                robot: str | None = None, preset: str | None = None,
+                idle_timeout_s: float | None = None, verbose: bool = False) -> int:
+    """Run ``terrainml predict``; return the process exit code (0 ok, 2 unusable input)."""
+    console = Console(stderr=True, soft_wrap=True)
+    _setup_logging(verbose)
+    from terrainml.stream.classify import ModelLoadError
+
+    try:
+        predictor = Predictor.from_model_dir(model, robot=robot, preset=preset,
+                                               classify_lag_ticks=CLASSIFY_LAG_TICKS)
+    except (ModelLoadError, FileNotFoundError, ValueError) as exc:
+        console.print(f"[red]error:[/] model {model}: {exc}")
+        return 2
+    n_classes = len(predictor.class_names)
+    opened: list[GuardedSink] = []
+    try:
+        for spec in sinks:
+            opened.append(open_sink(spec, n_wheels=predictor.n, n_classes=n_classes))
+    except SinkError as exc:
+        console.print(f"[red]error:[/] {exc}")
+        for s in opened:
+            s.close()
+        return 2
+    counters = SourceCounters()
+
+    def ready(addr: Any) -> None:
+        where = f"udp://{addr[0]}:{addr[1]}" if addr else source
+        console.print(f"terrainml predict: ready, reading {where}, serving to {', '.join(sinks)}",
+                      highlight=False)
+
+    try:
+        samples = open_source(source, robot=predictor.robot, realtime=realtime, counters=counters,
+                              idle_timeout_s=idle_timeout_s, ready=ready)
+    except SourceError as exc:
+        console.print(f"[red]error:[/] {exc}")
+        for s in opened:
+            s.close()
+        return 2
+
+    # everything loaded so far (model, libraries) is long-lived: keep it out of the garbage
+    # collector's full passes, which otherwise stall a tick for tens of ms now and then
+    gc.collect()
+    gc.freeze()
+
+    def _term(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, _term)
+    t0 = time.perf_counter()
+    n = 0
+    code = 0
+    is_log = not (source.strip() == "-" or source.strip().startswith("udp"))
+    try:
+        if is_log and not realtime:
+            from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+            with Progress(SpinnerColumn(), TextColumn("replaying {task.description}: "
+                                                      "{task.completed:,.0f} ticks"),
+                          TimeElapsedColumn(), console=console, transient=True) as bar:
+                task = bar.add_task(Path(source).name, total=None)
+                n = serve(predictor, samples, opened,
+                          on_message=lambda m: bar.advance(task, 100) if m.seq % 100 == 99 else None)
+        else:
+            n = serve(predictor, samples, opened)
+    except KeyboardInterrupt:
+        log.info("interrupted")
+    except SourceError as exc:
+        console.print(f"[red]error:[/] {exc}")
+        code = 2
+    finally:
+        signal.signal(signal.SIGTERM, old)
+        predictor.close()
+        for s in opened:
+            s.close()
+    dt = time.perf_counter() - t0
+    st = predictor.stats()
+    sink_err = {s.name: s.errors for s in opened if s.errors}
+    console.print(
+        f"terrainml predict: {st['emitted']} messages in {dt:.1f} s; dropped: "
+        f"{st['duplicate']} duplicate, {st['out_of_order']} out-of-order, {st['bad_time']} bad t_s; "
+        f"malformed input: {counters.malformed}; classifications: {st['classifications']} "
+        f"({st['classifier_errors']} errors); sink errors: {sink_err or 0}",
+        highlight=False)
+    return code
+
+
+def replay_summary(model: str | Path, log_path: str | Path, *, console: Console | None = None,
+                   robot: str | None = None) -> list[dict[str, Any]]:
+    """Replay a recorded log through the predictor and print what it served (for ``make demo``).
+
+    Consecutive ticks serving the same class with the same fallback reason form one segment;
+    returns the segments as dicts (``t_start_s``, ``t_end_s``, ``terrain_class``,
+    ``terrain_name``, ``fallback_reason``, ``ticks``, ``mean_slip_desired``, and ``true_class``,
+    the most frequent logged ``terrain`` label of the segment when the log has labels).
+    """
+    import numpy as np
+    from rich.table import Table
+
+    console = console or Console(stderr=True, soft_wrap=True)
+    predictor = Predictor.from_model_dir(model, robot=robot, classify_lag_ticks=CLASSIFY_LAG_TICKS)
+    segments: list[dict[str, Any]] = []
+    labels: list[int] = []
+    try:
+        for sample in open_source(str(log_path), robot=predictor.robot):
+            msg = predictor.step(sample)
+            if msg is None:
+                continue
+            key = (msg.terrain_class, msg.fallback_reason)
+            if not segments or segments[-1]["_key"] != key:
+                if segments:
+                    _close_segment(segments[-1], labels)
+                segments.append({"_key": key, "t_start_s": msg.t_s, "terrain_class": msg.terrain_class,
+                                 "terrain_name": msg.terrain_name,
+                                 "fallback_reason": msg.fallback_reason, "ticks": 0,
+                                 "_slip": np.zeros(len(msg.slip_desired))})
+                labels = []
+            seg = segments[-1]
+            seg["t_end_s"] = msg.t_s
+            seg["ticks"] += 1
+            seg["_slip"] += np.asarray(msg.slip_desired)
+            lab = sample.get("terrain")
+            if lab is not None and lab == lab and int(lab) >= 0:
+                labels.append(int(lab))
+        if segments:
+            _close_segment(segments[-1], labels)
+    finally:
+        predictor.close()
+    table = Table(title=f"served by {Path(model).name} on {Path(log_path).name}")
+    for col in ("t (s)", "served class", "fallback", "mean desired slip", "logged class"):
+        table.add_column(col)
+    for seg in segments:
+        table.add_row(f"{seg['t_start_s']:.2f}-{seg['t_end_s']:.2f}", seg["terrain_name"],
+                      seg["fallback_reason"] or "-",
+                      " ".join(f"{v:+.3f}" for v in seg["mean_slip_desired"]),
+                      "-" if seg["true_class"] is None else str(seg["true_class"]))
+    console.print(table)
+    return segments
+
+
+def _close_segment(seg: dict[str, Any], labels: list[int]) -> None:
+    from collections import Counter
+
+    seg["mean_slip_desired"] = [float(v) for v in seg.pop("_slip") / max(seg["ticks"], 1)]
+    seg.pop("_key", None)
+    seg["true_class"] = Counter(labels).most_common(1)[0][0] if labels else None

@@ -1,0 +1,266 @@
+"""Where served :class:`DesiredSlip` messages go: stdout, UDP JSON, CAN, MCAP (SYSTEM §11).
+
+Sink specs (``terrainml predict --sink``; repeat the option for several sinks)::
+
+    stdout                          one JSON object per line
+    udp://HOST:PORT                 one JSON datagram per tick (default 127.0.0.1:9871)
+    can://INTERFACE/CHANNEL         python-can, e.g. can://virtual/vcan0, can://socketcan/can0
+    mcap:OUT.mcap                   MCAP recording, topic /terrainml/desired_slip, JSON schema
+
+A sink that fails (socket error, CAN bus down, disk full) is wrapped by :class:`GuardedSink`:
+the error is logged (the first time and then every 1000th), counted, and the predictor goes on.
+
+CAN frame layout (classic CAN, 11-bit ids, 8 data bytes, little endian; ``BASE`` default 0x300)
+-----------------------------------------------------------------------------------------------
+Summary frame, id ``BASE``::
+
+    bytes 0-1  uint16  seq (mod 65536)
+    byte  2    uint8   terrain_class (255 = none)
+    byte  3    uint8   confidence x 250 (0..250)
+    bytes 4-5  uint16  classification_age in ms (65535 = none or >= 65.5 s)
+    byte  6    uint8   flags: bit0 fallback, bit1 estimator_ok, bits 2-4 fallback reason code
+    byte  7    uint8   number of wheels N
+
+Wheel frame i (1..N), id ``BASE + i``::
+
+    bytes 0-1  int16   slip_desired x 1e4 (saturated to +-32767, i.e. +-3.2767)
+    bytes 2-3  int16   slip_measured x 1e4
+    byte  4    uint8   wheel state code: 0 idle, 1 steady, 2 traction, 3 braking
+    byte  5    uint8   terrain_class (255 = none)
+    byte  6    uint8   flags (as in the summary frame)
+    byte  7    uint8   seq & 0xFF (pairs the wheel frames of one tick)
+
+Fallback reason codes: 0 none, 1 estimator_unhealthy, 2 classifier_error, 3 no_classification,
+4 stale_classification.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import socket
+import struct
+import sys
+from pathlib import Path
+from typing import IO, Any, Protocol
+
+from terrainml.io.topics import WHEEL_STATE_CODES
+from terrainml.stream.message import FALLBACK_REASONS, TOPIC, DesiredSlip, json_schema
+
+log = logging.getLogger("terrainml.stream")
+
+DEFAULT_UDP_SINK = ("127.0.0.1", 9871)
+CAN_BASE_ID = 0x300
+REASON_CODES = {"": 0, **{r: i + 1 for i, r in enumerate(FALLBACK_REASONS)}}
+_STATE_BY_CODE = {v: k for k, v in WHEEL_STATE_CODES.items()}
+_REASON_BY_CODE = {v: k for k, v in REASON_CODES.items()}
+
+
+class SinkError(ValueError):
+    """A sink spec cannot be parsed or opened (the message names it)."""
+
+
+class Sink(Protocol):
+    name: str
+
+    def send(self, msg: DesiredSlip) -> None: ...
+
+    def close(self) -> None: ...
+
+
+# --------------------------------------------------------------------------- sinks
+class StdoutSink:
+    """One JSON object per line on ``stream`` (default stdout), flushed per message."""
+
+    def __init__(self, stream: IO[str] | None = None):
+        self.stream = stream or sys.stdout
+        self.name = "stdout"
+
+    def send(self, msg: DesiredSlip) -> None:
+        self.stream.write(msg.to_json() + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        try:
+            self.stream.flush()
+        except Exception:  # noqa: BLE001 - closed pipe at exit
+            pass
+
+
+class UdpSink:
+    """One JSON datagram per message to ``host:port``."""
+
+    def __init__(self, host: str = DEFAULT_UDP_SINK[0], port: int = DEFAULT_UDP_SINK[1]):
+        self.addr = (host, int(port))
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.name = f"udp://{host}:{port}"
+
+    def send(self, msg: DesiredSlip) -> None:
+        self.sock.sendto(msg.to_json().encode(), self.addr)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def encode_can_frames(msg: DesiredSlip | dict, base_id: int = CAN_BASE_ID) -> list[tuple[int, bytes]]:
+    """The frames of one message as (arbitration id, 8 data bytes); layout in the module doc."""
+    d = msg.to_dict() if isinstance(msg, DesiredSlip) else msg
+    n = len(d["slip_desired"])
+    cls = d["terrain_class"] if 0 <= d["terrain_class"] < 255 else 255
+    flags = (1 if d["fallback"] else 0) | (2 if d["estimator_ok"] else 0) \
+        | (REASON_CODES.get(d["fallback_reason"], 7) << 2)
+    age = d["classification_age_s"]
+    age_ms = 65535 if age < 0 else min(65535, int(round(age * 1e3)))
+    conf = max(0, min(250, int(round(d["confidence"] * 250))))
+    frames = [(base_id, struct.pack("<HBBHBB", d["seq"] & 0xFFFF, cls, conf, age_ms, flags, n & 0xFF))]
+
+    def q(v: float) -> int:
+        return max(-32767, min(32767, int(round(v * 1e4))))
+
+    for i in range(n):
+        frames.append((base_id + i + 1, struct.pack(
+            "<hhBBBB", q(d["slip_desired"][i]), q(d["slip_measured"][i]),
+            WHEEL_STATE_CODES.get(d["wheel_state"][i], 0), cls, flags, d["seq"] & 0xFF)))
+    return frames
+
+
+def decode_can_frames(frames: list[tuple[int, bytes]], base_id: int = CAN_BASE_ID) -> dict[str, Any]:
+    """Inverse of :func:`encode_can_frames` (to the frame resolution); for receivers and tests."""
+    by_id = {fid: data for fid, data in frames}
+    seq, cls, conf, age_ms, flags, n = struct.unpack("<HBBHBB", by_id[base_id])
+    out: dict[str, Any] = {
+        "seq": seq, "terrain_class": None if cls == 255 else cls, "confidence": conf / 250,
+        "classification_age_s": -1.0 if age_ms == 65535 else age_ms / 1e3,
+        "fallback": bool(flags & 1), "estimator_ok": bool(flags & 2),
+        "fallback_reason": _REASON_BY_CODE.get(flags >> 2, "unknown"),
+        "slip_desired": [], "slip_measured": [], "wheel_state": [],
+    }
+    for i in range(n):
+        sd, sm, st, _c, _f, _s = struct.unpack("<hhBBBB", by_id[base_id + i + 1])
+        out["slip_desired"].append(sd / 1e4)
+        out["slip_measured"].append(sm / 1e4)
+        out["wheel_state"].append(_STATE_BY_CODE.get(st, "idle"))
+    return out
+
+
+class CanSink:
+    """DesiredSlip as CAN frames through python-can (``interface`` e.g. virtual, socketcan)."""
+
+    def __init__(self, interface: str, channel: str, base_id: int = CAN_BASE_ID, **bus_kwargs: Any):
+        import can
+
+        self._can = can
+        try:
+            self.bus = can.Bus(interface=interface, channel=channel, **bus_kwargs)
+        except Exception as exc:  # noqa: BLE001 - python-can raises many types
+            raise SinkError(f"can://{interface}/{channel}: cannot open CAN bus ({exc})") from None
+        self.base_id = int(base_id)
+        self.name = f"can://{interface}/{channel}"
+
+    def send(self, msg: DesiredSlip) -> None:
+        for fid, data in encode_can_frames(msg, self.base_id):
+            self.bus.send(self._can.Message(arbitration_id=fid, data=data, is_extended_id=False))
+
+    def close(self) -> None:
+        self.bus.shutdown()
+
+
+class McapSink:
+    """MCAP recording: topic ``/terrainml/desired_slip``, JSON messages with a JSON schema.
+
+    Foxglove plots e.g. ``/terrainml/desired_slip.slip_desired[0]`` directly. Log time is the
+    tick's ``t_s`` (ns).
+    """
+
+    def __init__(self, path: str | Path, n_wheels: int | None = None, n_classes: int | None = None):
+        from mcap.writer import Writer
+
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(self.path, "wb")
+        self.writer = Writer(self._fh)
+        self.writer.start(profile="", library="terrainml")
+        schema_id = self.writer.register_schema(
+            name="terrainml.DesiredSlip", encoding="jsonschema",
+            data=json.dumps(json_schema(n_wheels, n_classes)).encode())
+        self.channel_id = self.writer.register_channel(
+            topic=TOPIC, message_encoding="json", schema_id=schema_id)
+        self.name = f"mcap:{self.path}"
+        self._closed = False
+
+    def send(self, msg: DesiredSlip) -> None:
+        t_ns = max(0, int(round(msg.t_s * 1e9)))
+        self.writer.add_message(channel_id=self.channel_id, log_time=t_ns, publish_time=t_ns,
+                                data=msg.to_json().encode(), sequence=msg.seq & 0xFFFFFFFF)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.writer.finish()
+            self._fh.close()
+
+
+class GuardedSink:
+    """Wrap a sink so that its failures are logged and counted, never raised."""
+
+    def __init__(self, sink: Any, log_every: int = 1000):
+        self.sink = sink
+        self.name = getattr(sink, "name", type(sink).__name__)
+        self.errors = 0
+        self.sent = 0
+        self.log_every = log_every
+
+    def send(self, msg: DesiredSlip) -> None:
+        try:
+            self.sink.send(msg)
+            self.sent += 1
+        except Exception as exc:  # noqa: BLE001 - a sink that is down must not stop serving
+            self.errors += 1
+            if self.errors == 1 or self.errors % self.log_every == 0:
+                log.warning("sink %s failed (%d errors so far; predictor continues): %s",
+                            self.name, self.errors, exc)
+
+    def close(self) -> None:
+        try:
+            self.sink.close()
+        except Exception as exc:  # noqa: BLE001
+            log.warning("sink %s failed to close: %s", self.name, exc)
+
+
+# --------------------------------------------------------------------------- factory
+def _host_port(rest: str, default: tuple[str, int], spec: str) -> tuple[str, int]:
+    if not rest:
+        return default
+    host, _, port = rest.rpartition(":")
+    try:
+        return (host or default[0], int(port))
+    except ValueError:
+        raise SinkError(f"sink {spec!r}: expected udp://HOST:PORT") from None
+
+
+def open_sink(spec: str, *, n_wheels: int | None = None, n_classes: int | None = None,
+              stdout: IO[str] | None = None) -> GuardedSink:
+    """Open one sink from its spec string (see the module docstring); raises SinkError."""
+    s = spec.strip()
+    if s in ("stdout", "-"):
+        sink: Any = StdoutSink(stdout)
+    elif s.startswith("udp://") or s == "udp":
+        host, port = _host_port(s[len("udp://"):] if s != "udp" else "", DEFAULT_UDP_SINK, spec)
+        sink = UdpSink(host, port)
+    elif s.startswith("can://"):
+        iface, _, channel = s[len("can://"):].partition("/")
+        if not iface or not channel:
+            raise SinkError(f"sink {spec!r}: expected can://INTERFACE/CHANNEL, e.g. can://virtual/vcan0")
+        sink = CanSink(iface, channel)
+    elif s.startswith("mcap:"):
+        path = s[len("mcap:"):]
+        if not path:
+            raise SinkError(f"sink {spec!r}: expected mcap:OUT.mcap")
+        try:
+            sink = McapSink(path, n_wheels, n_classes)
+        except OSError as exc:
+            raise SinkError(f"sink {spec!r}: cannot write {path} ({exc})") from None
+    else:
+        raise SinkError(f"unknown sink {spec!r}; expected stdout, udp://HOST:PORT, "
+                        "can://INTERFACE/CHANNEL or mcap:OUT.mcap")
+    return GuardedSink(sink)

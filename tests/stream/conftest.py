@@ -1,0 +1,47 @@
+"""Fixtures of the stream tests (fakes and helpers live in ``stream_fakes.py``)."""
+
+from __future__ import annotations
+
+import pytest
+from stream_fakes import CLASS_IDS, FakeClassifier, FakeEstimator, FakeTable, _synthetic_windows
+
+from terrainml.classes import TERRAIN_CLASSES as TERRAIN
+from terrainml.robot import load_robot
+
+
+@pytest.fixture
+def robot():
+    return load_robot()
+
+
+@pytest.fixture
+def fake_predictor(robot):
+    from terrainml.stream.predictor import Predictor
+
+    def make(classifier=None, estimator=None, **kw):
+        return Predictor(robot, FakeTable(), classifier or FakeClassifier(),
+                         estimator or FakeEstimator(robot), **kw)
+
+    return make
+
+
+@pytest.fixture(scope="session")
+def model_dir(tmp_path_factory):
+    """A tiny verified model folder (SVM on synthetic windows), built with the artifact API."""
+    from terrainml.features.sets import FeatureSet
+    from terrainml.features.windows import WindowSpec
+    from terrainml.lookup.table import DesiredSlipTable
+    from terrainml.models.artifacts import save_artifact
+    from terrainml.models.svm import SVMClassifier
+
+    robot = load_robot()
+    wins = _synthetic_windows(robot)
+    clf = SVMClassifier(FeatureSet.for_robot(robot), C_grid=[10.0], gamma_grid=["scale"],
+                        inner_folds=2).fit(wins, wins.y)
+    out = tmp_path_factory.mktemp("model") / "tiny"
+    save_artifact(out, {"svm": clf}, classes=list(CLASS_IDS),
+                  class_names=[TERRAIN[c] for c in CLASS_IDS], channels=list(wins.channels),
+                  window_spec=WindowSpec(), robot=robot, training_fingerprint="test",
+                  table=DesiredSlipTable.build(robot))
+    return out
+

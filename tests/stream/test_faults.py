@@ -1,0 +1,236 @@
+"""Fault handling of the online predictor (issue 9 acceptance: each fault a test)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import socket
+
+import numpy as np
+import pytest
+from stream_fakes import FakeClassifier, FakeEstimator, make_samples
+
+from terrainml.stream.runner import serve
+from terrainml.stream.sinks import GuardedSink
+from terrainml.stream.sources import SourceCounters, iter_udp_samples
+
+
+def _strict_json(msg):
+    """Serialise and parse back, refusing NaN/Infinity tokens."""
+    text = msg.to_json()
+
+    def bad(tok):
+        raise AssertionError(f"non-finite token {tok} in {text}")
+
+    return json.loads(text, parse_constant=bad)
+
+
+def _run(pred, samples):
+    return [m for m in (pred.step(s) for s in samples) if m is not None]
+
+
+def test_startup_fallback_until_first_steady_window(robot, fake_predictor):
+    pred = fake_predictor()
+    # 1 s standing still (no steady window possible), then 4 s cruising on class 3
+    samples = make_samples(robot, 1.0, speed_mps=0.0, slip=0.0) + make_samples(robot, 4.0, t0=1.0)
+    out = _run(pred, samples)
+    first_ok = next(m for m in out if not m.fallback)
+    before = [m for m in out if m.t_s < first_ok.t_s]
+    assert before and all(m.fallback and m.fallback_reason == "no_classification" for m in before)
+    assert all(m.classification_age_s == -1.0 for m in before)
+    # the first classification needs a full 2 s window of cruising: not before t = 1 + 2 s
+    assert first_ok.t_s >= 2.99
+    assert first_ok.terrain_class == 3 and first_ok.terrain_name == "gravel_on_firm_soil"
+    assert all(not m.fallback for m in out if m.t_s >= first_ok.t_s)
+
+
+@pytest.mark.parametrize("group,cols", [
+    ("imu", ["imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2", "imu_yaw_rate_radps"]),
+    ("cam", ["cam_vx_mps", "cam_vy_mps", "cam_yaw_rate_radps", "cam_yaw_rad"]),
+    ("current", ["wheel1_current_a", "wheel2_current_a", "wheel3_current_a"]),
+])
+def test_silent_group_marks_unhealthy_within_0p2s(robot, fake_predictor, group, cols):
+    pred = fake_predictor()
+    samples = make_samples(robot, 8.0)
+    t_off, t_on = 5.0, 5.5  # the group is silent for 0.5 s
+    for s in samples:
+        if t_off <= s["t_s"] < t_on:
+            for c in cols:
+                s.pop(c, None)  # the topic stops publishing: the columns are absent
+    out = _run(pred, samples)
+    ok_before = [m for m in out if 4.0 <= m.t_s < t_off]
+    assert ok_before and all(m.estimator_ok and not m.fallback for m in ok_before)
+    # last fresh sample at 4.99 s; unhealthy must be flagged no later than 0.2 s into the silence
+    flagged = [m for m in out if t_off <= m.t_s < t_on and not m.estimator_ok]
+    assert flagged, "silence never detected"
+    assert flagged[0].t_s <= t_off + 0.2 + 1e-9
+    assert all(not m.estimator_ok and m.fallback and m.fallback_reason == "estimator_unhealthy"
+               and m.terrain_class == 0 for m in out if t_off + 0.2 <= m.t_s < t_on)
+    # short of the 0.2 s threshold the estimator is still trusted
+    assert all(m.estimator_ok for m in out if t_off <= m.t_s < t_off + 0.18)
+    # fallback row (pavement) is what is served while unhealthy: steady target 0.005
+    m = next(m for m in out if t_off + 0.3 <= m.t_s)
+    assert m.slip_desired == pytest.approx([0.005] * robot.n_wheels)
+    # health returns when the group publishes again
+    assert all(m.estimator_ok for m in out if m.t_s >= t_on + 0.01)
+
+
+def test_nan_bursts_never_reach_output(robot, fake_predictor):
+    rng = np.random.default_rng(1)
+    pred = fake_predictor(estimator=FakeEstimator(robot, nan_at=range(300, 320)))
+    samples = make_samples(robot, 6.0)
+    keys = [k for k in samples[0] if k not in ("t_s", "terrain")]
+    samples[200]["imu_yaw_rad"] = "garbage"  # an optional column with a string
+    for start in (150, 410, 480):  # three 10-tick bursts of NaN / inf / strings in random columns
+        for s in samples[start:start + 10]:
+            for k in rng.choice(keys, size=5, replace=False):
+                s[k] = rng.choice([math.nan, math.inf, -math.inf, "nan", None])
+    out = _run(pred, samples)
+    assert len(out) == len(samples)
+    for m in out:
+        d = _strict_json(m)
+        for v in d["slip_desired"] + d["slip_measured"] + d["class_probabilities"]:
+            assert math.isfinite(v)
+        assert math.isfinite(d["confidence"]) and math.isfinite(d["classification_age_s"])
+    # the estimator's own NaN output (ticks 300-319) is replaced, and flagged
+    assert all(m.slip_measured == [0.0] * 3 for m in out[299:319])
+
+
+def test_out_of_order_and_duplicate_timestamps_dropped_and_counted(robot, fake_predictor):
+    pred = fake_predictor()
+    samples = make_samples(robot, 3.0)
+    stream = list(samples)
+    stream.insert(100, dict(samples[99]))          # duplicate
+    stream.insert(200, dict(samples[150]))         # late (out of order)
+    stream.insert(250, dict(samples[248]))         # late
+    stream.insert(251, dict(samples[249]))         # duplicate of a sample just accepted
+    stream.insert(10, {**samples[5], "t_s": float("nan")})  # unusable time stamp
+    out = _run(pred, stream)
+    ts = [m.t_s for m in out]
+    assert ts == [s["t_s"] for s in samples]  # every original tick once, in order
+    assert [m.seq for m in out] == list(range(len(samples)))
+    st = pred.stats()
+    assert st["out_of_order"] == 2
+    assert st["duplicate"] == 2
+    assert st["bad_time"] == 1
+
+
+def test_classifier_raising_gives_fallback_not_crash(robot, fake_predictor, caplog):
+    clf = FakeClassifier(raise_on_calls={3, 4})
+    pred = fake_predictor(classifier=clf)
+    with caplog.at_level(logging.WARNING, logger="terrainml.stream"):
+        out = _run(pred, make_samples(robot, 6.0))
+    assert len(out) == 600
+    bad = [m for m in out if m.fallback_reason == "classifier_error"]
+    assert bad and all(m.fallback and m.terrain_class == 0 for m in bad)
+    # calls 1, 2 succeed (t = 1.99, 2.49), 3 and 4 raise (t = 2.99, 3.49), 5 succeeds (t = 3.99)
+    assert bad[0].t_s == pytest.approx(2.99) and bad[-1].t_s == pytest.approx(3.98)
+    assert not out[-1].fallback and out[-1].terrain_class == 3
+    assert "classification failed" in caplog.text
+
+
+def test_classifier_returning_garbage_is_a_classifier_error(robot, fake_predictor):
+    class Garbage(FakeClassifier):
+        def classify(self, window):
+            return np.full(8, np.nan)
+
+    pred = fake_predictor(classifier=Garbage())
+    out = _run(pred, make_samples(robot, 3.0))
+    assert out[-1].fallback_reason == "classifier_error"
+    assert all(math.isfinite(p) for p in out[-1].class_probabilities)
+
+
+def test_stale_classification_falls_back_after_1s(robot, fake_predictor):
+    pred = fake_predictor()
+    # cruise 3 s (classified), then stop: windows stop being steady, classification ages
+    samples = make_samples(robot, 3.0) + make_samples(robot, 3.0, speed_mps=0.0, slip=0.0, t0=3.0)
+    out = _run(pred, samples)
+    last_class_t = max(m.t_s - m.classification_age_s for m in out if m.classification_age_s >= 0)
+    for m in out:
+        if m.classification_age_s > 1.0 + 1e-9:
+            assert m.fallback and m.fallback_reason == "stale_classification"
+    assert any(m.fallback_reason == "stale_classification" for m in out)
+    assert out[-1].t_s - last_class_t > 1.0
+
+
+def test_malformed_udp_datagrams_counted_and_skipped():
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    port = rx.getsockname()[1]
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    good = [json.dumps({"t_s": k * 0.01, "imu_ax_mps2": 0.1}).encode() for k in range(5)]
+    bad = [b"not json", b"[1, 2, 3]", b'{"imu_ax_mps2": 1}', b'{"t_s": NaN}', b'{"t_s": "x"}',
+           b"\xff\xfe\x00", b""]
+    for d in [good[0], bad[0], good[1], bad[1], bad[2], good[2], bad[3], bad[4], good[3], bad[5],
+              bad[6], good[4], b'{"eos": true}']:
+        tx.sendto(d, ("127.0.0.1", port))
+    counters = SourceCounters()
+    got = list(iter_udp_samples(counters=counters, idle_timeout_s=2.0, sock=rx))
+    assert [s["t_s"] for s in got] == [k * 0.01 for k in range(5)]
+    assert counters.malformed == len(bad)
+    tx.close()
+
+
+def test_sink_down_is_logged_and_predictor_continues(robot, fake_predictor, caplog):
+    import can
+
+    from terrainml.stream.sinks import CanSink
+
+    received = []
+
+    class ListSink:
+        name = "list"
+
+        def send(self, m):
+            received.append(m)
+
+        def close(self):
+            pass
+
+    down = CanSink("virtual", "test_sink_down")
+    down.bus.shutdown()  # the bus goes away: every send raises
+    with pytest.raises(can.CanError):
+        down.bus.send(can.Message(arbitration_id=1, data=b"\0"))
+    guarded = GuardedSink(down)
+    pred = fake_predictor()
+    with caplog.at_level(logging.WARNING, logger="terrainml.stream"):
+        n = serve(pred, make_samples(robot, 2.0), [guarded, GuardedSink(ListSink())])
+    assert n == 200 and len(received) == 200
+    assert guarded.errors == 200
+    assert "sink can://virtual/test_sink_down failed" in caplog.text
+
+
+def test_background_classification_is_deterministic_and_lagged(robot, fake_predictor):
+    """classify_lag_ticks=L: same decisions as inline, applied exactly L ticks later."""
+    samples = make_samples(robot, 1.0, speed_mps=0.0, slip=0.0) + make_samples(robot, 5.0, t0=1.0)
+    inline = _run(fake_predictor(), samples)
+    pred = fake_predictor(classifier=FakeClassifier(raise_on_calls={4}), classify_lag_ticks=10)
+    lagged = _run(pred, samples)
+    pred.close()
+    first_inline = next(m.seq for m in inline if not m.fallback)
+    first_lagged = next(m.seq for m in lagged if not m.fallback)
+    assert first_lagged == first_inline + 10
+    # the age counts from the window's last tick, so it is >= the lag when applied
+    assert lagged[first_lagged].classification_age_s == pytest.approx(0.10)
+    err = [m for m in lagged if m.fallback_reason == "classifier_error"]
+    # calls at 1.99, 2.49 (unsteady), 2.99 (ok), 3.49 (raises) -> error served from 3.59 s
+    assert err and err[0].t_s == pytest.approx(3.49 + 0.10)
+    assert not lagged[-1].fallback and lagged[-1].terrain_class == 3
+
+
+def test_estimator_raising_is_an_unhealthy_tick_not_a_crash(robot, fake_predictor):
+    class Flaky(FakeEstimator):
+        def step(self, s):
+            if 400 <= self.k < 410:
+                self.k += 1
+                raise FloatingPointError("singular covariance (test)")
+            return super().step(s)
+
+    pred = fake_predictor(estimator=Flaky(robot))
+    out = _run(pred, make_samples(robot, 6.0))
+    assert len(out) == 600
+    bad = out[400:410]
+    assert all(not m.estimator_ok and m.fallback_reason == "estimator_unhealthy" for m in bad)
+    assert out[-1].estimator_ok and not out[-1].fallback
+    assert pred.stats()["estimator_errors"] == 10
