@@ -31,9 +31,14 @@ def ingest(
     rate_hz: float = typer.Option(100.0, "--rate-hz", help="Base rate of the output table (Hz)."),
     robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec YAML or built-in name "
                                         "(agrimaro, husky). Default: agrimaro."),
+    chunk_s: float = typer.Option(30.0, "--chunk-s", help="Seconds of log resampled and written at a time "
+                                  "(one Parquet row group each); bounds memory for long MCAP/bag logs."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
-    """Ingest a log into the canonical run table (Parquet).
+    """Ingest a log into the canonical run table (Parquet), streaming in time chunks.
+
+    MCAP and bag logs are read twice (a scan, then chunk by chunk), so memory does not grow with
+    the log's length; the file equals ``load_run(LOG).table`` written with ``write_run_parquet``.
 
     Example: ``terrainml ingest run.mcap --out runs/run.parquet --robot agrimaro``
 
@@ -42,16 +47,14 @@ def ingest(
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from terrainml.io.ingest import load_run
-    from terrainml.schema import write_run_parquet
+    from terrainml.io.stream_ingest import ingest_to_parquet
 
     try:
         with Progress(TextColumn("[bold]ingest[/] {task.description}"), BarColumn(), TimeRemainingColumn(),
                       console=console, transient=True, disable=quiet) as progress:
             task = progress.add_task(str(log), total=None)
-            result = load_run(log, robot=robot, topic_map=topics, rate_hz=rate_hz,
-                              progress=_progress_callback(progress, task))
-        rep = result.report
+            rep = ingest_to_parquet(log, out, robot=robot, topic_map=topics, rate_hz=rate_hz, chunk_s=chunk_s,
+                                    progress=_progress_callback(progress, task))
         for w in rep.warnings:
             if not quiet:
                 console.print(f"[yellow]warning:[/] {w}", highlight=False, soft_wrap=True)
@@ -60,7 +63,6 @@ def ingest(
         if not rep.usable:
             console.print(f"[red]{log}: no usable run table; nothing written[/]", highlight=False, soft_wrap=True)
             raise typer.Exit(2)
-        write_run_parquet(result.table, out)
     except typer.Exit:
         raise
     except Exception as exc:  # noqa: BLE001 - last line of defence: a message, never a traceback

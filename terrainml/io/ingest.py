@@ -119,8 +119,16 @@ def _sorted_part(part: dict, topic: str, rep: IngestReport, t0_ns: int) -> tuple
 
 
 def _signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap: TopicMap,
-                 rate_hz: float) -> list[_Signal]:
-    gap = gap_threshold_s(t_s, rate_hz)
+                 rate_hz: float, *, gap_s: float | None = None, imu_orientation: bool | None = None,
+                 cam_yaw0_rad: float | None = None) -> list[_Signal]:
+    """Canonical-column signals of one sorted source part.
+
+    The keyword arguments carry whole-log facts when ``part`` is only a time slice of the source
+    (streaming ingest): ``gap_s`` the source's gap threshold, ``imu_orientation`` whether the IMU
+    ever publishes an orientation, ``cam_yaw0_rad`` the raw T265 yaw of the first valid pose. None:
+    computed from ``part`` itself (the whole source, in-memory path).
+    """
+    gap = gap_threshold_s(t_s, rate_hz) if gap_s is None else float(gap_s)
     sig: list[_Signal] = []
 
     def add(col, values, method="linear", extra=None):
@@ -137,8 +145,7 @@ def _signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tma
         q = part["orientation"]
         if src.options.get("yaw_from_orientation", True):
             norm = np.linalg.norm(np.nan_to_num(q), axis=1)
-            qf = np.nan_to_num(q)
-            never_set = np.allclose(qf, [0.0, 0.0, 0.0, 1.0]) or np.allclose(qf, 0.0)
+            never_set = _imu_orientation_never_set(q) if imu_orientation is None else not imu_orientation
             if not never_set:  # an IMU without orientation publishes identity (or zeros) throughout
                 ok = np.isfinite(q).all(axis=1) & (norm > 1e-6)
                 qs = np.where(ok[:, None], q, [0.0, 0.0, 0.0, 1.0])
@@ -153,7 +160,8 @@ def _signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tma
         add("cam_vx_mps", out["vx_mps"], extra=low)
         add("cam_vy_mps", out["vy_mps"], extra=low)
         add("cam_yaw_rate_radps", out["yaw_rate_radps"], extra=low)
-        add("cam_yaw_rad", out["yaw_rad"], "angle", extra=low)
+        yaw = out["yaw_rad"] if cam_yaw0_rad is None else t265.wrap_angle(out["yaw_raw_rad"] - cam_yaw0_rad)
+        add("cam_yaw_rad", yaw, "angle", extra=low)
         add("cam_confidence", conf, "previous")
     elif kind == "ground_truth":
         q = part["orientation"]
@@ -179,6 +187,12 @@ def _signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tma
         add("terrain", part["data"], "previous")
         sig[-1].max_gap_s = np.inf
     return sig
+
+
+def _imu_orientation_never_set(q: np.ndarray) -> bool:
+    """An IMU without orientation publishes identity (or zeros) throughout."""
+    qf = np.nan_to_num(q)
+    return bool(np.allclose(qf, [0.0, 0.0, 0.0, 1.0]) or np.allclose(qf, 0.0))
 
 
 def _joint_signals(src: Source, parts: list[dict], t0_ns: int, robot: RobotSpec, rate_hz: float,
@@ -268,8 +282,9 @@ def _codes_to_states_fast(codes: np.ndarray) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- logs
-def _from_log(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap, rate_hz: float,
-              rep: IngestReport, progress) -> pd.DataFrame | None:
+def _wanted_for(tmap: TopicMap) -> tuple[Callable[[str, str], str | None], dict[str, str]]:
+    """The reader's ``wanted(topic, type) -> decode kind`` for a topic map, and the dict it fills
+    with mapped topics whose type does not match."""
     by_topic = tmap.by_topic()
     mismatched: dict[str, str] = {}
 
@@ -283,11 +298,22 @@ def _from_log(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap, rate_hz: f
             return None
         return src.decode_kind
 
+    return wanted, mismatched
+
+
+def _read_log(path: Path, fmt: str, tmap: TopicMap, wanted, progress=None, on_part=None,
+              validate_crcs: bool = True) -> ReadResult:
     use_header = tmap.stamp == "header"
     if fmt == "mcap":
-        res: ReadResult = read_mcap(path, wanted, use_header_stamp=use_header, progress=progress)
-    else:
-        res = read_bag(path, wanted, use_header_stamp=use_header, progress=progress)
+        return read_mcap(path, wanted, use_header_stamp=use_header, progress=progress, on_part=on_part,
+                         validate_crcs=validate_crcs)
+    return read_bag(path, wanted, use_header_stamp=use_header, progress=progress, on_part=on_part)
+
+
+def _report_read(path: Path, res: ReadResult, tmap: TopicMap, mismatched: dict[str, str],
+                 rep: IngestReport) -> None:
+    """Per-topic counts and the reader's warnings into the report (shared by both ingest paths)."""
+    by_topic = tmap.by_topic()
     rep.warnings.extend(res.warnings)
     for topic, st in res.stats.items():
         rep.topics[topic] = {"type": st.type, "mapped": topic in by_topic, "read": st.read,
@@ -305,6 +331,20 @@ def _from_log(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap, rate_hz: f
     for src in tmap.sources:
         if src.topic not in res.stats:
             (rep.notes if src.options.get("optional") else rep.warnings).append(f"{path}: mapped topic {src.topic} ({src.type or src.kind}) is not in the log")
+
+
+def _no_message_error(path: Path, tmap: TopicMap) -> str:
+    return (f"{path}: no readable message on any mapped topic "
+            f"({', '.join(s.topic for s in tmap.sources)}); `terrainml inspect` lists the "
+            "log's topics, `--topics MAP.yaml` maps them")
+
+
+def _from_log(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap, rate_hz: float,
+              rep: IngestReport, progress) -> pd.DataFrame | None:
+    by_topic = tmap.by_topic()
+    wanted, mismatched = _wanted_for(tmap)
+    res = _read_log(path, fmt, tmap, wanted, progress)
+    _report_read(path, res, tmap, mismatched, rep)
     # time origin: first decoded message of a mapped topic
     joined: dict[str, Any] = {}
     firsts = []
@@ -318,9 +358,7 @@ def _from_log(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap, rate_hz: f
         ts = [p["t_ns"] for p in (joined[topic] if isinstance(joined[topic], list) else [joined[topic]])]
         firsts.append(min(int(t.min()) for t in ts if len(t)))
     if not firsts:
-        rep.errors.append(f"{path}: no readable message on any mapped topic "
-                          f"({', '.join(s.topic for s in tmap.sources)}); `terrainml inspect` lists the "
-                          "log's topics, `--topics MAP.yaml` maps them")
+        rep.errors.append(_no_message_error(path, tmap))
         return None
     t0 = min(firsts)
     signals: list[_Signal] = []
@@ -456,24 +494,11 @@ def load_run(path: str | Path, *, robot: RobotSpec | str | Path | None = None,
     """
     path = Path(path)
     rep = IngestReport(source=str(path), rate_hz=float(rate_hz))
-    try:
-        robot_spec = load_robot(robot)
-    except RobotSpecError as exc:
-        rep.errors.append(str(exc))
-        return IngestResult(_empty_table(load_robot(None)), rep)
-    if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
-        rep.errors.append(f"rate_hz must be a positive number, got {rate_hz!r}")
+    path, robot_spec, ok = _open_input(path, robot, rate_hz, rep)
+    if not ok:
         return IngestResult(_empty_table(robot_spec), rep)
-    if path.is_dir():  # a ROS 2 bag folder (metadata.yaml + one .mcap): read its .mcap
-        inner = sorted(path.glob("*.mcap"))
-        if len(inner) == 1:
-            path = inner[0]
+    fmt = rep.format
     try:
-        fmt = sniff_format(path) if path.is_file() else None
-        if fmt is None:
-            raise LogReadError(f"{path}: file not found" if not path.exists() else
-                               f"{path}: not a file (a ROS 2 bag folder must hold exactly one .mcap)")
-        rep.format = fmt
         if fmt in ("mcap", "bag"):
             tmap = load_topic_map(topic_map if topic_map is not None else
                                   ("default" if fmt == "mcap" else None))
@@ -501,12 +526,45 @@ def load_run(path: str | Path, *, robot: RobotSpec | str | Path | None = None,
     rep.usable = any(rep.valid_fraction.get(g, 0.0) > 0 for g in ("wheels", "imu", "cam"))
     if not rep.usable:
         rep.errors.append(f"{path}: no valid wheel, IMU or camera sample on the base grid")
-    df.attrs["terrainml"] = make_metadata(
+    df.attrs["terrainml"] = _run_metadata(path, robot_spec, tmap, rate_hz, rep, run_id)
+    return IngestResult(df, rep)
+
+
+def _open_input(path: Path, robot, rate_hz: float, rep: IngestReport) -> tuple[Path, RobotSpec, bool]:
+    """Robot spec, rate check, ROS 2 bag folder and format sniffing (``rep.format``); errors go to
+    ``rep.errors`` and give ``ok=False``."""
+    try:
+        robot_spec = load_robot(robot)
+    except RobotSpecError as exc:
+        rep.errors.append(str(exc))
+        return path, load_robot(None), False
+    if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
+        rep.errors.append(f"rate_hz must be a positive number, got {rate_hz!r}")
+        return path, robot_spec, False
+    if path.is_dir():  # a ROS 2 bag folder (metadata.yaml + one .mcap): read its .mcap
+        inner = sorted(path.glob("*.mcap"))
+        if len(inner) == 1:
+            path = inner[0]
+    try:
+        fmt = sniff_format(path) if path.is_file() else None
+        if fmt is None:
+            raise LogReadError(f"{path}: file not found" if not path.exists() else
+                               f"{path}: not a file (a ROS 2 bag folder must hold exactly one .mcap)")
+    except LogReadError as exc:
+        rep.errors.append(str(exc))
+        return path, robot_spec, False
+    rep.format = fmt
+    return path, robot_spec, True
+
+
+def _run_metadata(path: Path, robot_spec: RobotSpec, tmap: TopicMap | None, rate_hz: float,
+                  rep: IngestReport, run_id: str) -> dict[str, Any]:
+    """SYSTEM §5 table metadata of an ingested log."""
+    return make_metadata(
         robot_json=robot_spec.to_json(), source_file=str(path), source_sha256=_sha256(path),
         topic_map=tmap.to_dict() if tmap is not None else None, rate_hz=float(rate_hz),
         skipped=rep.skipped_per_topic(), corrupt=rep.corrupt_per_topic(), run_id=run_id,
         warnings=list(rep.warnings))
-    return IngestResult(df, rep)
 
 
 def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec | str | None = None, *,

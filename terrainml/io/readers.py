@@ -134,8 +134,10 @@ class _TopicSink:
     """Per-topic block buffer of raw messages; decodes a block when full (bounded memory)."""
 
     def __init__(self, topic: str, type_name: str, kind: str | None, res: ReadResult, block: int,
-                 use_header_stamp: bool, keep_times: bool = False):
+                 use_header_stamp: bool, keep_times: bool = False,
+                 on_part: Callable[[str, dict], None] | None = None):
         self.topic, self.type, self.kind = topic, type_name, kind
+        self.on_part = on_part
         self.res, self.block, self.hdr = res, block, use_header_stamp
         self.datas: list[bytes] = []
         self.times: list[int] = []
@@ -174,16 +176,22 @@ class _TopicSink:
         if self.kind is None:
             return
         parts, bad = cdr.decode_array(self.kind, self.type, view, log_ns, self.hdr)
-        self.res.parts.setdefault(self.topic, []).extend(parts)
+        self._emit(parts)
         st.corrupt += bad
         st.decoded += n - bad
 
+    def _emit(self, parts: list[dict]) -> None:
+        if self.on_part is None:
+            self.res.parts.setdefault(self.topic, []).extend(parts)
+        else:  # streaming consumer: parts are handed over, never kept here
+            for p in parts:
+                self.on_part(self.topic, p)
+
     def flush(self) -> None:
-        out = self.res.parts.setdefault(self.topic, []) if self.datas else None
         if self.datas:
             parts, bad = cdr.decode_block(self.kind, self.type, self.datas, np.asarray(self.times, np.int64),
                                           self.hdr)
-            out.extend(parts)
+            self._emit(parts)
             self.stat.corrupt += bad
             self.stat.decoded += len(self.datas) - bad
             self.datas, self.times = [], []
@@ -192,7 +200,8 @@ class _TopicSink:
 
 def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: int = 4096,
               use_header_stamp: bool = True, validate_crcs: bool = True, keep_times: bool = False,
-              progress: Callable[[int, int], None] | None = None) -> ReadResult:
+              progress: Callable[[int, int], None] | None = None,
+              on_part: Callable[[str, dict], None] | None = None) -> ReadResult:
     """Stream an MCAP file.
 
     Parameters
@@ -200,6 +209,8 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
     wanted : ``(topic, type) -> kind or None``; messages of topics mapped to None are only counted.
     block : messages per topic decoded at once (memory bound: block x message size per topic).
     progress : optional ``(bytes_done, bytes_total)`` callback.
+    on_part : optional ``(topic, part)`` consumer of decoded parts, in file order; when given,
+        ``ReadResult.parts`` stays empty (streaming ingest: nothing decoded is kept by the reader).
     """
     path = Path(path)
     res = ReadResult(path=path, format="mcap")
@@ -214,7 +225,7 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
             return
         type_name = cdr.normalize_type(schemas.get(sid, ""))
         kind = wanted(topic, type_name)
-        channels[cid] = _TopicSink(topic, type_name, kind, res, block, use_header_stamp, keep_times)
+        channels[cid] = _TopicSink(topic, type_name, kind, res, block, use_header_stamp, keep_times, on_part)
 
     def handle_records(buf: bytes, start: int, end: int) -> None:
         p = start
@@ -367,8 +378,12 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
 
 # ----------------------------------------------------------------------------- ROS 1 bag
 def read_bag(path: Path, wanted: Callable[[str, str], str | None], *, use_header_stamp: bool = True,
-             keep_times: bool = False, progress: Callable[[int, int], None] | None = None) -> ReadResult:
-    """Read a ROS 1 bag (or a ROS 2 bag folder) with rosbags' AnyReader, message by message."""
+             keep_times: bool = False, progress: Callable[[int, int], None] | None = None,
+             on_part: Callable[[str, dict], None] | None = None) -> ReadResult:
+    """Read a ROS 1 bag (or a ROS 2 bag folder) with rosbags' AnyReader, message by message.
+
+    ``on_part``: optional ``(topic, one-row part)`` consumer (streaming ingest); see :func:`read_mcap`.
+    """
     from rosbags.highlevel import AnyReader
 
     path = Path(path)
@@ -417,11 +432,16 @@ def read_bag(path: Path, wanted: Callable[[str, str], str | None], *, use_header
                 continue
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
-                parts.setdefault(conn.topic, []).append(
-                    cdr.from_object(res.kinds[conn.topic], msg, log_ns, use_header_stamp))
+                part = cdr.from_object(res.kinds[conn.topic], msg, log_ns, use_header_stamp)
                 st.decoded += 1
             except Exception:  # noqa: BLE001
                 st.corrupt += 1
+                part = None
+            if part is not None:
+                if on_part is None:
+                    parts.setdefault(conn.topic, []).append(part)
+                else:
+                    on_part(conn.topic, part)
             done += 1
             if progress is not None and done % 2000 == 0:
                 progress(done, total)
