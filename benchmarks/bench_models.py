@@ -16,7 +16,7 @@ Data, in order of preference:
 
 1. ``TERRAINML_BENCH_WINDOWS=path`` to a windows file from ``terrainml dataset build``;
 2. the simulated dataset of issue 7 (recipe ``datasets/sim_default.yaml``: 12 runs per class,
-   mixed scenarios, seed 0) through ``terrainml.features.dataset.simulated_dataset`` (cached,
+   mixed scenarios, seed 0) through ``terrainml.sim.recipes.simulated_dataset`` (cached,
    shared with ``bench_svm``);
 3. a synthetic stand-in (clearly labelled as such in the output) when the simulator is not
    available yet. Final figures must come from 1 or 2.
@@ -80,9 +80,9 @@ def _labelled(ds):
 
 def simulated(quick: bool, log=print):
     """Issue 7's simulated dataset: recipe ``datasets/sim_default.yaml`` (12 runs per class,
-    mixed scenarios, seed 0), built and cached by ``terrainml.features.dataset.simulated_dataset``
+    mixed scenarios, seed 0), built and cached by ``terrainml.sim.recipes.simulated_dataset``
     (the same cache as ``bench_svm``). Quick: 5 runs per class of 40 s, Parquet logs."""
-    from terrainml.features.dataset import load_recipe, simulated_dataset
+    from terrainml.sim.recipes import load_recipe, simulated_dataset
 
     r = load_recipe("sim_default")
     if quick:

@@ -32,7 +32,7 @@ N_FOLDS = 5
 
 
 def _recipe(quick: bool, name: str) -> dict:
-    from terrainml.features.dataset import load_recipe
+    from terrainml.sim.recipes import load_recipe
 
     r = load_recipe(name)
     if quick:
@@ -79,7 +79,7 @@ def _throughput(logs: list[Path], robot, spec) -> list[list[str]]:
 
 
 def run(quick: bool = False) -> str:
-    from terrainml.features.dataset import simulated_dataset
+    from terrainml.sim.recipes import simulated_dataset
     from terrainml.models.dataset import find_logs
     from terrainml.models.train import evaluate, train
 

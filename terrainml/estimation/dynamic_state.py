@@ -11,6 +11,17 @@
 (it already holds the centripetal term of the body's path), so on a steady arc the wheel-centre
 acceleration is perpendicular to the wheel's velocity and Power is ~0 (steady).
 
+The acceleration feeding Power is the *manoeuvre* acceleration: the EKF (or true) acceleration
+through two cascaded first-order low-passes of ``MANOEUVRE_TAU_S`` = 0.3 s each (critically
+damped, -3 dB near 0.34 Hz, variable-dt safe). *Departure/addition to SYSTEM §7.2*: on rough
+or soft ground the body shakes at 3-8 Hz with 0.05-0.4 m/s^2 rms (terrain roughness modulating
+wheel loads and thrust); theta = 0.02 m^2/s^3 sits far below that, so an unfiltered Power
+flips sign every few ticks and, with the dwell debounce, the state freezes in whatever state it
+held last (a robot cruising on tilled soil read as "traction" for a whole run). The dynamic
+state is about the manoeuvre (speeding up, slowing down, holding speed), not about vibration,
+so the vibration band is filtered out first. A 1 m/s^2 start is still flagged as traction
+within ~0.3 s.
+
 Classification with hysteresis and minimum dwell (beyond the thesis):
 enter traction when Power > theta, leave it when Power < theta / 2; braking symmetric;
 idle when |v_long| < 0.05 m/s; a new state is taken only after it has persisted ``dwell_s``
@@ -31,6 +42,49 @@ STATE_NAMES = WHEEL_STATES
 THETA_M2PS3 = 0.02
 DWELL_S = 0.2
 IDLE_SPEED_MPS = 0.05
+MANOEUVRE_TAU_S = 0.3  # each of the two cascaded first-order low-passes on the acceleration
+
+
+class ManoeuvreFilter:
+    """Two cascaded first-order low-passes: vibration out, manoeuvre acceleration kept.
+
+    ``y1 += g (a - y1); y2 += g (y1 - y2)`` with ``g = 1 - exp(-dt / tau)`` per tick, on any
+    number of channels at once. The first sample initialises both stages (no start-up ramp).
+
+    Parameters
+    ----------
+    tau_s : time constant of each stage (s); 0 passes the input through.
+    """
+
+    def __init__(self, tau_s: float = MANOEUVRE_TAU_S) -> None:
+        self.tau_s = float(tau_s)
+        self._y1: np.ndarray | None = None
+        self._y2: np.ndarray | None = None
+        self._t_prev = math.nan
+
+    def step(self, t_s: float, accel) -> np.ndarray:
+        """Filter one sample (any shape); returns the filtered value (copy)."""
+        a = np.asarray(accel, dtype=float)
+        if self._y1 is None or self.tau_s <= 0.0:
+            self._y1, self._y2 = a.copy(), a.copy()
+        else:
+            dt = t_s - self._t_prev
+            g = 1.0 - math.exp(-dt / self.tau_s) if dt > 0.0 else 0.0
+            ok = np.isfinite(a)  # a non-finite sample holds the filter
+            self._y1 = np.where(ok, self._y1 + g * (a - self._y1), self._y1)
+            self._y2 = self._y2 + g * (self._y1 - self._y2)
+        self._t_prev = t_s
+        return self._y2.copy()
+
+
+def manoeuvre_accel(t_s, accel, tau_s: float = MANOEUVRE_TAU_S) -> np.ndarray:
+    """Offline :class:`ManoeuvreFilter` over rows: ``accel`` (n_ticks, ...) sampled at ``t_s`` (n_ticks,)."""
+    accel = np.asarray(accel, dtype=float)
+    f = ManoeuvreFilter(tau_s)
+    out = np.empty_like(accel)
+    for k, t in enumerate(np.asarray(t_s, dtype=float)):
+        out[k] = f.step(float(t), accel[k])
+    return out
 
 
 def wheel_power(ax_mps2, ay_mps2, yaw_rate_radps, steer_rad, v_long_mps, wheel_x_m, wheel_y_m):

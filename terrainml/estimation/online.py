@@ -18,7 +18,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from terrainml.estimation.dynamic_state import DWELL_S, THETA_M2PS3, WheelStateMachine, wheel_power
+from terrainml.estimation.dynamic_state import (DWELL_S, MANOEUVRE_TAU_S, THETA_M2PS3, ManoeuvreFilter,
+                                                WheelStateMachine, wheel_power)
 from terrainml.estimation.ekf import (I_AX, I_AY, I_PSI, I_R, I_VX, I_VY, I_X, I_Y, TWO_PI, Ekf,
                                       EkfPreset, PlanarModel, get_preset)
 from terrainml.estimation.slip import DEAD_BAND_MPS, EncoderLag, slip_ratio_tick
@@ -32,7 +33,7 @@ MAX_P_DIAG = 1e6
 # fallback wheel-row variance at the start of a camera gap when no slip is remembered yet
 # (the IMU bridges the gap; wheels take over as it decays to r_wheel over fallback_ramp_s)
 R_WHEEL_UNCOMPENSATED = 50.0
-ACCEL_TAU_S = 0.1  # low-pass of the acceleration feeding the wheel Power (dynamic state)
+ACCEL_TAU_S = MANOEUVRE_TAU_S  # manoeuvre filter on the acceleration feeding the wheel Power
 
 
 def est_state_columns(n_wheels: int) -> list[str]:
@@ -72,9 +73,10 @@ class OnlineEstimator:
     has_imu_yaw, has_cam_yaw : whether the yaw rows exist (the run table may lack the optional
         ``imu_yaw_rad`` / ``cam_yaw_rad`` columns; rows are then simply dropped every tick).
     theta, dwell_s : dynamic-state threshold (m^2/s^3) and minimum dwell (s), SYSTEM §7.2.
-    accel_tau_s : first-order low-pass (s) on the EKF acceleration used for the wheel Power.
-        theta = 0.02 m^2/s^3 is ~0.02 m/s^2 at 1 m/s, below the IMU's white noise (~0.04 m/s^2
-        per sample); without smoothing the state chatters between traction and braking
+    accel_tau_s : time constant (s) of each stage of the manoeuvre filter
+        (:class:`~terrainml.estimation.dynamic_state.ManoeuvreFilter`) on the EKF acceleration
+        used for the wheel Power. theta = 0.02 m^2/s^3 is ~0.02 m/s^2 at 1 m/s, below the IMU's
+        noise and terrain vibration; without smoothing the state chatters or freezes
         (*departure*: SYSTEM §7.2 does not filter the acceleration).
 
     Examples
@@ -123,8 +125,7 @@ class OnlineEstimator:
         self._t_prev: float | None = None
         self._lag = EncoderLag(N, p.encoder_lag_s)
         self._sm = WheelStateMachine(N, theta, dwell_s)
-        self._accel_tau_s = float(accel_tau_s)
-        self._a_f: list[float] | None = None  # low-passed (ax, ay)
+        self._accel_filter = ManoeuvreFilter(accel_tau_s)  # manoeuvre (ax, ay)
         self._wx = self.model.wheel_xy_m[:, 0].copy()
         self._wy = self.model.wheel_xy_m[:, 1].copy()
         self._radius = self.robot.wheel_radius_m
@@ -245,14 +246,9 @@ class OnlineEstimator:
         else:
             self.slip = np.full(self.n_wheels, np.nan)  # no camera: slip is unobservable
         ax, ay = float(x[I_AX]), float(x[I_AY])
-        if self._a_f is None or self._accel_tau_s <= 0.0:
-            self._a_f = [ax, ay]
-        else:
-            g = 1.0 - math.exp(-dt / self._accel_tau_s) if dt > 0.0 else 0.0
-            self._a_f[0] += g * (ax - self._a_f[0])
-            self._a_f[1] += g * (ay - self._a_f[1])
+        ax_f, ay_f = self._accel_filter.step(t_s, (ax, ay))
         r2 = r * r
-        a_long = (self._a_f[0] - r2 * self._wx) * c + (self._a_f[1] - r2 * self._wy) * s
+        a_long = (ax_f - r2 * self._wx) * c + (ay_f - r2 * self._wy) * s
         self.state = self._sm.step(t_s, a_long * v_long, v_long)
         # ------------------------------------------------ health
         last = self._last_seen

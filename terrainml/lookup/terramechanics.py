@@ -107,8 +107,14 @@ class TerrainParams:
     # lateral force: F_y = -lateral_mu W tanh(alpha / lateral_alpha0_rad)
     lateral_mu: float = 0.8
     lateral_alpha0_rad: float = 0.12
-    # surface roughness for the simulator (vertical profile)
+    # surface roughness for the simulator (vertical profile): rms height and the band of
+    # wavelengths it lives in. The band is the class's vibration signature: loose stones
+    # (gravel) shake at short wavelengths (5-17 Hz at 1 m/s), sod and sand ripples undulate
+    # slowly (below 4 Hz). Assumption, chosen so imu_az spectra differ the way they do on real
+    # robots; not a calibration target.
     roughness_rms_m: float = 0.001
+    roughness_wavelength_min_m: float = 0.12
+    roughness_wavelength_max_m: float = 1.5
     sources: str = ""
 
     @property
@@ -131,6 +137,7 @@ _NOMINAL: tuple[TerrainParams, ...] = (
         shear_modulus_m=0.0028, layer_depth_m=0.003, residual_ratio=0.75, free_slip=0.0337,
         slip_sinkage=0.5,
         lateral_mu=0.7, lateral_alpha0_rad=0.10, roughness_rms_m=0.0015,
+        roughness_wavelength_min_m=0.15, roughness_wavelength_max_m=1.0,
         sources="compact soil, Wong hump-type shear (Theory of Ground Vehicles §2.4); C_rr 0.03; "
                 "K calibrated"),
     TerrainParams(
@@ -138,12 +145,14 @@ _NOMINAL: tuple[TerrainParams, ...] = (
         shear_modulus_m=0.004, layer_depth_m=0.01, residual_ratio=0.8, free_slip=0.1225,
         slip_sinkage=0.5,
         lateral_mu=0.55, lateral_alpha0_rad=0.14, roughness_rms_m=0.002,
+        roughness_wavelength_min_m=0.3, roughness_wavelength_max_m=2.0,
         sources="sod: loam-like c 3 kPa, phi 29 deg (Wong); C_rr 0.06; K calibrated to thesis Fig. 7.3"),
     TerrainParams(
         3, "gravel_on_firm_soil", "soil", crr=0.06, cohesion_pa=1.3e3, friction_angle_rad=31.0 * _DEG,
         shear_modulus_m=0.0053, layer_depth_m=0.012, residual_ratio=0.8, free_slip=0.1304,
         slip_sinkage=0.5,
-        lateral_mu=0.55, lateral_alpha0_rad=0.14, roughness_rms_m=0.003,
+        lateral_mu=0.55, lateral_alpha0_rad=0.14, roughness_rms_m=0.0006,
+        roughness_wavelength_min_m=0.06, roughness_wavelength_max_m=0.2,
         sources="LETE-sand-like loose layer c 1.3 kPa, phi 31 deg (Wong) over firm base; C_rr 0.06; "
                 "K calibrated to thesis Fig. 7.4"),
     TerrainParams(
@@ -151,6 +160,7 @@ _NOMINAL: tuple[TerrainParams, ...] = (
         shear_modulus_m=0.0061, layer_depth_m=0.02, residual_ratio=0.8, free_slip=0.1849,
         slip_sinkage=0.5,
         lateral_mu=0.5, lateral_alpha0_rad=0.16, roughness_rms_m=0.003,
+        roughness_wavelength_min_m=0.3, roughness_wavelength_max_m=1.5,
         sources="Rubicon sandy loam c 3.7 kPa, phi 29.8 deg (Wong); C_rr 0.10; K calibrated"),
     TerrainParams(
         5, "tilled_loam", "soil", cohesion_pa=3.3e3, friction_angle_rad=33.7 * _DEG,
@@ -163,12 +173,14 @@ _NOMINAL: tuple[TerrainParams, ...] = (
         n_exp=1.1, k_c=0.99e3, k_phi=1528.43e3, shear_modulus_m=0.0143, residual_ratio=0.7, free_slip=0.2682,
         slip_sinkage=0.1,
         lateral_mu=0.45, lateral_alpha0_rad=0.2, roughness_rms_m=0.003,
+        roughness_wavelength_min_m=0.3, roughness_wavelength_max_m=1.5,
         sources="dry sand, Land Locomotion Lab (Wong); K and free slip calibrated"),
     TerrainParams(
         7, "wet_mud", "soil", cohesion_pa=4.14e3, friction_angle_rad=13.0 * _DEG,
         n_exp=0.5, k_c=13.19e3, k_phi=692.15e3, shear_modulus_m=0.0077, residual_ratio=0.7, free_slip=0.4011,
         slip_sinkage=0.15,
         lateral_mu=0.35, lateral_alpha0_rad=0.22, roughness_rms_m=0.004,
+        roughness_wavelength_min_m=0.2, roughness_wavelength_max_m=1.2,
         sources="clayey soil 38% moisture (Wong); K and free slip calibrated"),
 )
 assert tuple(p.name for p in _NOMINAL) == TERRAIN_CLASSES

@@ -189,9 +189,9 @@ def run_substeps(n_sub, dt, body, wheel, acc, omega_cmd, delta_cmd,
             vyi = w + r * (wx[i] - xc)
             speed2 = vxi * vxi + vyi * vyi
             zdd = 0.0
-            for k in range(rough_k.shape[0]):
-                zdd -= rough_amp[c, k] * rough_k[k] * rough_k[k] * math.sin(
-                    rough_k[k] * wheel[W_DIST, i] + rough_phase[i, k])
+            for k in range(rough_k.shape[1]):
+                zdd -= rough_amp[c, k] * rough_k[c, k] * rough_k[c, k] * math.sin(
+                    rough_k[c, k] * wheel[W_DIST, i] + rough_phase[i, k])
             zdd *= speed2
             azw[i] = zdd
             az_mean += zdd / n

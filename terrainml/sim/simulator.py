@@ -27,6 +27,7 @@ from terrainml.sim.control import DriveGains, _ik_kernel
 from terrainml.sim.scenarios import Scenario
 from terrainml.sim.sensors import LOG_RATE_HZ, SensorConfig, SensorModel
 from terrainml.sim.terrain import ALPHA_GRID, LOAD_FACTORS, TerrainRealisation, realise
+from terrainml.estimation.dynamic_state import manoeuvre_accel
 from terrainml.sim.truth import slip_sae, wheel_states
 
 CONTROL_RATE_HZ = 100.0
@@ -85,8 +86,9 @@ class SimResult:
         """(n, N) SYSTEM §7.2 state codes from true acceleration (rows: default every 100 Hz row)."""
         rows = np.arange(0, len(self.log), 2) if rows is None else rows
         vl = self.wblock("v_long")[rows]
-        p = self.wheel_long_accel()[rows] * vl
-        return wheel_states(self.t_s[rows], p, vl)
+        # the same manoeuvre filter the estimator applies (vibration out; SYSTEM §7.2 departure)
+        a_long = manoeuvre_accel(self.t_s[rows], self.wheel_long_accel()[rows])
+        return wheel_states(self.t_s[rows], a_long * vl, vl)
 
     def mean_true_slip(self, t0: float, t1: float) -> np.ndarray:
         m = (self.t_s >= t0) & (self.t_s <= t1)

@@ -72,7 +72,7 @@ class TerrainRealisation:
     y_coef: np.ndarray          # (n_cells, n_alpha) F_y / W
     hmax_coef: np.ndarray       # (n_cells, n_loads) max |H| / W_static
     rough_amp_m: np.ndarray     # (n_cells, N_ROUGH)
-    rough_k_radpm: np.ndarray   # (N_ROUGH,)
+    rough_k_radpm: np.ndarray   # (n_cells, N_ROUGH): each cell's class has its own wavelength band
     rough_phase: np.ndarray     # (n_wheels, N_ROUGH)
     load_ref_n: float
     extra: dict = field(default_factory=dict)
@@ -107,11 +107,13 @@ def realise(layout: TerrainLayout, robot, rng: np.random.Generator, spread: floa
     h[:, 0, :] = 0.0
     r[:, 0, :] = 0.0
     hmax = np.max(np.abs(h), axis=2)
-    # roughness: N_ROUGH sinusoids, wavelengths 0.12 .. 1.5 m, equal share of the class rms
-    wavelengths = np.geomspace(0.12, 1.5, N_ROUGH)
-    k = 2 * np.pi / wavelengths
+    # roughness: N_ROUGH sinusoids spread over the class's wavelength band, random shares of
+    # the class rms (the band is the class's vibration signature, see TerrainParams)
+    k = np.empty((n_c, N_ROUGH))
     amp = np.empty((n_c, N_ROUGH))
     for c, p in enumerate(params):
+        wavelengths = np.geomspace(p.roughness_wavelength_min_m, p.roughness_wavelength_max_m, N_ROUGH)
+        k[c] = 2 * np.pi / wavelengths
         share = rng.uniform(0.5, 1.5, N_ROUGH)
         share = share / np.sqrt(np.sum(share ** 2) / 2.0)        # rms of sum of sines = rms_m
         amp[c] = p.roughness_rms_m * share

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from terrainml.features.dataset import load_recipe, simulated_dataset
+from terrainml.sim.recipes import load_recipe, simulated_dataset
 
 
 def test_default_recipe_meets_the_issue_size():

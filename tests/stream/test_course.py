@@ -41,9 +41,7 @@ def sim_model_dir(tmp_path_factory):
             wins.append(w)
     wins = Windows.concat(wins)
     missing = sorted(set(TRAIN_CLASSES) - set(wins.y.tolist()))
-    if missing:  # upstream (sim / dynamic state): no steady windows for some classes
-        pytest.xfail(f"no steady training windows for classes {missing} from simulated straight "
-                     "runs (wheel state never 'steady' at cruise): upstream sim/estimation issue")
+    assert not missing, f"no steady training windows for classes {missing} from straight runs"
     clf = SVMClassifier(FeatureSet.for_robot(robot), C_grid=[1.0, 10.0], gamma_grid=["scale"],
                         inner_folds=2).fit(wins, wins.y)
     out = tmp_path_factory.mktemp("simmodel") / "course_svm"
