@@ -77,8 +77,8 @@ def traction_sense(X: np.ndarray, channels: Sequence[str]) -> np.ndarray:
         if not c.startswith("current_"):
             continue
         i = c[len("current_"):]
-        sign = np.sign(X[:, pos[c]].mean(axis=1))
-        sign[sign == 0] = 1.0
+        with np.errstate(invalid="ignore"):
+            sign = np.where(np.nanmean(X[:, pos[c]], axis=1) < 0, -1.0, 1.0)  # 0 or NaN: as is
         X[:, pos[c]] *= sign[:, None]
         if f"slip_{i}" in pos:
             X[:, pos[f"slip_{i}"]] *= sign[:, None]

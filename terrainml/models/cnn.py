@@ -69,6 +69,8 @@ from sklearn.model_selection import GroupShuffleSplit, StratifiedGroupKFold
 from sklearn.utils.validation import check_is_fitted, check_random_state
 from torch import nn
 
+from terrainml.features.sets import traction_sense as _traction_sense_np
+
 __all__ = ["CNNClassifier", "CONFIG_NAME", "WEIGHTS_NAME", "CONFIG_FORMAT"]
 
 log = logging.getLogger(__name__)
@@ -151,19 +153,50 @@ class ConvNet1d(nn.Module):
         return self.head(self.dropout(z))
 
 
+def traction_pairs(channel_names: Sequence[str]) -> list[tuple[int, int]]:
+    """(current index, slip index or -1) per wheel with a ``current_i`` channel."""
+    names = list(channel_names)
+    return [(k, names.index(f"slip_{c[8:]}") if f"slip_{c[8:]}" in names else -1)
+            for k, c in enumerate(names) if c.startswith("current_")]
+
+
+class TractionSense(nn.Module):
+    """Each wheel's current and slip times the sign of its window-mean current (torch version of
+    :func:`terrainml.features.sets.traction_sense`, so the ONNX export carries it too)."""
+
+    def __init__(self, pairs: Sequence[tuple[int, int]], n_channels: int):
+        super().__init__()
+        owner = torch.full((n_channels,), -1, dtype=torch.long)  # channel -> its current channel
+        for cur, slip in pairs:
+            owner[cur] = cur
+            if slip >= 0:
+                owner[slip] = cur
+        self.register_buffer("owner", owner)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        mean = torch.nan_to_num(x).mean(dim=-1)                       # (n, C)
+        sign = torch.where(mean < 0, -torch.ones_like(mean), torch.ones_like(mean))
+        idx = self.owner.clamp(min=0).view(1, -1).expand_as(sign)
+        per_channel = torch.gather(sign, 1, idx)
+        per_channel = torch.where(self.owner.view(1, -1) >= 0, per_channel, torch.ones_like(per_channel))
+        return x * per_channel.unsqueeze(-1)
+
+
 class InferenceNet(nn.Module):
-    """Raw windows ``(n, C, T)`` -> class probabilities ``(n, K)`` (standardise, net, softmax).
+    """Raw windows ``(n, C, T)`` -> class probabilities ``(n, K)`` ([traction sense], standardise,
+    net, softmax).
 
     This is exactly what :meth:`CNNClassifier.predict_proba` runs and what is exported to ONNX.
     """
 
-    def __init__(self, standardize: Standardize, net: ConvNet1d):
+    def __init__(self, standardize: Standardize, net: ConvNet1d, sense: TractionSense | None = None):
         super().__init__()
+        self.sense = sense if sense is not None else nn.Identity()
         self.standardize = standardize
         self.net = net
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return torch.softmax(self.net(self.standardize(x)), dim=-1)
+        return torch.softmax(self.net(self.standardize(self.sense(x))), dim=-1)
 
 
 # --------------------------------------------------------------------------------------------
@@ -316,6 +349,10 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
     early_stopping_metric : {"balanced_accuracy", "loss"}, default "balanced_accuracy"
         Validation score that picks the kept epoch: balanced accuracy (ties broken by the
         lower loss) or the (class-weighted) cross-entropy.
+    traction_sense : bool, default True
+        Multiply each wheel's current and slip by the sign of its window-mean current before
+        standardising (see :func:`terrainml.features.sets.traction_sense`): wheels driven
+        backwards then look like wheels driven forwards. Part of the exported network.
     refit : bool, default False
         After early stopping, train a fresh network on all windows (validation runs included)
         for the chosen number of epochs (twice the training time; uses every run).
@@ -352,7 +389,8 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
                  patience=20, validation_fraction=0.2, class_weight="balanced", augment=True,
                  gain_std=0.05, noise_std=0.05, max_shift=20, window_stats=True,
                  early_stopping_metric="balanced_accuracy", refit=False, channel_names=None,
-                 random_state=None, n_threads=None, verbose=0):
+                 random_state=None, n_threads=None, verbose=0, traction_sense=True):
+        self.traction_sense = traction_sense
         self.conv_channels = conv_channels
         self.kernel_sizes = kernel_sizes
         self.dropout = dropout
@@ -374,6 +412,11 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
         self.random_state = random_state
         self.n_threads = n_threads
         self.verbose = verbose
+
+    def _sense_module(self) -> "TractionSense | None":
+        if not self.traction_sense:
+            return None
+        return TractionSense(traction_pairs(self.channel_names_), len(self.channel_names_))
 
     # ---- sklearn plumbing ------------------------------------------------------------------
     def __sklearn_tags__(self):
@@ -501,6 +544,8 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
             if len(names) != C:
                 raise ValueError(f"CNNClassifier: {len(names)} channel_names for {C} channels")
         seed = int(check_random_state(self.random_state).randint(0, 2**31 - 1))
+        if self.traction_sense:  # wheels driven backwards read like forwards (features.sets)
+            X = np.ascontiguousarray(_traction_sense_np(X, names), dtype=np.float32)
 
         mean, scale = channel_stats(X)
         self.classes_ = classes
@@ -526,7 +571,7 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
                 self.refit_history_ = self.history_
                 self.history_, self.best_epoch_, self.n_epochs_ = history, best_epoch, n_epochs
             net.eval()
-        self.model_ = InferenceNet(Standardize(mean, scale), net).eval()
+        self.model_ = InferenceNet(Standardize(mean, scale), net, self._sense_module()).eval()
         for p in self.model_.parameters():
             p.requires_grad_(False)
         self.fit_time_s_ = time.perf_counter() - t0
@@ -774,7 +819,7 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
             raise ValueError(f"{weights_path}: weights do not load into the configured "
                              f"network ({type(exc).__name__}: {exc})") from None
         net.eval()
-        clf.model_ = InferenceNet(Standardize(clf.mean_, clf.scale_), net).eval()
+        clf.model_ = InferenceNet(Standardize(clf.mean_, clf.scale_), net, clf._sense_module()).eval()
         for p in clf.model_.parameters():
             p.requires_grad_(False)
         return clf
