@@ -11,23 +11,10 @@ is not installed. A test checks both paths agree to 1e-9 over a whole run.
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
-try:  # pragma: no cover - depends on the environment
-    if os.environ.get("TERRAINML_NO_NUMBA"):
-        raise ImportError("disabled by TERRAINML_NO_NUMBA")
-    from numba import njit
-
-    HAVE_NUMBA = True
-except Exception:  # pragma: no cover
-    HAVE_NUMBA = False
-
-    def njit(*args, **kwargs):
-        if args and callable(args[0]):
-            return args[0]
-        return lambda f: f
+from terrainml._numba import HAVE_NUMBA, njit  # noqa: F401  (HAVE_NUMBA re-exported)
 
 TWO_PI = 2.0 * math.pi
 

@@ -26,17 +26,7 @@ import math
 
 import numpy as np
 
-try:  # pragma: no cover - depends on the environment
-    from numba import njit
-
-    HAVE_NUMBA = True
-except Exception:  # pragma: no cover
-    HAVE_NUMBA = False
-
-    def njit(*args, **kwargs):
-        if args and callable(args[0]):
-            return args[0]
-        return lambda f: f
+from terrainml._numba import HAVE_NUMBA, njit  # noqa: F401  (HAVE_NUMBA re-exported)
 
 G = 9.81
 B_X, B_Y, B_PSI, B_U, B_W, B_R, B_AX, B_AY, B_RDOT = range(9)
