@@ -5,8 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from terrainml.robot import load_robot
-
 
 def make_est(n: int = 1000, n_wheels: int = 3, speed_mps: float = 1.0, slip: float = 0.1,
              current_a: float = 3.0, terrain: int = 2, run_id: str = "run_a", seed: int = 0,
