@@ -1,7 +1,9 @@
 """Run every benchmark and write BENCHMARKS.md (``make bench``).
 
 Each ``benchmarks/bench_*.py`` exposes ``run(quick: bool = False) -> str`` returning a Markdown
-section. Results name the machine they were measured on.
+section. Results name the machine they were measured on. Every section is also kept in
+``benchmarks/results/<name>.md`` (with its run time and UTC date), so ``--assemble`` can rebuild
+BENCHMARKS.md from sections measured separately (``--only`` runs) without rerunning them all.
 """
 
 from __future__ import annotations
@@ -36,18 +38,29 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="BENCHMARKS.md")
     parser.add_argument("--only", nargs="*", help="benchmark module names (e.g. bench_ingest)")
     parser.add_argument("--quick", action="store_true", help="smaller sizes, for smoke runs")
+    parser.add_argument("--assemble", action="store_true",
+                        help="write --out from benchmarks/results/*.md without running anything")
     args = parser.parse_args(argv)
     names = sorted(p.stem for p in Path(__file__).parent.glob("bench_*.py"))
     if args.only:
         names = [n for n in names if n in args.only]
+    results = Path("benchmarks/results")
     sections = []
     for name in names:
+        if args.assemble:
+            f = results / f"{name}.md"
+            sections.append(f.read_text() if f.is_file() else f"## {name}\n\n_not measured yet: run "
+                            f"`python -m benchmarks.run_all --only {name}`._\n")
+            continue
         t0 = time.perf_counter()
         print(f"[bench] {name} ...", file=sys.stderr, flush=True)
         section = importlib.import_module(f"benchmarks.{name}").run(quick=args.quick)
-        sections.append(section.rstrip() + f"\n\n_{name} took {time.perf_counter() - t0:.0f} s._\n")
-        Path("benchmarks/results").mkdir(parents=True, exist_ok=True)
-        Path(f"benchmarks/results/{name}.md").write_text(section)
+        stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+        section = (section.rstrip() + f"\n\n_{name} took {time.perf_counter() - t0:.0f} s "
+                   f"({'quick, ' if args.quick else ''}measured {stamp})._\n")
+        sections.append(section)
+        results.mkdir(parents=True, exist_ok=True)
+        (results / f"{name}.md").write_text(section)
     header = ("# Benchmarks\n\nProduced by `make bench` (`python -m benchmarks.run_all`). "
               f"Machine: {machine_description()}.\n\n")
     Path(args.out).write_text(header + "\n".join(sections))
