@@ -1,4 +1,5 @@
-"""Benchmark of the online predictor (issue 9): per-tick latency and a one-hour replay.
+"""Benchmark of the online predictor (issue 9): per-tick latency, a one-hour replay, and the
+closed-loop traction-control comparison in the simulator (SYSTEM §12; see ``_closed_loop_section``).
 
 Measured in one run:
 
@@ -160,6 +161,224 @@ def _rss_mb() -> float:
     return psutil.Process(os.getpid()).memory_info().rss / 2**20
 
 
+# ---------------------------------------------------------------- closed loop (SYSTEM §12)
+CL_CLASSES = ("tilled_loam", "dry_sand", "wet_mud")
+# (label, policy, run_closed_loop keyword overrides); "model" marks the predictor-served mode
+CL_MODES = (
+    ("no traction control", "none", {}),
+    ("fixed 0.1 target", "fixed", {}),
+    ("terrain-aware, true class (oracle)", "terrain-aware", {}),
+    ("terrain-aware, SVM served by the predictor", "terrain-aware", {"model": True}),
+    ("terrain-aware, served s_S in steady (SYSTEM §10 literally)", "terrain-aware",
+     {"steady_target": "served"}),
+    ("terrain-aware, tracking PI + feed-forward, served s_S", "terrain-aware",
+     {"steady_target": "served", "pid": {"mode": "track"}}),
+)
+
+
+def _cl_train_model(tmp, runs_per_class: int) -> str:
+    """SVM on a small simulated labelled dataset (the `make demo` chain): generate -> windows -> train."""
+    from terrainml.models.dataset import build_dataset
+    from terrainml.models.train import train
+    from terrainml.robot import load_robot
+    from terrainml.sim.generate import generate_dataset
+
+    logs = os.path.join(tmp, "logs")
+    generate_dataset(logs, runs_per_class, seed=2024, n_jobs=2, duration_s=60.0, fmt="parquet")
+    ds = build_dataset(logs, load_robot(), n_jobs=2)
+    out = os.path.join(tmp, "model")
+    train(ds, out, models=("svm",), folds=3, seed=0, n_jobs=2, ablation=False)
+    return out
+
+
+def _cl_one(terrain: str, mode: int, seed: int, scenario: str, duration_s: float,
+            model_dir: str | None) -> dict:
+    from terrainml.control.traction import tuned_config
+    from terrainml.robot import load_robot
+    from terrainml.sim.closed_loop import run_closed_loop
+
+    _label, policy, kw = CL_MODES[mode]
+    kw = dict(kw)
+    if kw.pop("model", False):
+        kw["model"] = model_dir
+    kw["pid"] = tuned_config(load_robot(), **kw.pop("pid", {}))
+    rep = run_closed_loop(terrain, policy, duration_s=duration_s, seed=seed, scenario=scenario,
+                          **kw)
+    rep["mode"] = mode
+    return rep
+
+
+def _cruise_bound_rows() -> list[str]:
+    """Steady cruise on nominal soil: energy per metre of the equal-slip equilibrium (what any
+    controller that keeps the speed ends at) against the best unequal slip allocation over the
+    three wheels (one wheel rolling free, two pushing), from the terramechanics curves."""
+    from scipy.optimize import brentq
+
+    from terrainml.classes import class_id
+    from terrainml.lookup import terramechanics as tm
+    from terrainml.robot import load_robot
+
+    rb = load_robot()
+    w = rb.static_wheel_loads_n()[0]
+    n = rb.n_wheels
+    rows = []
+    for name in CL_CLASSES:
+        p = tm.nominal_params(class_id(name))
+
+        def h(x):
+            return float(tm.gross_thrust_n(p, w, x, rb))
+
+        def r(x):
+            return float(tm.motion_resistance_n(p, w, x, rb))
+
+        s_eq = brentq(lambda x: h(x) - r(x), p.free_slip + 1e-6, 0.8)
+        e_eq = n * r(s_eq) / (1.0 - s_eq)
+        g = lambda x: (n - 1) * (h(x) - r(x)) - r(0.0)  # noqa: E731
+        grid = [x for x in np.linspace(s_eq, 0.9, 500) if g(x) > 0]
+        if grid:
+            s2 = brentq(g, s_eq, grid[0])
+            e_free = (n - 1) * h(s2) / (1.0 - s2)
+            free = f"{e_free:.1f} ({100 * (e_free / e_eq - 1):+.1f}%)"
+        else:
+            free = "infeasible"
+        loose = n * r(0.0) / (1.0 - p.free_slip)
+        rows.append(f"| {name} | {s_eq:.3f} | {e_eq:.1f} | {free} | {loose:.1f} "
+                    f"({100 * (loose / e_eq - 1):+.1f}%) |")
+    return rows
+
+
+def _closed_loop_section(quick: bool) -> str:
+    import tempfile
+
+    from joblib import Parallel, delayed
+
+    seeds = range(2 if quick else 5)
+    step_seeds = range(1 if quick else 3)
+    duration_s = 60.0
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        model_dir = _cl_train_model(tmp, 3 if quick else 5)
+        t_train = time.perf_counter() - t0
+        jobs = [(c, m, s, "straight", duration_s) for c in CL_CLASSES
+                for m in range(len(CL_MODES)) for s in seeds]
+        jobs += [(c, m, s, "step_stop_and_go", 30.0) for c in CL_CLASSES for m in (0, 1, 2)
+                 for s in step_seeds]
+        reps = Parallel(n_jobs=2)(delayed(_cl_one)(*j, model_dir) for j in jobs)
+    t_all = time.perf_counter() - t0
+
+    def agg(terrain, mode, scenario):
+        rs = [r for r in reps if r["terrain"] == _cid(terrain) and r["mode"] == mode
+              and r["scenario"] == scenario]
+        return {k: float(np.mean([r[k] for r in rs])) for k in
+                ("energy_j_per_m", "mean_speed_mps", "mean_tractive_efficiency",
+                 "cruise_true_slip", "fallback_fraction")} | {
+                "stuck_events": int(sum(r["stuck_events"] for r in rs)), "n": len(rs)}
+
+    lines = [
+        "## Closed-loop traction control in the simulator (`terrainml control closed-loop`)",
+        "",
+        f"Straight runs (SYSTEM §6 scenario: 1 m/s^2 start to 1 m/s, cruise, brake), "
+        f"{duration_s:.0f} s, seeds {list(seeds)} (each seed = one terrain draw, the same for every "
+        f"mode), reference robot. Energy = mechanical energy at the wheels (integral of tau omega, "
+        f"regeneration negative) / distance. Slip PID: `terrainml.control.traction.tuned_config` "
+        f"(one-sided limiter, feed-forward of the wheel speed of the target slip at the estimated "
+        f"wheel-centre speed, PI trim, 40 rad/s^2 slew) unless the mode says otherwise. Ratios are "
+        f"against no traction control on the same seeds. SVM: trained here on "
+        f"{3 if quick else 5} simulated runs per class ({t_train:.0f} s). Command per run: "
+        f"`terrainml control closed-loop --terrain NAME --policy none|fixed|terrain-aware "
+        f"[--model runs/NAME] --duration-s 60 --seed S`.",
+        "",
+        "| terrain | mode | energy J/m | ratio vs none | mean speed m/s | speed vs none | stuck "
+        "events | mean tractive eff. | true cruise slip | fallback ticks |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    verdicts = []
+    for terrain in CL_CLASSES:
+        base = agg(terrain, 0, "straight")
+        fixed = agg(terrain, 1, "straight")
+        for m, (label, _p, _kw) in enumerate(CL_MODES):
+            a = agg(terrain, m, "straight")
+            lines.append(
+                f"| {terrain} | {label} | {a['energy_j_per_m']:.1f} | "
+                f"{a['energy_j_per_m'] / base['energy_j_per_m']:.3f} | {a['mean_speed_mps']:.3f} | "
+                f"{100 * (a['mean_speed_mps'] / base['mean_speed_mps'] - 1):+.1f}% | "
+                f"{a['stuck_events']} | {a['mean_tractive_efficiency']:.3f} | "
+                f"{a['cruise_true_slip']:.3f} | {a['fallback_fraction']:.0%} |")
+        for m in (2, 3):
+            a = agg(terrain, m, "straight")
+            e_ok = a["energy_j_per_m"] <= 0.85 * base["energy_j_per_m"]
+            v_ok = abs(a["mean_speed_mps"] / base["mean_speed_mps"] - 1) <= 0.05
+            s_ok = a["stuck_events"] <= fixed["stuck_events"]
+            verdicts.append(
+                f"| {terrain} | {CL_MODES[m][0]} | "
+                f"{100 * (1 - a['energy_j_per_m'] / base['energy_j_per_m']):+.1f}% "
+                f"({'met' if e_ok else 'NOT met'}) | "
+                f"{100 * (a['mean_speed_mps'] / base['mean_speed_mps'] - 1):+.1f}% "
+                f"({'met' if v_ok else 'NOT met'}) | {a['stuck_events']} vs {fixed['stuck_events']} "
+                f"({'met' if s_ok else 'NOT met'}) |")
+    lines += [
+        "",
+        "**Acceptance** (issue 9: terrain-aware >= 15% less energy per metre than no traction "
+        "control, mean speed within 5%, no more stuck events than the fixed 0.1 target):",
+        "",
+        "| terrain | mode | energy saving vs none (goal >= 15%) | speed vs none (goal within 5%) "
+        "| stuck events vs fixed 0.1 |",
+        "|---|---|---|---|---|",
+        *verdicts,
+        "",
+        "**Why the energy goal is not reachable here: the cruise slip is pinned by the soil.** On "
+        "level ground at constant speed the wheels' net traction must be zero, H(s) = R(s). The "
+        "deformable classes have a free slip s_f (no shear thrust below it) and a thrust curve that "
+        "rises steeply just above it, so the equilibrium slip s_S sits just above s_f, and the "
+        "energy per metre at cruise is sum R(s_S) / (1 - s_S), whatever the controller. The "
+        "uncontrolled robot already cruises there (its velocity loop holds the wheel speed; the "
+        "body settles at (1 - s_S) of it), and in these runs its slip never passes the traction "
+        "peak: the 1 m/s^2 start needs mu_net of only 0.1, which all three soils give just above "
+        "s_S. A controller can only (a) hold a lower slip: no thrust, the robot slows and stalls "
+        "(the fixed 0.1 rows), (b) govern the slip instead of the speed (tracking with "
+        "feed-forward): on a terrain draw whose cruise slip differs from the nominal s_S the "
+        "robot is pushed to more slip (more sinkage and shear, more energy) or held below what "
+        "the soil needs (slower, stuck events) (the tracking rows), or (c) cap the slip at the traction peak: "
+        "identical to no control, because the cap is never reached (the oracle / SVM rows). The "
+        "best possible allocation of slip over the three wheels at cruise, from the same "
+        "terramechanics curves (nominal soil):",
+        "",
+        "| terrain | cruise slip s_S | E/m, equal slips (J/m) | E/m, one wheel free-rolling, two "
+        "pushing | loose lower bound 3 R(0) / (1 - s_f) (not reachable: H(s_f) = 0) |",
+        "|---|---|---|---|---|",
+        *_cruise_bound_rows(),
+        "",
+        "So at most about 4% (tilled loam, by dragging one wheel) is available at cruise, and a "
+        "per-class desired slip (one target for every wheel) cannot take even that.",
+        "",
+        "Where traction control does pay (supplementary): a *step* speed command (no "
+        "acceleration limit; 4 s go, 2 s stop, 30 s, seeds "
+        f"{list(step_seeds)}) spins the wheels far past the traction peak at every start; the "
+        "limiter caps them at the class's peak:",
+        "",
+        "| terrain | mode | energy J/m | ratio vs none | mean speed m/s | speed vs none | stuck events |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for terrain in CL_CLASSES:
+        base = agg(terrain, 0, "step_stop_and_go")
+        for m in (0, 1, 2):
+            a = agg(terrain, m, "step_stop_and_go")
+            lines.append(
+                f"| {terrain} | {CL_MODES[m][0]} | {a['energy_j_per_m']:.1f} | "
+                f"{a['energy_j_per_m'] / base['energy_j_per_m']:.3f} | {a['mean_speed_mps']:.3f} | "
+                f"{100 * (a['mean_speed_mps'] / base['mean_speed_mps'] - 1):+.1f}% | "
+                f"{a['stuck_events']} |")
+    lines += ["", f"Closed-loop section: {len(jobs)} simulated runs + training in {t_all:.0f} s "
+              "(2 processes).", ""]
+    return "\n".join(lines)
+
+
+def _cid(name: str) -> int:
+    from terrainml.classes import class_id
+
+    return class_id(name)
+
+
 def run(quick: bool = False) -> str:
     from terrainml.estimation.run import estimate_run
     from terrainml.robot import load_robot
@@ -286,7 +505,7 @@ def run(quick: bool = False) -> str:
         f"{tps / ref_tps:.2f} |",
         "",
     ]
-    return "\n".join(lines)
+    return "\n".join(lines) + "\n" + _closed_loop_section(quick)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -16,7 +16,8 @@ control_app = typer.Typer(help="Traction control in the simulator.", no_args_is_
     "per metre, mean speed, mean tractive efficiency and stuck events (JSON).\n\n"
     "Policies: none (no traction control), fixed (slip PID to 0.1), terrain-aware (slip PID to "
     "the served desired slip: the online predictor with --model, else the true class with the "
-    "lookup table, reported as an oracle).\n\n"
+    "lookup table, reported as an oracle). The slip PID is the simulator-tuned limiter with "
+    "feed-forward (docs/control.md); --thesis-pid uses the thesis's P controller instead.\n\n"
     "Example: terrainml control closed-loop --terrain dry_sand --policy terrain-aware "
     "--model runs/svm --duration-s 60 --seed 0 --out sand_aware.json"))
 def closed_loop(
@@ -26,20 +27,27 @@ def closed_loop(
     duration_s: float = typer.Option(60.0, "--duration-s", help="Simulated duration, s."),
     seed: int = typer.Option(0, "--seed", help="Seed of the terrain draw and sensor noise."),
     speed_mps: float = typer.Option(1.0, "--speed-mps", help="Commanded cruise speed, m/s."),
-    kp: float = typer.Option(1.0, "--kp", help="Slip PID proportional gain, rad/s per unit slip."),
-    ki: float = typer.Option(0.0, "--ki", help="Slip PID integral gain, rad/s per (unit slip s)."),
+    kp: Optional[float] = typer.Option(None, "--kp", help="Slip PID proportional gain, rad/s per unit slip (default: tuned)."),
+    ki: Optional[float] = typer.Option(None, "--ki", help="Slip PID integral gain, rad/s per (unit slip s) (default: tuned)."),
+    thesis_pid: bool = typer.Option(False, "--thesis-pid", help="Thesis P controller (Kp 1, two-sided, no feed-forward)."),
+    scenario: str = typer.Option("straight", "--scenario", help="straight (1 m/s^2 start, cruise, brake) or step_stop_and_go (speed steps, hard starts)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Write the JSON report here."),
 ) -> None:
     from rich.console import Console
     from rich.progress import Progress
 
     from terrainml.classes import class_id
-    from terrainml.control.closed_loop import POLICIES, run_closed_loop
     from terrainml.control.pid import SlipPIDConfig
+    from terrainml.control.traction import POLICIES, tuned_config
+    from terrainml.robot import load_robot
+    from terrainml.sim.closed_loop import SCENARIOS, run_closed_loop
 
     console = Console(stderr=True, soft_wrap=True)
     if policy not in POLICIES:
         console.print(f"[red]error:[/] --policy {policy!r}: expected one of {', '.join(POLICIES)}")
+        raise typer.Exit(2)
+    if scenario not in SCENARIOS:
+        console.print(f"[red]error:[/] --scenario {scenario!r}: expected one of {', '.join(SCENARIOS)}")
         raise typer.Exit(2)
     try:
         class_id(terrain)
@@ -50,7 +58,8 @@ def closed_loop(
         console.print(f"[red]error:[/] --model {model}: no such model folder")
         raise typer.Exit(2)
     try:
-        pid = SlipPIDConfig(kp=kp, ki=ki)
+        over = {k: v for k, v in (("kp", kp), ("ki", ki)) if v is not None}
+        pid = (SlipPIDConfig(**over) if thesis_pid else tuned_config(load_robot(), **over))
     except ValueError as exc:
         console.print(f"[red]error:[/] {exc}")
         raise typer.Exit(2)
@@ -58,7 +67,7 @@ def closed_loop(
         task = bar.add_task(f"closed loop {terrain} / {policy}", total=1.0)
         try:
             report = run_closed_loop(terrain, policy, model=model, duration_s=duration_s, seed=seed,
-                                     speed_mps=speed_mps, pid=pid,
+                                     speed_mps=speed_mps, pid=pid, scenario=scenario,
                                      progress=lambda f: bar.update(task, completed=f))
         except ValueError as exc:  # model refused, bad parameters
             console.print(f"[red]error:[/] {exc}")

@@ -157,3 +157,90 @@ def test_pi_loop_drives_a_wheel_to_the_desired_slip_in_both_directions(v_mps, s_
         cmd = pid.step([s_target], [s], [v_mps], abs(v_mps), [omega_ll], dt).omega_cmd_radps[0]
         omega += (1.0 - math.exp(-dt / tau)) * (cmd - omega)
     assert slip_ratio(omega * radius, v_mps) == pytest.approx(s_target, abs=2e-3)
+
+
+# ---------------------------------------------------------------- feed-forward, limiter, slew
+from terrainml.control.pid import wheel_speed_for_slip  # noqa: E402
+
+
+@pytest.mark.parametrize("v_mps,s", [(1.0, 0.3), (1.0, -0.3), (-0.7, -0.2), (-0.7, 0.2),
+                                     (0.5, 0.0)])
+def test_feedforward_wheel_speed_inverts_the_slip_definition(v_mps, s):
+    radius = 0.165
+    omega = wheel_speed_for_slip(v_mps, s, radius)
+    assert slip_ratio(float(omega) * radius, v_mps) == pytest.approx(s, abs=1e-12)
+
+
+def test_feedforward_puts_the_command_on_the_target_slip_in_one_tick():
+    """Zero gains: the command alone is the wheel speed of the target slip at the measured
+    wheel-centre speed, whatever the low-level set-point was."""
+    radius = 0.165
+    cfg = SlipPIDConfig(kp=0.0, ki=0.0, wheel_radius_m=radius, output_limit_radps=50.0)
+    pid = SlipPID(4, cfg)
+    v = np.array([0.8, 0.8, -0.6, -0.6])
+    s_des = np.array([0.25, -0.3, -0.25, 0.3])  # fwd traction, fwd braking, back traction, back braking
+    out = pid.step(s_des, [0.0] * 4, v, 0.8, v / radius, 0.01)
+    np.testing.assert_allclose(slip_ratio(out.omega_cmd_radps * radius, v), s_des, atol=1e-12)
+
+
+def test_limit_mode_only_ever_reduces_slip_magnitude():
+    cfg = SlipPIDConfig(kp=5.0, ki=0.0, mode="limit")
+    pid = SlipPID(6, cfg)
+    # forward traction: below target -> nothing; above -> slower wheel
+    # forward braking (target -0.2): -0.1 -> nothing; -0.4 -> faster wheel
+    # backward traction (target -0.2): -0.4 -> less negative wheel speed (positive output)
+    s_des = [0.2, 0.2, -0.2, -0.2, -0.2, -0.2]
+    s_meas = [0.1, 0.4, -0.1, -0.4, -0.1, -0.4]
+    v = [1.0, 1.0, 1.0, 1.0, -1.0, -1.0]
+    out = pid.step(s_des, s_meas, v, 1.0, [6.0, 6.0, 6.0, 6.0, -6.0, -6.0], 0.01).pid_out_radps
+    assert out[0] == 0.0 and out[1] < 0.0
+    assert out[2] == 0.0 and out[3] > 0.0
+    assert out[4] == 0.0 and out[5] > 0.0
+
+
+def test_limit_mode_integrator_drains_when_slip_falls_below_target():
+    pid = SlipPID(1, SlipPIDConfig(kp=0.0, ki=10.0, mode="limit", integral_limit_radps=1.0))
+    for _ in range(100):
+        _step(pid, 0.2, 0.4)  # too much slip for 1 s: integrator pulls the wheel back
+    assert pid.integral_radps[0] == pytest.approx(-1.0)
+    for _ in range(200):
+        out = _step(pid, 0.2, 0.0)  # slip well below target: back to the plain command
+    assert pid.integral_radps[0] == 0.0 and out.pid_out_radps[0] == 0.0
+
+
+def test_rate_limit_bounds_the_output_slew():
+    pid = SlipPID(1, SlipPIDConfig(kp=100.0, rate_limit_radps2=20.0, output_limit_radps=5.0))
+    outs = [_step(pid, 0.5, 0.0).pid_out_radps[0] for _ in range(40)]
+    assert outs[0] == pytest.approx(0.2)  # 20 rad/s^2 x 10 ms
+    assert np.all(np.diff(outs) <= 0.2 + 1e-12)
+    assert outs[-1] == pytest.approx(5.0)  # reaches the output limit after 0.25 s
+
+
+def test_new_config_fields_are_validated():
+    with pytest.raises(ValueError, match="mode"):
+        SlipPIDConfig(mode="bang-bang")
+    with pytest.raises(ValueError, match="wheel_radius_m"):
+        SlipPIDConfig(wheel_radius_m=0.0)
+    with pytest.raises(ValueError, match="rate_limit"):
+        SlipPIDConfig(rate_limit_radps2=-1.0)
+
+
+def test_feedforward_settles_much_faster_than_the_thesis_p_controller():
+    """Lagged wheel (40 ms velocity loop) at constant ground speed, target slip 0.3 from a
+    zero-slip set-point: with feed-forward the slip is within 0.01 of the target after 0.25 s;
+    the thesis P controller (Kp 1) has barely moved."""
+    radius, dt, tau, v = 0.165, 0.01, 0.04, 1.0
+
+    def run(cfg, ticks=25):
+        omega_ll = v / radius
+        omega = omega_ll
+        pid = SlipPID(1, cfg)
+        for _ in range(ticks):
+            s = slip_ratio(omega * radius, v)
+            cmd = pid.step([0.3], [s], [v], v, [omega_ll], dt).omega_cmd_radps[0]
+            omega += (1.0 - math.exp(-dt / tau)) * (cmd - omega)
+        return slip_ratio(omega * radius, v)
+
+    ff = SlipPIDConfig(kp=2.0, ki=10.0, wheel_radius_m=radius, output_limit_radps=10.0)
+    assert run(ff) == pytest.approx(0.3, abs=0.01)
+    assert run(SlipPIDConfig()) < 0.05

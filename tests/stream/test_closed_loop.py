@@ -5,11 +5,12 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from terrainml.cli import app
-from terrainml.control.closed_loop import run_closed_loop
+from terrainml.sim.closed_loop import run_closed_loop
 from terrainml.control.pid import SlipPIDConfig
 
 KEYS = ("energy_j_per_m", "mean_speed_mps", "mean_tractive_efficiency", "stuck_events")
@@ -37,11 +38,45 @@ def test_no_control_matches_the_plain_simulator():
 
 
 def test_fixed_low_target_holds_the_wheels_back_on_soft_soil():
-    """Tilled loam needs about 0.2 slip to cruise: a PID pinned to 0.1 must slow the robot."""
+    """Tilled loam needs about 0.2 slip to cruise: a PID pinned to 0.1 must slow the robot
+    (the thesis-style two-sided PI and the tuned limiter alike)."""
     cfg = SlipPIDConfig(kp=20.0, ki=20.0)
     free = run_closed_loop("tilled_loam", "none", duration_s=10.0, seed=1, pid=cfg)
     fixed = run_closed_loop("tilled_loam", "fixed", duration_s=10.0, seed=1, pid=cfg)
     assert fixed["mean_speed_mps"] < 0.8 * free["mean_speed_mps"]
+    tuned = run_closed_loop("tilled_loam", "fixed", duration_s=10.0, seed=1)
+    assert tuned["mean_speed_mps"] < 0.6 * free["mean_speed_mps"]
+
+
+def test_terrain_aware_targets_keep_speed_on_deformable_soil():
+    """The lookup's targets are at or above the slip the soil needs, so the tuned limiter
+    keeps the robot's speed (within 5%) where the fixed 0.1 target stalls it."""
+    for terrain in ("dry_sand", "wet_mud"):
+        free = run_closed_loop(terrain, "none", duration_s=10.0, seed=2)
+        aware = run_closed_loop(terrain, "terrain-aware", duration_s=10.0, seed=2)
+        assert aware["classifier"] == "oracle"
+        assert aware["mean_speed_mps"] == pytest.approx(free["mean_speed_mps"], rel=0.05)
+        assert aware["stuck_events"] == 0
+        assert aware["energy_j_per_m"] <= 1.05 * free["energy_j_per_m"]
+
+
+def test_hook_gives_the_controller_the_simulators_own_setpoints():
+    """The set-points in the controller's sample are those the simulator applies (zero offset)."""
+    from terrainml.sim.closed_loop import closed_loop_hook
+    from terrainml.sim.scenarios import make_scenario
+    from terrainml.sim.simulator import Simulator
+
+    sim = Simulator(make_scenario("arc", "short_grass", speed_mps=0.8, duration_s=12.0,
+                                  rng=np.random.default_rng(1)), seed=1)
+    seen = []
+
+    def ctrl(sample):
+        seen.append([sample[f"wheel{i}_cmd_omega_radps"] for i in (1, 2, 3)])
+        return np.zeros(3)
+
+    res = sim.run(controller=closed_loop_hook(sim, ctrl))
+    np.testing.assert_array_equal(np.array(seen), res.omega_cmd)
+    assert np.ptp(res.omega_cmd[:, 0] - res.omega_cmd[:, 2]) > 0.5  # arcs: wheels differ
 
 
 def test_terrain_aware_with_a_model_serves_through_the_predictor(model_dir):
@@ -50,3 +85,28 @@ def test_terrain_aware_with_a_model_serves_through_the_predictor(model_dir):
     # no 2 s window can exist before t = 2 s: at least half of a 4 s run is start-up fallback
     assert rep["fallback_fraction"] >= 0.5
     assert all(math.isfinite(rep[k]) for k in KEYS)
+
+
+def test_predictor_fallback_releases_the_wheels_instead_of_capping_them(model_dir):
+    """Before the first classification the predictor serves its fallback row (pavement, a 0.16
+    traction target). A wheel slipping 0.5 on soft soil must then be left alone (capping it at
+    0.16 would stall the robot); with on_fallback="serve" the same wheel is pulled back."""
+    from terrainml.control.traction import SlipController
+    from terrainml.estimation.synthetic import kinematic_run
+    from terrainml.robot import load_robot
+
+    robot = load_robot()
+    table = kinematic_run(robot, duration_s=1.5, seed=4, slip=0.5)
+    recs = table[[c for c in table.columns if not c.startswith("gt_")]].to_dict("records")
+    outs = {}
+    for mode in ("release", "serve"):
+        ctrl = SlipController(robot, "terrain-aware", model=model_dir, on_fallback=mode)
+        got = []
+        for rec in recs:
+            for i in (1, 2, 3):
+                rec[f"wheel{i}_cmd_omega_radps"] = rec[f"wheel{i}_omega_radps"]
+            got.append(np.zeros(3) if (o := ctrl(dict(rec))) is None else o)
+        assert ctrl.n_fallback == ctrl.n_ticks  # no 2 s window yet: all fallback
+        outs[mode] = np.array(got)
+    assert np.all(outs["release"] == 0.0)
+    assert outs["serve"].min() < -1.0

@@ -1,0 +1,79 @@
+"""SlipController: measured samples -> per-wheel corrections (SYSTEM §12), without the simulator."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from terrainml.control.traction import FixedTargetTable, SlipController, tuned_config
+from terrainml.estimation.slip import slip_ratio
+from terrainml.estimation.synthetic import kinematic_run, trapezoid_speed
+from terrainml.robot import load_robot
+
+CRUISE_MPS = 0.8
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot()
+
+
+def _drive(robot, ctrl, true_slip: float, duration_s: float = 8.0):
+    """Feed a kinematic run (constant true slip at cruise); the low-level set-point is the
+    wheel's actual speed (the wheel follows its velocity loop, the body lags by the slip)."""
+    table = kinematic_run(robot, duration_s=duration_s, seed=3, slip=true_slip,
+                          vx=lambda t: trapezoid_speed(t, CRUISE_MPS, 1.0, 1.0, duration_s + 10))
+    cols = [c for c in table.columns if not c.startswith("gt_")]
+    n = robot.n_wheels
+    outs = []
+    for rec in table[cols].to_dict("records"):
+        vx = trapezoid_speed(np.array(rec["t_s"]), CRUISE_MPS, 1.0, 1.0, duration_s + 10)
+        for i in range(1, n + 1):  # straight line: every wheel's set-point is vx / (1 - s) / R
+            rec[f"wheel{i}_cmd_omega_radps"] = float(vx) / (1.0 - true_slip) / robot.wheel_radius_m
+        out = ctrl(rec)
+        outs.append(np.zeros(n) if out is None else np.asarray(out))
+    return table, np.array(outs)
+
+
+def test_none_policy_never_corrects(robot):
+    ctrl = SlipController(robot, "none")
+    assert ctrl({"t_s": 0.0}) is None
+
+
+def test_fixed_limiter_pulls_an_overslipping_wheel_to_the_target(robot):
+    """True slip 0.3 at cruise against the fixed 0.1 target (the wheels of a kinematic run do
+    not respond to the command, so the PI trim is off): the limiter's feed-forward makes the
+    commanded wheel speed the one of slip 0.1 at the true wheel speed over ground."""
+    ctrl = SlipController(robot, "fixed", pid=tuned_config(robot, kp=0.0, ki=0.0))
+    _, outs = _drive(robot, ctrl, true_slip=0.3)
+    omega_cmd = CRUISE_MPS / 0.7 / robot.wheel_radius_m + outs[-100:].mean(axis=0)
+    s_cmd = slip_ratio(omega_cmd * robot.wheel_radius_m, CRUISE_MPS)
+    np.testing.assert_allclose(s_cmd, 0.1, atol=0.02)
+    assert np.all(outs <= 0.0)  # a limiter never spins a wheel faster than commanded
+
+
+def test_terrain_aware_oracle_leaves_cruise_slip_below_the_target_alone(robot):
+    """wet_mud steady target 0.42; a wheel cruising at 0.3 true slip needs no correction."""
+    ctrl = SlipController(robot, "terrain-aware", true_class=7)
+    assert ctrl.classifier == "oracle"
+    _, outs = _drive(robot, ctrl, true_slip=0.3)
+    assert np.abs(outs[-300:]).max() == 0.0
+
+
+def test_fixed_table_signs():
+    t = FixedTargetTable()
+    assert (t.target(5, "traction"), t.target(5, "steady"), t.target(5, "braking"),
+            t.target(5, "idle")) == (0.1, 0.1, -0.1, 0.0)
+
+
+def test_feedforward_without_setpoints_is_a_clear_error(robot):
+    ctrl = SlipController(robot, "fixed", pid=tuned_config(robot))
+    table = kinematic_run(robot, duration_s=1.0, seed=1)
+    rec = table[[c for c in table.columns if not c.startswith("gt_")]].iloc[0].to_dict()
+    with pytest.raises(ValueError, match="wheel1_cmd_omega_radps"):
+        ctrl(rec)
+
+
+def test_bad_policy_rejected(robot):
+    with pytest.raises(ValueError, match="policy"):
+        SlipController(robot, "aggressive")
