@@ -86,3 +86,13 @@ def test_svm_cv_same_seed_same_predictions_and_classes_from_data(dataset):
     np.testing.assert_allclose(p.sum(axis=1), 1.0)
     np.testing.assert_array_equal(m.predict(w), m.classes_[p.argmax(axis=1)])
     assert set(m.best_params_) == {"C", "gamma"}
+
+
+def test_fast_probabilities_equal_sklearn_calibrated_path(dataset):
+    """The stream's one-window path must serve exactly what sklearn's calibrated model gives."""
+    w = dataset.windows
+    m = SVMClassifier(**SMALL_GRID).fit(w, w.y)
+    ref = m.model_.predict_proba(m.transform_features(w))
+    np.testing.assert_allclose(m.predict_proba(w), ref, rtol=0, atol=1e-12)
+    one = np.asarray(w.X)[:1]
+    np.testing.assert_allclose(m.predict_proba(one), ref[:1], rtol=0, atol=1e-12)
