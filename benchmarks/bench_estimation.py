@@ -261,10 +261,10 @@ def run(quick: bool = False) -> str:
              "latency is also given in thread CPU time, which excludes time the process waited "
              "for a core.\n",
              "State agreement: fraction of ticks labelled traction, braking or steady by the "
-             "simulator (`gt_state`) that the estimator labels the same. On rough soft ground "
-             "the true acceleration oscillates by about +-0.05 m/s^2, so truth labels with "
-             "theta = 0.02 m^2/s^3 stay in traction/braking during steady cruise; the estimator "
-             "low-passes the acceleration and calls it steady.\n",
+             "simulator (`gt_state`) that the estimator labels the same. Both apply the "
+             "manoeuvre filter (two 0.3 s low-passes) to the acceleration before Power, so "
+             "terrain vibration (3-8 Hz, up to 0.4 m/s^2 rms on tilled soil) is not read as "
+             "traction or braking (`terrainml.estimation.dynamic_state`).\n",
              _accuracy_section(quick), "", _speed_section(quick)]
     return "\n".join(parts) + "\n"
 
