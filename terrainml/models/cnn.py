@@ -69,8 +69,6 @@ from sklearn.model_selection import GroupShuffleSplit, StratifiedGroupKFold
 from sklearn.utils.validation import check_is_fitted, check_random_state
 from torch import nn
 
-from terrainml.features.sets import traction_sense as _traction_sense_np
-
 __all__ = ["CNNClassifier", "CONFIG_NAME", "WEIGHTS_NAME", "CONFIG_FORMAT"]
 
 log = logging.getLogger(__name__)
@@ -153,50 +151,75 @@ class ConvNet1d(nn.Module):
         return self.head(self.dropout(z))
 
 
-def traction_pairs(channel_names: Sequence[str]) -> list[tuple[int, int]]:
-    """(current index, slip index or -1) per wheel with a ``current_i`` channel."""
-    names = list(channel_names)
-    return [(k, names.index(f"slip_{c[8:]}") if f"slip_{c[8:]}" in names else -1)
-            for k, c in enumerate(names) if c.startswith("current_")]
+DERIVED_CHANNELS = ("speed", "imu_az_per_v2", "imu_ax_per_v2")
+ROUGHNESS_MIN_SPEED_MPS = 0.2
 
 
-class TractionSense(nn.Module):
-    """Each wheel's current and slip times the sign of its window-mean current (torch version of
-    :func:`terrainml.features.sets.traction_sense`, so the ONNX export carries it too)."""
+class Preprocess(nn.Module):
+    """Fixed input transforms, part of the network (so the ONNX export carries them):
 
-    def __init__(self, pairs: Sequence[tuple[int, int]], n_channels: int):
+    * traction sense: each wheel's current and slip times the sign of its window-mean current
+      (torch version of :func:`terrainml.features.sets.traction_sense`);
+    * derived channels appended after the inputs: body ``speed`` = hypot(vx, vy) (m/s) and the
+      roughness channels ``imu_az_per_v2`` / ``imu_ax_per_v2`` = (a - window mean) / v^2 with v
+      the window-mean speed floored at 0.2 m/s: a surface profile's vibration grows with speed
+      squared, so these channels describe the ground rather than the manoeuvre (the same
+      invariance the SVM's features use). Derived channels whose inputs are missing are skipped.
+
+    Input ``(n, C, T)`` raw windows; output ``(n, C + n_derived, T)``.
+    """
+
+    def __init__(self, channel_names: Sequence[str], traction_sense: bool = True, derived: bool = True):
         super().__init__()
-        owner = torch.full((n_channels,), -1, dtype=torch.long)  # channel -> its current channel
-        for cur, slip in pairs:
-            owner[cur] = cur
-            if slip >= 0:
-                owner[slip] = cur
+        names = list(channel_names)
+        n = len(names)
+        owner = torch.full((n,), -1, dtype=torch.long)  # channel -> index of its wheel's current
+        if traction_sense:
+            for k, c in enumerate(names):
+                if c.startswith("current_"):
+                    owner[k] = k
+                    if f"slip_{c[8:]}" in names:
+                        owner[names.index(f"slip_{c[8:]}")] = k
         self.register_buffer("owner", owner)
+        self.has_speed = derived and "vx" in names and "vy" in names
+        self.i_vx = names.index("vx") if self.has_speed else 0
+        self.i_vy = names.index("vy") if self.has_speed else 0
+        self.accel_idx = [names.index(c) for c in ("imu_az", "imu_ax") if self.has_speed and c in names]
+        self.derived_names = ((["speed"] if self.has_speed else [])
+                              + [f"{names[k]}_per_v2" for k in self.accel_idx])
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        mean = torch.nan_to_num(x).mean(dim=-1)                       # (n, C)
+        x0 = torch.nan_to_num(x)
+        mean = x0.mean(dim=-1)                                           # (n, C)
         sign = torch.where(mean < 0, -torch.ones_like(mean), torch.ones_like(mean))
-        idx = self.owner.clamp(min=0).view(1, -1).expand_as(sign)
-        per_channel = torch.gather(sign, 1, idx)
+        per_channel = torch.gather(sign, 1, self.owner.clamp(min=0).view(1, -1).expand_as(sign))
         per_channel = torch.where(self.owner.view(1, -1) >= 0, per_channel, torch.ones_like(per_channel))
-        return x * per_channel.unsqueeze(-1)
+        out = [x * per_channel.unsqueeze(-1)]
+        if self.has_speed:
+            speed = torch.sqrt(x0[:, self.i_vx] ** 2 + x0[:, self.i_vy] ** 2)  # (n, T)
+            v2 = torch.clamp(speed.mean(dim=-1, keepdim=True), min=ROUGHNESS_MIN_SPEED_MPS) ** 2
+            out.append(speed.unsqueeze(1))
+            for k in self.accel_idx:
+                a = x0[:, k]
+                out.append(((a - a.mean(dim=-1, keepdim=True)) / v2).unsqueeze(1))
+        return torch.cat(out, dim=1)
 
 
 class InferenceNet(nn.Module):
-    """Raw windows ``(n, C, T)`` -> class probabilities ``(n, K)`` ([traction sense], standardise,
-    net, softmax).
+    """Raw windows ``(n, C, T)`` -> class probabilities ``(n, K)`` (preprocess, standardise, net,
+    softmax).
 
     This is exactly what :meth:`CNNClassifier.predict_proba` runs and what is exported to ONNX.
     """
 
-    def __init__(self, standardize: Standardize, net: ConvNet1d, sense: TractionSense | None = None):
+    def __init__(self, standardize: Standardize, net: ConvNet1d, preprocess: Preprocess | None = None):
         super().__init__()
-        self.sense = sense if sense is not None else nn.Identity()
+        self.preprocess = preprocess if preprocess is not None else nn.Identity()
         self.standardize = standardize
         self.net = net
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return torch.softmax(self.net(self.standardize(self.sense(x))), dim=-1)
+        return torch.softmax(self.net(self.standardize(self.preprocess(x))), dim=-1)
 
 
 # --------------------------------------------------------------------------------------------
@@ -326,8 +349,8 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
     weight_decay : float >= 0, default 1e-2
         AdamW decoupled weight decay.
     batch_size : int >= 2, default 64
-    max_epochs : int >= 1, default 80
-    patience : int >= 1, default 20
+    max_epochs : int >= 1, default 150
+    patience : int >= 1, default 40
         Stop when the early-stopping score has not improved for this many epochs.
     validation_fraction : float in [0, 0.5], default 0.2
         Share of runs (groups) held out for early stopping; 0 trains ``max_epochs`` epochs.
@@ -353,9 +376,16 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
         Multiply each wheel's current and slip by the sign of its window-mean current before
         standardising (see :func:`terrainml.features.sets.traction_sense`): wheels driven
         backwards then look like wheels driven forwards. Part of the exported network.
-    refit : bool, default False
+    derived_channels : bool, default True
+        Append body speed and the speed-normalised vibration channels ``imu_az_per_v2``,
+        ``imu_ax_per_v2`` to the input (see :class:`Preprocess`; measured on the simulated
+        dataset: grouped-CV balanced accuracy of the weakest folds 0.80/0.86 -> 0.88/0.96).
+        Part of the exported network.
+    refit : bool, default True
         After early stopping, train a fresh network on all windows (validation runs included)
-        for the chosen number of epochs (twice the training time; uses every run).
+        for the chosen number of epochs (twice the training time; uses every run). Measured on
+        the simulated dataset: the weakest outer folds 0.92-0.94 -> 0.95-0.97 balanced accuracy;
+        early stopping on 20% of the runs is noisy and the held-out runs are worth training on.
     channel_names : sequence of str or None, default None
         Names of the C input channels, stored with the model (``ch0..`` when None).
     random_state : int, numpy Generator/RandomState or None, default None
@@ -385,12 +415,14 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
     """
 
     def __init__(self, conv_channels=(32, 64, 64), kernel_sizes=(7, 5, 3), dropout=0.2,
-                 learning_rate=3e-3, weight_decay=1e-2, batch_size=64, max_epochs=80,
-                 patience=20, validation_fraction=0.2, class_weight="balanced", augment=True,
+                 learning_rate=3e-3, weight_decay=1e-2, batch_size=64, max_epochs=150,
+                 patience=40, validation_fraction=0.2, class_weight="balanced", augment=True,
                  gain_std=0.05, noise_std=0.05, max_shift=20, window_stats=True,
-                 early_stopping_metric="balanced_accuracy", refit=False, channel_names=None,
-                 random_state=None, n_threads=None, verbose=0, traction_sense=True):
+                 early_stopping_metric="balanced_accuracy", refit=True, channel_names=None,
+                 random_state=None, n_threads=None, verbose=0, traction_sense=True,
+                 derived_channels=True):
         self.traction_sense = traction_sense
+        self.derived_channels = derived_channels
         self.conv_channels = conv_channels
         self.kernel_sizes = kernel_sizes
         self.dropout = dropout
@@ -413,10 +445,8 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
         self.n_threads = n_threads
         self.verbose = verbose
 
-    def _sense_module(self) -> "TractionSense | None":
-        if not self.traction_sense:
-            return None
-        return TractionSense(traction_pairs(self.channel_names_), len(self.channel_names_))
+    def _preprocess_module(self) -> Preprocess:
+        return Preprocess(self.channel_names_, bool(self.traction_sense), bool(self.derived_channels))
 
     # ---- sklearn plumbing ------------------------------------------------------------------
     def __sklearn_tags__(self):
@@ -544,13 +574,16 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
             if len(names) != C:
                 raise ValueError(f"CNNClassifier: {len(names)} channel_names for {C} channels")
         seed = int(check_random_state(self.random_state).randint(0, 2**31 - 1))
-        if self.traction_sense:  # wheels driven backwards read like forwards (features.sets)
-            X = np.ascontiguousarray(_traction_sense_np(X, names), dtype=np.float32)
+        self.channel_names_ = names
+        pre = self._preprocess_module()
+        with torch.inference_mode():  # the same fixed transforms the exported network applies
+            X = np.ascontiguousarray(pre(torch.from_numpy(X)).numpy(), dtype=np.float32)
+        C_net = X.shape[1]
 
         mean, scale = channel_stats(X)
         self.classes_ = classes
         self.n_channels_in_, self.n_timesteps_in_ = C, T
-        self.channel_names_ = names
+        self.n_net_channels_ = C_net
         self.mean_, self.scale_ = mean, scale
 
         Z = (X - mean[None, :, None]) / scale[None, :, None]
@@ -558,20 +591,20 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
         tr, va = _inner_split(y_idx, groups, float(self.validation_fraction), seed)
 
         with torch_context(seed, self.n_threads, deterministic=True):
-            net = ConvNet1d(C, len(classes), self.conv_channels, self.kernel_sizes,
+            net = ConvNet1d(C_net, len(classes), self.conv_channels, self.kernel_sizes,
                             float(self.dropout), bool(self.window_stats))
             self._train(net, Z, y_idx, tr, va, seed)
             if self.refit and len(va):
                 # retrain from scratch on every window (validation runs included) for the
                 # number of epochs early stopping chose
                 history, best_epoch, n_epochs = self.history_, self.best_epoch_, self.n_epochs_
-                net = ConvNet1d(C, len(classes), self.conv_channels, self.kernel_sizes,
+                net = ConvNet1d(C_net, len(classes), self.conv_channels, self.kernel_sizes,
                                 float(self.dropout), bool(self.window_stats))
                 self._train(net, Z, y_idx, np.arange(n), np.arange(0), seed, n_epochs=best_epoch)
                 self.refit_history_ = self.history_
                 self.history_, self.best_epoch_, self.n_epochs_ = history, best_epoch, n_epochs
             net.eval()
-        self.model_ = InferenceNet(Standardize(mean, scale), net, self._sense_module()).eval()
+        self.model_ = InferenceNet(Standardize(mean, scale), net, pre).eval()
         for p in self.model_.parameters():
             p.requires_grad_(False)
         self.fit_time_s_ = time.perf_counter() - t0
@@ -718,6 +751,7 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
             "version": CONFIG_VERSION,
             "architecture": {
                 "n_channels": int(self.n_channels_in_),
+                "n_net_channels": int(self.n_net_channels_),
                 "n_timesteps": int(self.n_timesteps_in_),
                 "n_classes": len(classes),
                 "conv_channels": params["conv_channels"],
@@ -804,11 +838,17 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
             clf.fit_time_s_ = float(training.get("fit_time_s", float("nan")))
             clf.history_ = list(training.get("history", []))
             C, K = clf.n_channels_in_, len(clf.classes_)
-            if len(clf.mean_) != C or len(clf.scale_) != C or len(clf.channel_names_) != C:
-                raise ValueError("normalisation/channel_names length differs from n_channels")
+            clf.n_net_channels_ = int(arch.get("n_net_channels", C))
+            C_net = clf.n_net_channels_
+            if len(clf.channel_names_) != C:
+                raise ValueError("channel_names length differs from n_channels")
+            if len(clf.mean_) != C_net or len(clf.scale_) != C_net:
+                raise ValueError("normalisation length differs from n_net_channels")
+            if clf._preprocess_module()(torch.zeros(1, C, 8)).shape[1] != C_net:
+                raise ValueError("n_net_channels does not match the preprocessing of these channels")
             if K != int(arch["n_classes"]):
                 raise ValueError("classes length differs from n_classes")
-            net = ConvNet1d(C, K, tuple(arch["conv_channels"]), tuple(arch["kernel_sizes"]),
+            net = ConvNet1d(C_net, K, tuple(arch["conv_channels"]), tuple(arch["kernel_sizes"]),
                             float(arch["dropout"]), bool(arch.get("window_stats", False)))
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{config_path}: invalid CNN config ({exc})") from None
@@ -819,7 +859,7 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
             raise ValueError(f"{weights_path}: weights do not load into the configured "
                              f"network ({type(exc).__name__}: {exc})") from None
         net.eval()
-        clf.model_ = InferenceNet(Standardize(clf.mean_, clf.scale_), net, clf._sense_module()).eval()
+        clf.model_ = InferenceNet(Standardize(clf.mean_, clf.scale_), net, clf._preprocess_module()).eval()
         for p in clf.model_.parameters():
             p.requires_grad_(False)
         return clf
