@@ -64,3 +64,25 @@ def test_missing_column_named(tmp_path):
 def test_not_a_folder(tmp_path):
     with pytest.raises(BorealTCError, match="not a folder"):
         discover(tmp_path / "nope")
+
+
+def test_any_sampling_rates_resampled_to_100hz(tmp_path):
+    # IMU at 200 Hz, wheel service at 10 Hz, both linear in time: linear interpolation onto the
+    # 100 Hz grid must reproduce them exactly (hand-worked values)
+    cls = tmp_path / "SNOW"
+    cls.mkdir()
+    (cls / "pro_07.csv").write_text("time,curL,curR,velL,velR\n" + "\n".join(
+        f"{k * 0.1},{2 * k * 0.1},{1.0},{0.5},{0.5 + k * 0.01}" for k in range(31)))
+    (cls / "imu_07.csv").write_text("time,wx,wy,wz,ax,ay,az\n" + "\n".join(
+        f"{k * 0.005},0,0,{k * 0.005},0,0,9.81" for k in range(601)))
+    tables, report = load_borealtc(tmp_path)
+    df = tables[0]
+    assert report.runs == 1 and report.classes == ["SNOW"]
+    assert np.diff(df["t_s"]).mean() == pytest.approx(0.01)
+    assert df["t_s"].iloc[-1] == pytest.approx(3.0)
+    k = int(np.argmin(np.abs(df["t_s"] - 1.23)))
+    assert df["wheel1_current_a"].iloc[k] == pytest.approx(2 * 1.23)
+    assert df["wheel3_current_a"].iloc[k] == pytest.approx(2 * 1.23)
+    assert df["imu_yaw_rate_radps"].iloc[k] == pytest.approx(1.23)
+    assert df["wheel4_omega_radps"].iloc[k] == pytest.approx((0.5 + 0.123) / 0.1651)
+    assert df["imu_valid"].all() and df["wheels_valid"].all()
