@@ -63,6 +63,11 @@ def main(argv: list[str] | None = None) -> int:
         (results / f"{name}.md").write_text(section)
     header = ("# Benchmarks\n\nProduced by `make bench` (`python -m benchmarks.run_all`). "
               f"Machine: {machine_description()}.\n\n")
+    if args.assemble:
+        header += ("Assembled (`--assemble`) from sections measured one at a time with `--only` on "
+                   "this machine; a section's footer gives its run time and date where it has one. "
+                   "Some ran while other jobs shared the two cores: wall-clock latencies (p99 most) "
+                   "are then pessimistic, and ratios are always measured within one run.\n\n")
     Path(args.out).write_text(header + "\n".join(sections))
     print(f"wrote {args.out}", file=sys.stderr)
     return 0
