@@ -49,6 +49,7 @@ from sklearn.model_selection import StratifiedGroupKFold, StratifiedKFold
 from sklearn.utils.validation import check_is_fitted
 
 from terrainml.features.windows import Windows
+from terrainml.models.cv import check_no_shared_runs
 from terrainml.models.metrics import classification_metrics
 
 __all__ = [
@@ -275,18 +276,9 @@ def protocol_b_folds(windows: Windows, n_splits: int = 5, seed: int = 0) -> list
 
 
 def check_groups_not_split(folds, groups) -> None:
-    """AssertionError if a group is in train and test of a fold, or in two test parts."""
-    groups = np.asarray(groups)
-    seen: dict[Any, int] = {}
-    for k, (tr, te) in enumerate(folds):
-        test_g = set(groups[te].tolist())
-        both = test_g & set(groups[tr].tolist())
-        if both:
-            raise AssertionError(f"fold {k}: groups in both train and test: {sorted(both)[:5]}")
-        for g in test_g:
-            if g in seen:
-                raise AssertionError(f"group {g!r} in the test parts of folds {seen[g]} and {k}")
-            seen[g] = k
+    """AssertionError if a group (a run, or a 5-s chunk under protocol (a)) is in train and test
+    of a fold, or in two test parts: :func:`terrainml.models.cv.check_no_shared_runs`."""
+    check_no_shared_runs(folds, groups)
 
 
 # ------------------------------------------------------------------------------- evaluation
