@@ -76,6 +76,24 @@ class ManoeuvreFilter:
         self._t_prev = t_s
         return self._y2.copy()
 
+    def step_pair(self, t_s: float, a0: float, a1: float) -> tuple[float, float]:
+        """:meth:`step` for two plain floats (the online (ax, ay) path): the same arithmetic in
+        the same order, without numpy calls or allocations on the per-tick hot path."""
+        if self._y1 is None or self.tau_s <= 0.0:
+            self._y1, self._y2 = np.array([a0, a1]), np.array([a0, a1])
+            self._p1, self._p2 = [a0, a1], [a0, a1]
+            self._t_prev = t_s
+            return a0, a1
+        dt = t_s - self._t_prev
+        g = 1.0 - math.exp(-dt / self.tau_s) if dt > 0.0 else 0.0
+        p1, p2 = self._p1, self._p2
+        for k, a in ((0, a0), (1, a1)):
+            if a == a and a not in (math.inf, -math.inf):  # a non-finite sample holds the filter
+                p1[k] = p1[k] + g * (a - p1[k])
+            p2[k] = p2[k] + g * (p1[k] - p2[k])
+        self._t_prev = t_s
+        return p2[0], p2[1]
+
 
 def manoeuvre_accel(t_s, accel, tau_s: float = MANOEUVRE_TAU_S) -> np.ndarray:
     """Offline :class:`ManoeuvreFilter` over rows: ``accel`` (n_ticks, ...) sampled at ``t_s`` (n_ticks,)."""

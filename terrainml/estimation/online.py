@@ -246,7 +246,7 @@ class OnlineEstimator:
         else:
             self.slip = np.full(self.n_wheels, np.nan)  # no camera: slip is unobservable
         ax, ay = float(x[I_AX]), float(x[I_AY])
-        ax_f, ay_f = self._accel_filter.step(t_s, (ax, ay))
+        ax_f, ay_f = self._accel_filter.step_pair(t_s, ax, ay)
         r2 = r * r
         a_long = (ax_f - r2 * self._wx) * c + (ay_f - r2 * self._wy) * s
         self.state = self._sm.step(t_s, a_long * v_long, v_long)
