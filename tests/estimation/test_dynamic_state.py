@@ -1,5 +1,6 @@
 """Manoeuvre filter of the dynamic state (SYSTEM §7.2 departure): float path = array path."""
 
+
 def test_manoeuvre_filter_float_path_equals_array_path():
     """The online (ax, ay) float path must give exactly the offline array path's numbers,
     including the hold on non-finite samples, so online and offline states agree."""
