@@ -3,9 +3,10 @@
 * :func:`load_recipe` reads a recipe (a YAML path or a name in ``datasets/``).
 * :func:`simulated_dataset` / :func:`simulated_windows` generate a recipe's simulated logs
   (:func:`terrainml.sim.generate.generate_dataset`), build the windows
-  (:func:`terrainml.models.dataset.build_dataset`) and cache the result: the cache key is the
-  recipe plus a hash of the simulator, ingest, estimation and feature sources, so a code change
-  rebuilds it. Cache folder: ``$TERRAINML_CACHE`` or ``~/.cache/terrainml``.
+  (:func:`terrainml.models.dataset.build_dataset`) and cache the result. The logs are keyed by
+  the recipe and a hash of the simulator, lookup and io sources (what writes them); the windows
+  file additionally by the estimation and feature sources, so a change there rebuilds only the
+  windows. Cache folder: ``$TERRAINML_CACHE`` or ``~/.cache/terrainml``.
 
 This lives in ``sim`` (not ``features``) because it drives the simulator: nothing in the
 io -> estimation -> features -> models chain imports ``sim``.
