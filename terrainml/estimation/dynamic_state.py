@@ -26,7 +26,7 @@ Classification with hysteresis and minimum dwell (beyond the thesis):
 enter traction when Power > theta, leave it when Power < theta / 2; braking symmetric;
 idle when |v_long| < 0.05 m/s; a new state is taken only after it has persisted ``dwell_s``
 (0.2 s, a debounce), so no state is shorter than the dwell. This is the same definition as the
-simulator's truth (``terrainml.sim.truth.wheel_states``).
+simulator's truth (``terrainml.sim.truth.wheel_states`` calls this module).
 """
 
 from __future__ import annotations
@@ -135,7 +135,7 @@ class WheelStateMachine:
     """Per-tick classifier with hysteresis and minimum dwell for N wheels.
 
     Dwell as a debounce: a new raw state must persist for ``dwell_s`` before it is taken (the
-    definition the simulator's truth uses, ``terrainml.sim.truth.wheel_states``), so no state
+    definition the simulator's truth calls, ``terrainml.sim.truth.wheel_states``), so no state
     is shorter than the dwell and a one-tick blip never shows. Hysteresis is relative to the
     committed state. The first tick takes its raw state at once.
 

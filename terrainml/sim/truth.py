@@ -4,59 +4,27 @@ from __future__ import annotations
 
 import numpy as np
 
-from terrainml.io.topics import WHEEL_STATE_CODES
-
-IDLE, STEADY, TRACTION, BRAKING = (WHEEL_STATE_CODES[k] for k in ("idle", "steady", "traction", "braking"))
+from terrainml.estimation.dynamic_state import classify_states
+from terrainml.estimation.slip import slip_ratio
 
 
 def slip_sae(v_ang_mps: np.ndarray, v_long_mps: np.ndarray, dead_band_mps: float = 0.05) -> np.ndarray:
-    """SYSTEM §7.1 slip: clip((v_ang - v_long) / max(|v_ang|, |v_long|), -1, 1), 0 in the dead band."""
-    va = np.asarray(v_ang_mps, dtype=float)
-    vl = np.asarray(v_long_mps, dtype=float)
-    den = np.maximum(np.abs(va), np.abs(vl))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s = np.clip((va - vl) / np.where(den > 0, den, 1.0), -1.0, 1.0)
-    return np.where((np.abs(va) < dead_band_mps) & (np.abs(vl) < dead_band_mps), 0.0, s)
+    """SYSTEM §7.1 slip of true speeds: the estimator's own
+    :func:`terrainml.estimation.slip.slip_ratio` (one definition for truth and estimate)."""
+    return np.asarray(slip_ratio(v_ang_mps, v_long_mps, dead_band_mps))
 
 
 def wheel_states(t_s: np.ndarray, power_m2ps3: np.ndarray, v_long_mps: np.ndarray, theta: float = 0.02,
                  min_dwell_s: float = 0.2, idle_speed_mps: float = 0.05) -> np.ndarray:
     """SYSTEM §7.2 dynamic state codes (0 idle, 1 steady, 2 traction, 3 braking) per row and wheel.
 
-    traction if P > theta, braking if P < -theta (leave at theta/2: hysteresis), idle when
-    |v_long| < 0.05 m/s; a new state must persist ``min_dwell_s`` before it is taken.
+    The estimator's own state machine (:func:`terrainml.estimation.dynamic_state.classify_states`:
+    hysteresis at theta/2, idle below 0.05 m/s, dwell debounce) applied to true Power, so truth and
+    estimate share one definition.
 
     Parameters
     ----------
     t_s : (n,) time; power_m2ps3, v_long_mps : (n, N).
     """
-    n, nw = power_m2ps3.shape
-    out = np.empty((n, nw), dtype=np.int64)
-    for i in range(nw):
-        cur, cand, cand_t = STEADY, STEADY, -np.inf
-        p = power_m2ps3[:, i]
-        v = v_long_mps[:, i]
-        for k in range(n):
-            if abs(v[k]) < idle_speed_mps:
-                raw = IDLE
-            elif cur == TRACTION and p[k] > theta / 2:
-                raw = TRACTION
-            elif cur == BRAKING and p[k] < -theta / 2:
-                raw = BRAKING
-            elif p[k] > theta:
-                raw = TRACTION
-            elif p[k] < -theta:
-                raw = BRAKING
-            else:
-                raw = STEADY
-            if raw == cur:
-                cand = cur
-            elif raw != cand:
-                cand, cand_t = raw, t_s[k]
-            if raw == cand and raw != cur and (t_s[k] - cand_t >= min_dwell_s or k == 0):
-                cur = raw
-            if k == 0:
-                cur = raw
-                cand = raw
-            out[k, i] = cur
-    return out
+    codes = classify_states(t_s, power_m2ps3, v_long_mps, theta, min_dwell_s, idle_speed_mps)
+    return codes.astype(np.int64)
