@@ -69,6 +69,8 @@ from sklearn.model_selection import GroupShuffleSplit, StratifiedGroupKFold
 from sklearn.utils.validation import check_is_fitted, check_random_state
 from torch import nn
 
+from terrainml.features.sets import ROUGHNESS_MIN_SPEED_MPS
+
 __all__ = ["CNNClassifier", "CONFIG_NAME", "WEIGHTS_NAME", "CONFIG_FORMAT"]
 
 log = logging.getLogger(__name__)
@@ -149,10 +151,6 @@ class ConvNet1d(nn.Module):
             std = torch.sqrt(((x - mean) ** 2).mean(dim=-1) + 1e-8)
             z = torch.cat([z, self.stats_norm(torch.cat([mean.squeeze(-1), std], dim=1))], dim=1)
         return self.head(self.dropout(z))
-
-
-DERIVED_CHANNELS = ("speed", "imu_az_per_v2", "imu_ax_per_v2")
-ROUGHNESS_MIN_SPEED_MPS = 0.2
 
 
 class Preprocess(nn.Module):

@@ -35,6 +35,7 @@ import warnings
 from typing import Sequence
 
 import numpy as np
+from scipy.special import expit
 from sklearn.base import BaseEstimator, ClassifierMixin, clone
 from sklearn.calibration import CalibratedClassifierCV
 from sklearn.ensemble import ExtraTreesClassifier
@@ -201,8 +202,6 @@ class SVMClassifier(ClassifierMixin, BaseEstimator):
 
     def _fast_calibrated_proba(self, F: np.ndarray) -> np.ndarray | None:
         """Sigmoid-calibrated multiclass probabilities (None when the fast path does not apply)."""
-        from scipy.special import expit
-
         ccs = self.model_.calibrated_classifiers_
         K = len(self.classes_)
         if len(ccs) != 1 or K < 3 or getattr(ccs[0], "method", "sigmoid") != "sigmoid":
