@@ -60,6 +60,8 @@ class ManoeuvreFilter:
         self.tau_s = float(tau_s)
         self._y1: np.ndarray | None = None
         self._y2: np.ndarray | None = None
+        self._p1: list[float] | None = None  # state of the two-float path (step_pair)
+        self._p2: list[float] | None = None
         self._t_prev = math.nan
 
     def step(self, t_s: float, accel) -> np.ndarray:
@@ -78,9 +80,9 @@ class ManoeuvreFilter:
 
     def step_pair(self, t_s: float, a0: float, a1: float) -> tuple[float, float]:
         """:meth:`step` for two plain floats (the online (ax, ay) path): the same arithmetic in
-        the same order, without numpy calls or allocations on the per-tick hot path."""
-        if self._y1 is None or self.tau_s <= 0.0:
-            self._y1, self._y2 = np.array([a0, a1]), np.array([a0, a1])
+        the same order, without numpy calls or allocations on the per-tick hot path. An instance
+        is used through one of the two methods, not both."""
+        if self._p1 is None or self.tau_s <= 0.0:
             self._p1, self._p2 = [a0, a1], [a0, a1]
             self._t_prev = t_s
             return a0, a1
