@@ -11,6 +11,9 @@
    * ``svm``: ``terrainml.models.svm.SVMClassifier`` on
      :class:`~terrainml.models.protocols.SideChannelFeatures` (RBF, balanced, C and gamma by an
      inner 3-fold search grouped by chunk, calibrated);
+   * ``hgb``: :class:`~terrainml.models.protocols.BoostedTrees`, gradient-boosted trees on the
+     same features (fixed settings, no search);
+   * ``svm+hgb``: the mean of the SVM's and the trees' out-of-fold probabilities (fixed rule);
    * ``cnn``: ``terrainml.models.cnn.CNNClassifier`` on the raw windows (early stopping on
      chunks held out of the training part; torch 2 threads);
    * ``svm+cnn``: the mean of the two models' out-of-fold probabilities on the same folds
@@ -145,7 +148,7 @@ def run(quick: bool = False) -> str:
     chunk_ids = W.meta["chunk_id"].to_numpy()
     run_ids = W.meta["run_id"].astype(str).to_numpy()
     res_a, res_b, times = {}, {}, {}
-    plan = [("a", "svm"), ("a", "authors-svm"), ("b", "svm"), ("b", "authors-svm")]
+    plan = [(p, m) for p in ("a", "b") for m in ("svm", "hgb", "authors-svm")]
     plan += [(p, "cnn") for p in ("a", "b") if p in CNN_PROTOCOLS]
     for p, name in plan:
         t0 = time.perf_counter()
@@ -155,13 +158,15 @@ def run(quick: bool = False) -> str:
         times[(p, name)] = time.perf_counter() - t0
         _log(f"({p}) {name}: acc {100 * res[name].accuracy:.2f} bal {100 * res[name].balanced_accuracy:.2f} "
              f"recall {res[name].recall_per_class()} in {times[(p, name)]:.0f} s")
-    # fixed-rule ensemble: mean of the two models' out-of-fold probabilities (same folds)
+    # fixed-rule ensembles: mean of the models' out-of-fold probabilities (same folds, nothing tuned)
     for res, p in ((res_a, "a"), (res_b, "b")):
-        if "cnn" in res:
-            res["svm+cnn"] = average_results([res["svm"], res["cnn"]], name=f"({p}) svm+cnn")
-            times[(p, "svm+cnn")] = times[(p, "svm")] + times[(p, "cnn")]
-            _log(f"({p}) svm+cnn: acc {100 * res['svm+cnn'].accuracy:.2f} bal {100 * res['svm+cnn'].balanced_accuracy:.2f}")
-    order = ("svm", "cnn", "svm+cnn", "authors-svm")
+        for combo in (("svm", "hgb"), ("svm", "cnn")):
+            if all(m in res for m in combo):
+                key = "+".join(combo)
+                res[key] = average_results([res[m] for m in combo], name=f"({p}) {key}")
+                times[(p, key)] = sum(times[(p, m)] for m in combo)
+                _log(f"({p}) {key}: acc {100 * res[key].accuracy:.2f} bal {100 * res[key].balanced_accuracy:.2f}")
+    order = ("svm", "hgb", "svm+hgb", "cnn", "svm+cnn", "authors-svm")
     res_a = {k: res_a[k] for k in order if k in res_a}
     res_b = {k: res_b[k] for k in order if k in res_b}
 

@@ -17,7 +17,7 @@ from rich.table import Table
 console = Console(stderr=True, soft_wrap=True)
 
 PROTOCOLS = ("a", "b", "both")
-MODELS = ("svm", "cnn", "authors-svm")
+MODELS = ("svm", "hgb", "cnn", "authors-svm")
 
 
 def _fail(msg: str) -> None:
@@ -29,7 +29,7 @@ def evaluate_protocol_cmd(
     source: Path = typer.Argument(..., help="BorealTC folder: <CLASS>/imu_XX.csv and <CLASS>/pro_XX.csv."),
     protocol: str = typer.Option("both", "--protocol", "-p", help="a (authors': stratified 5-fold over "
                                  "5-s chunks), b (grouped by run) or both."),
-    models: str = typer.Option("svm", "--models", "-m", help="Comma-separated: svm, cnn, authors-svm."),
+    models: str = typer.Option("svm", "--models", "-m", help="Comma-separated: svm, hgb, cnn, authors-svm; A+B averages the out-of-fold probabilities of A and B (e.g. svm+hgb)."),
     window_s: float = typer.Option(1.7, "--window-s", help="Window length (s)."),
     chunk_s: float = typer.Option(5.0, "--chunk-s", help="Chunk length (s) of protocol (a)."),
     per_chunk: int = typer.Option(11, "--windows-per-chunk", help="Windows per chunk of the smallest "
@@ -53,14 +53,15 @@ def evaluate_protocol_cmd(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from terrainml.io.borealtc import BorealTCError, load_borealtc
-    from terrainml.models.protocols import (chunk_windows, evaluate_protocol, make_chunks, protocol_a_folds,
-                                            protocol_b_folds, protocol_models)
+    from terrainml.models.protocols import (average_results, chunk_windows, evaluate_protocol, make_chunks,
+                                            protocol_a_folds, protocol_b_folds, protocol_models)
     from terrainml.robot import RobotSpecError, load_robot
 
     if protocol not in PROTOCOLS:
         _fail(f"--protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
     names = [m.strip() for m in models.split(",") if m.strip()]
-    bad = [m for m in names if m not in MODELS]
+    bad = [m for m in names if not all(q in MODELS for q in m.split("+"))]
+    base_models = list(dict.fromkeys(q for m in names for q in m.split("+")))
     if bad or not names:
         _fail(f"--models: unknown {bad or models!r}; choose from {', '.join(MODELS)}")
     if not (window_s > 0 and chunk_s >= window_s):
@@ -100,12 +101,16 @@ def evaluate_protocol_cmd(
             except ValueError as exc:
                 _fail(f"{source}: protocol ({p}) folds: {exc}")
             inner = W.meta["chunk_id"].to_numpy() if p == "a" else W.meta["run_id"].astype(str).to_numpy()
-            for m in names:
+            done = {}
+            for m in base_models:
                 task = progress.add_task(f"protocol ({p}) {m}", total=len(folds_))
-                res = evaluate_protocol(fac[m], W, folds_, inner_groups=inner, class_names=rep.classes,
-                                        name=f"({p}) {m}", split_groups=inner,
-                                        progress=lambda k, n, t=task: progress.update(t, completed=k))
-                results[(p, m)] = res
+                done[m] = evaluate_protocol(fac[m], W, folds_, inner_groups=inner, class_names=rep.classes,
+                                            name=f"({p}) {m}", split_groups=inner,
+                                            progress=lambda k, n, t=task: progress.update(t, completed=k))
+            for m in names:
+                parts = m.split("+")
+                results[(p, m)] = (done[m] if len(parts) == 1 else
+                                   average_results([done[q] for q in parts], name=f"({p}) {m}"))
     for (p, m), res in results.items():
         t = Table(title=f"protocol ({p}) {m}: accuracy {100 * res.accuracy:.2f}%, balanced "
                         f"{100 * res.balanced_accuracy:.2f}%", title_justify="left")

@@ -44,7 +44,7 @@ import numpy as np
 import pandas as pd
 from joblib import Parallel, delayed
 from scipy.signal import welch
-from sklearn.base import BaseEstimator, TransformerMixin
+from sklearn.base import BaseEstimator, ClassifierMixin, TransformerMixin
 from sklearn.model_selection import StratifiedGroupKFold, StratifiedKFold
 from sklearn.utils.validation import check_is_fitted
 
@@ -55,7 +55,7 @@ from terrainml.models.metrics import classification_metrics
 __all__ = [
     "SIDE_CHANNELS", "ChunkSet", "make_chunks", "chunk_windows", "protocol_a_folds",
     "protocol_b_folds", "check_groups_not_split", "evaluate_protocol", "ProtocolResult", "average_results",
-    "SideChannelFeatures", "side_channel_features", "AuthorsSVM", "protocol_models",
+    "SideChannelFeatures", "side_channel_features", "AuthorsSVM", "BoostedTrees", "protocol_models",
 ]
 
 #: raw channels of a skid-steer robot without camera: window channel name -> run-table column.
@@ -442,6 +442,8 @@ def average_results(results: Sequence[ProtocolResult], name: str = "average") ->
 
 
 # -------------------------------------------------------------------------------- features
+IMU_CHANNELS = ("imu_ax", "imu_ay", "imu_az", "imu_wx", "imu_wy", "imu_wz")
+ROUGHNESS_MIN_SPEED_MPS = 0.2
 BANDS_HZ = ((0.0, 1.0), (1.0, 3.0), (3.0, 6.0), (6.0, 10.0), (10.0, 15.0), (15.0, 20.0),
             (20.0, 30.0), (30.0, 40.0), (40.0, 50.0))
 
@@ -470,7 +472,10 @@ def side_channel_features(X: np.ndarray, channels: Sequence[str], rate_hz: float
     and sum (mean, std), left-right speed difference, forward speed v = (vL + vR)/2, current
     per speed sum(i)/max(|v|, 0.05) per side and total, electrical power proxy i*v per side,
     and the skid indicator: measured yaw rate minus the kinematic one (vR - vL)/B (mean, std)
-    and their ratio.
+    and their ratio; roughness invariants for every IMU channel, log10 of std / v^2, std / v
+    and mean |first difference| / v, plus log10 of the mean |total current| / v (v the mean
+    forward speed floored at 0.2 m/s): vibration grows with speed, these ratios do not, which
+    helps a run driven faster than any training run of its class.
     """
     X = np.asarray(X, dtype=np.float64)
     channels = list(channels)
@@ -532,6 +537,21 @@ def side_channel_features(X: np.ndarray, channels: Sequence[str], rate_hz: float
             cols["skid__yaw_residual_std"] = res.std(axis=1)
             cols["skid__yaw_residual_abs"] = np.abs(res).mean(axis=1)
             cols["skid__yaw_ratio"] = np.abs(wz).mean(axis=1) / np.maximum(np.abs(wkin).mean(axis=1), 0.05)
+    if has_v:
+        # roughness invariants (as on the reference robot, features.sets): the vibration a surface
+        # profile excites grows with speed, so the spread per speed and per speed^2 describes the
+        # surface rather than the manoeuvre (speed floored at 0.2 m/s; log10 for scale)
+        v_floor = np.maximum(np.abs(v.mean(axis=1)), ROUGHNESS_MIN_SPEED_MPS)
+        for ch in IMU_CHANNELS:
+            if ch not in pos:
+                continue
+            x = X[:, pos[ch]]
+            s_ch, d_ch = x.std(axis=1), np.abs(np.diff(x, axis=1)).mean(axis=1)
+            cols[f"{ch}__log_std_per_speed2"] = np.log10(s_ch / v_floor ** 2 + 1e-9)
+            cols[f"{ch}__log_std_per_speed"] = np.log10(s_ch / v_floor + 1e-9)
+            cols[f"{ch}__log_mad_diff_per_speed"] = np.log10(d_ch / v_floor + 1e-9)
+        if has_i:
+            cols["current_total__log_abs_per_speed"] = np.log10(np.abs(iL + iR).mean(axis=1) / v_floor + 1e-6)
     if has_i and has_v:
         vm = np.maximum(np.abs(v.mean(axis=1)), 0.05)
         cols["current_left__per_speed"] = iL.mean(axis=1) / np.maximum(np.abs(vL.mean(axis=1)), 0.05)
@@ -627,6 +647,50 @@ class AuthorsSVM:
         return self.model_.predict(self._moments(X))
 
 
+class BoostedTrees(ClassifierMixin, BaseEstimator):
+    """Gradient-boosted trees on :class:`SideChannelFeatures` (a second, non-kernel model).
+
+    ``sklearn.ensemble.HistGradientBoostingClassifier`` with balanced class weights and fixed
+    settings (no search: ``max_iter`` trees of learning rate ``learning_rate``, otherwise
+    sklearn's defaults; chosen before evaluation, not tuned on any fold). Trees need no feature
+    scaling and cope with features of any spread, which the RBF kernel does not. Deterministic
+    under ``random_state``. ``groups`` is accepted (and unused) so the protocols can call it
+    like the other models.
+    """
+
+    def __init__(self, features: SideChannelFeatures | None = None, max_iter: int = 300,
+                 learning_rate: float = 0.05, random_state: int = 0):
+        self.features = features
+        self.max_iter = max_iter
+        self.learning_rate = learning_rate
+        self.random_state = random_state
+
+    def fit(self, X, y, groups=None):
+        from sklearn.base import clone
+        from sklearn.ensemble import HistGradientBoostingClassifier
+
+        if int(self.max_iter) < 1 or not float(self.learning_rate) > 0:
+            raise ValueError("BoostedTrees: max_iter must be >= 1 and learning_rate > 0")
+        self.features_ = clone(self.features) if self.features is not None else SideChannelFeatures()
+        F = self.features_.fit(X).transform(X)
+        self.model_ = HistGradientBoostingClassifier(
+            max_iter=int(self.max_iter), learning_rate=float(self.learning_rate),
+            # sklearn's 20 samples per leaf, but at most a quarter of the data: with fewer
+            # than 40 windows the default leaves no split at all and predicts one class
+            min_samples_leaf=max(1, min(20, len(F) // 4)),
+            class_weight="balanced", random_state=self.random_state)
+        self.model_.fit(F, np.asarray(y))
+        self.classes_ = self.model_.classes_
+        return self
+
+    def predict_proba(self, X) -> np.ndarray:
+        check_is_fitted(self, "model_")
+        return self.model_.predict_proba(self.features_.transform(X))
+
+    def predict(self, X) -> np.ndarray:
+        return self.classes_[np.argmax(self.predict_proba(X), axis=1)]
+
+
 def protocol_models(quick: bool = False, track_m: float = 0.5708, n_jobs: int = 2) -> dict[str, Callable[[], Any]]:
     """Model factories used for the protocols: ``svm``, ``cnn`` and ``authors-svm``.
 
@@ -635,6 +699,7 @@ def protocol_models(quick: bool = False, track_m: float = 0.5708, n_jobs: int = 
       searched by its inner grouped 3-fold CV (quick: 3 x 2 values), calibrated.
     * ``cnn``: :class:`~terrainml.models.cnn.CNNClassifier` on the raw windows, defaults but
       ``max_epochs`` 40 (quick 20) and ``patience`` 10 (quick 6), seed 0, torch 2 threads.
+    * ``hgb``: :class:`BoostedTrees` (gradient-boosted trees, fixed settings; quick: 150 trees).
     * ``authors-svm``: :class:`AuthorsSVM`.
     """
     from terrainml.models.cnn import CNNClassifier
@@ -651,4 +716,7 @@ def protocol_models(quick: bool = False, track_m: float = 0.5708, n_jobs: int = 
     def cnn():
         return CNNClassifier(max_epochs=epochs, patience=patience, random_state=0, n_threads=2)
 
-    return {"svm": svm, "cnn": cnn, "authors-svm": AuthorsSVM}
+    def hgb():
+        return BoostedTrees(SideChannelFeatures(track_m=track_m), max_iter=150 if quick else 300)
+
+    return {"svm": svm, "hgb": hgb, "cnn": cnn, "authors-svm": AuthorsSVM}

@@ -60,3 +60,25 @@ def test_bad_input_exits_2_and_names_it(tmp_path):
     assert res.exit_code == 2 and "nope" in res.output and "Traceback" not in res.output
     res = CliRunner().invoke(_app(), ["evaluate-protocol", str(tmp_path), "-p", "c"])
     assert res.exit_code == 2 and "--protocol" in res.output
+
+
+def test_trees_and_probability_average_on_plain_terrains(tmp_path):
+    """``-m hgb,svm+hgb``: the boosted trees and the fixed-rule average each predict every window,
+    and both separate two plainly different terrains under the grouped-by-run protocol."""
+    _write_folder(tmp_path / "data")
+    out = tmp_path / "r.json"
+    res = CliRunner().invoke(_app(), ["evaluate-protocol", str(tmp_path / "data"), "-p", "b",
+                                      "-m", "hgb,svm+hgb", "--quick", "--n-jobs", "1", "--windows-per-chunk", "2",
+                                      "--folds", "2", "--json", str(out), "-q"])
+    assert res.exit_code == 0, res.output
+    d = json.loads(out.read_text())
+    assert set(d) == {"b:hgb", "b:svm+hgb", "_setup"}
+    for k in ("b:hgb", "b:svm+hgb"):
+        assert np.asarray(d[k]["confusion_matrix"]).sum() == 36
+        assert d[k]["balanced_accuracy"] > 0.9
+
+
+def test_unknown_model_in_an_average_is_refused(tmp_path):
+    _write_folder(tmp_path / "data")
+    res = CliRunner().invoke(_app(), ["evaluate-protocol", str(tmp_path / "data"), "-m", "svm+forest"])
+    assert res.exit_code == 2 and "svm+forest" in res.output
