@@ -35,9 +35,12 @@ import math
 
 import numpy as np
 
+# state codes 0..3 (order of schema.WHEEL_STATES) and the per-tick rules, compiled (one
+# implementation, shared with the online estimator's tick)
+from terrainml.estimation._kernel import (BRAKING, IDLE, STEADY, TRACTION, manoeuvre_gain,  # noqa: F401
+                                         manoeuvre_step, state_machine_step)
 from terrainml.schema import WHEEL_STATES
 
-IDLE, STEADY, TRACTION, BRAKING = range(4)  # codes in the order of schema.WHEEL_STATES
 STATE_NAMES = WHEEL_STATES
 THETA_M2PS3 = 0.02
 DWELL_S = 0.2
@@ -60,8 +63,10 @@ class ManoeuvreFilter:
         self.tau_s = float(tau_s)
         self._y1: np.ndarray | None = None
         self._y2: np.ndarray | None = None
-        self._p1: list[float] | None = None  # state of the two-float path (step_pair)
-        self._p2: list[float] | None = None
+        self._p1 = np.zeros(2)  # state of the two-float path (step_pair)
+        self._p2 = np.zeros(2)
+        self._pa = np.zeros(2)
+        self._pair_started = False
         self._t_prev = math.nan
 
     def step(self, t_s: float, accel) -> np.ndarray:
@@ -80,21 +85,17 @@ class ManoeuvreFilter:
 
     def step_pair(self, t_s: float, a0: float, a1: float) -> tuple[float, float]:
         """:meth:`step` for two plain floats (the online (ax, ay) path): the same arithmetic in
-        the same order, without numpy calls or allocations on the per-tick hot path. An instance
-        is used through one of the two methods, not both."""
-        if self._p1 is None or self.tau_s <= 0.0:
-            self._p1, self._p2 = [a0, a1], [a0, a1]
-            self._t_prev = t_s
-            return a0, a1
-        dt = t_s - self._t_prev
-        g = 1.0 - math.exp(-dt / self.tau_s) if dt > 0.0 else 0.0
-        p1, p2 = self._p1, self._p2
-        for k, a in ((0, a0), (1, a1)):
-            if a == a and a not in (math.inf, -math.inf):  # a non-finite sample holds the filter
-                p1[k] = p1[k] + g * (a - p1[k])
-            p2[k] = p2[k] + g * (p1[k] - p2[k])
+        the same order (:func:`manoeuvre_step`, which the online estimator's compiled tick runs).
+        An instance is used through one of the two methods, not both."""
+        self._pa[0], self._pa[1] = a0, a1
+        if not self._pair_started or self.tau_s <= 0.0:
+            self._p1[:] = self._pa
+            self._p2[:] = self._pa
+            self._pair_started = True
+        else:
+            manoeuvre_step(self._p1, self._p2, self._pa, manoeuvre_gain(t_s - self._t_prev, self.tau_s))
         self._t_prev = t_s
-        return p2[0], p2[1]
+        return float(self._p2[0]), float(self._p2[1])
 
 
 def manoeuvre_accel(t_s, accel, tau_s: float = MANOEUVRE_TAU_S) -> np.ndarray:
@@ -154,49 +155,17 @@ class WheelStateMachine:
         self.dwell_s = float(dwell_s)
         self.idle_speed = float(idle_speed)
         self.state = np.full(n_wheels, IDLE, dtype=np.int8)
-        self.cand = [IDLE] * n_wheels
-        self.cand_since = [-math.inf] * n_wheels
+        self.cand = np.full(n_wheels, IDLE, dtype=np.int8)
+        self.cand_since = np.full(n_wheels, -math.inf)
         self.started = False
 
     def step(self, t_s: float, power, v_long) -> np.ndarray:
-        """Advance one tick; returns the state codes (N,) (copy).
-
-        Same rules as :func:`raw_state` plus the dwell, written with plain floats per wheel
-        (a handful of wheels: cheaper than numpy calls).
-        """
-        theta, half, idle = self.theta, 0.5 * self.theta, self.idle_speed
-        state = self.state
-        for i in range(len(state)):
-            p = float(power[i])
-            v = float(v_long[i])
-            cur = int(state[i])
-            if p != p or v != v:  # non-finite: keep the state
-                raw = cur
-            elif abs(v) < idle:
-                raw = IDLE
-            elif cur == TRACTION and p > half:  # hysteresis: leave traction below theta/2
-                raw = TRACTION
-            elif cur == BRAKING and p < -half:
-                raw = BRAKING
-            elif p > theta:
-                raw = TRACTION
-            elif p < -theta:
-                raw = BRAKING
-            else:
-                raw = STEADY
-            if not self.started:
-                state[i] = raw
-                self.cand[i] = raw
-                continue
-            if raw == cur:
-                self.cand[i] = cur
-            elif raw != self.cand[i]:
-                self.cand[i] = raw
-                self.cand_since[i] = t_s
-            if raw == self.cand[i] and raw != cur and t_s - self.cand_since[i] >= self.dwell_s:
-                state[i] = raw
+        """Advance one tick; returns the state codes (N,) (copy). Rules: :func:`state_machine_step`."""
+        state_machine_step(float(t_s), np.asarray(power, dtype=float), np.asarray(v_long, dtype=float),
+                           self.theta, self.dwell_s, self.idle_speed, self.started, self.state, self.cand,
+                           self.cand_since)
         self.started = True
-        return state.copy()
+        return self.state.copy()
 
 
 def classify_states(t_s, power, v_long, theta: float = THETA_M2PS3, dwell_s: float = DWELL_S,

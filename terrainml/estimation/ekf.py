@@ -26,8 +26,10 @@ valid sample this tick are dropped from the update)::
     vx_cam  = vx - r y_c,  vy_cam = vy + r x_c,  r_cam = r,  psi_cam = psi   (lever arm, eq. 6.6)
 
 The filter is written filterpy-style: ``x`` and ``P`` are plain arrays and :meth:`Ekf.predict`
-/ :meth:`Ekf.update` follow the textbook equations line by line. Everything a tick needs is
-preallocated; the step uses only small numpy operations (no pandas).
+/ :meth:`Ekf.update` follow the textbook equations line by line. With numba they run compiled
+(:mod:`terrainml.estimation._kernel`, the same equations as loops that visit only the nonzeros
+of F and H); :meth:`Ekf.step` runs both in one compiled call and :meth:`Ekf.batch_filter` a
+whole table without Python between ticks.
 
 Presets (:data:`PRESETS`)
 -------------------------
@@ -41,10 +43,11 @@ Presets (:data:`PRESETS`)
             the gap, with a variance that starts larger and decays to the thesis value over 10 s;
             (2) rejects individual camera and IMU-acceleration rows whose normalised innovation
             exceeds a chi-square gate (camera glitches, vibration spikes), released after 3
-            consecutive gated ticks so a wrong prediction cannot lock the camera out; (3) uses a process noise tuned for 100 Hz (accelerations
-            as random walks, small velocity noise) so the IMU carries the velocity between
-            camera samples instead of the wheels; (4) no EMA pre-filters (they only add lag);
-            (5) compensates the wheel-encoder lag when forming slip (see ``slip.py``).
+            consecutive gated ticks so a wrong prediction cannot lock the camera out; (3) uses a
+            process noise tuned for 100 Hz (accelerations as random walks, small velocity noise)
+            so the IMU carries the velocity between camera samples instead of the wheels; (4) no
+            EMA pre-filters (they only add lag); (5) compensates the wheel-encoder lag when
+            forming slip (see ``slip.py``).
 """
 
 from __future__ import annotations
@@ -404,12 +407,16 @@ def fill_wheel_H(H: np.ndarray, x: np.ndarray, wheel_rows: np.ndarray, wheel_xy:
 
 # --------------------------------------------------------------------- filter
 class Ekf:
-    """The EKF itself: ``x`` (n,), ``P`` (n, n), ``predict(dt)``, ``update(z, use, r_diag)``.
+    """The EKF itself: ``x`` (n,), ``P`` (n, n), ``predict(dt)``, ``update(z, use, r_diag)``;
+    ``step(dt, z, use, r_diag)`` (both, one tick) and ``batch_filter(t_s, z, use, r_diag)`` (a
+    whole table).
 
     Parameters
     ----------
     model : PlanarModel, the robot's state and measurement layout.
     preset : EkfPreset or name.
+    compiled : use the numba kernels (default: when numba is available); False: the numpy
+        reference methods.
 
     Attributes
     ----------
@@ -418,6 +425,7 @@ class Ekf:
     y : ndarray (m,), last innovations (NaN for rows not used).
     S_diag : ndarray (m,), last innovation variances (NaN for rows not used).
     nis : float, last y^T S^-1 y; ``nis_dof`` its degrees of freedom (rows used).
+    n_gated : int, rows rejected by the gate so far.
     """
 
     def __init__(self, model: PlanarModel, preset: str | EkfPreset = "robust",
@@ -460,17 +468,56 @@ class Ekf:
         self.S_diag = np.full(m, np.nan)
         self.nis = float("nan")
         self.nis_dof = 0
-        self.n_gated = 0
-        self._gated_run = 0  # consecutive ticks with a gated row
-        self._gate_release = False
+        # gate memory, shared with the compiled kernels: [rows gated so far, consecutive ticks
+        # with a gated row, gate released (0/1)]
+        self._gate_state = np.zeros(3, dtype=np.int64)
+        self._gate_chi2 = 0.0 if p.cam_gate_chi2 is None else float(p.cam_gate_chi2)
         self._gated_rows = np.array([r.group == "cam" or (p.gate_imu_acc and r.kind in ("imu_ax", "imu_ay"))
                                      for r in model.rows], dtype=bool)
+        # sparsity of F and H for the compiled kernels: the columns each row can be nonzero in
+        # (F probed at a generic state; H: v, r and the wheel's steering angle for wheel rows)
+        F_probe = np.eye(n)
+        fill_F(F_probe, 0.1 + np.arange(n) * 0.37, 1.0)
+        self._F_nz, self._F_nnz = _nonzero_columns(F_probe != 0.0)
+        H_mask = self._H_all != 0.0
+        for i in range(self._n_wheel_rows):
+            H_mask[i, [I_VX, I_VY, I_R]] = True
+            if self._steer_state[i] >= 0:
+                H_mask[i, self._steer_state[i]] = True
+        self._H_nz, self._H_nnz = _nonzero_columns(H_mask)
+
+    # gate memory (readable names for the entries of _gate_state)
+    @property
+    def n_gated(self) -> int:
+        """Rows rejected by the gate since the filter started."""
+        return int(self._gate_state[0])
+
+    @n_gated.setter
+    def n_gated(self, value: int) -> None:
+        self._gate_state[0] = value
+
+    @property
+    def _gated_run(self) -> int:  # consecutive ticks with a gated row
+        return int(self._gate_state[1])
+
+    @_gated_run.setter
+    def _gated_run(self, value: int) -> None:
+        self._gate_state[1] = value
+
+    @property
+    def _gate_release(self) -> bool:  # gate released after a long disagreement
+        return bool(self._gate_state[2])
+
+    @_gate_release.setter
+    def _gate_release(self, value: bool) -> None:
+        self._gate_state[2] = int(value)
 
     # ----------------------------------------------------------------- predict
     def predict(self, dt: float) -> None:
         """x = f(x);  P = F P F^T + Q (dt / 0.01)."""
         if self.compiled:  # same equations, compiled (terrainml.estimation._kernel)
-            self._kernel.predict_kernel(self.x, self.P, self.Q0, dt, dt / NOMINAL_DT_S, self._F, self._tmp)
+            self._kernel.predict_kernel(self.x, self.P, self.Q0, dt, dt / NOMINAL_DT_S, self._F, self._F_nz,
+                                        self._F_nnz, self._tmp)
             return
         x, F = self.x, self._F
         fill_F(F, x, dt)  # Jacobian at the prior mean, before x moves
@@ -515,6 +562,10 @@ class Ekf:
         """
         if self.compiled and self._update_compiled(z, use, r_diag, gate_enabled):
             return
+        self._update_numpy(z, use, r_diag, gate_enabled)
+
+    def _update_numpy(self, z: np.ndarray, use: np.ndarray, r_diag: np.ndarray, gate_enabled: bool) -> None:
+        """:meth:`update` in numpy (the reference; also the fallback of the compiled kernel)."""
         self.y.fill(np.nan)
         self.S_diag.fill(np.nan)
         idx = np.flatnonzero(use)
@@ -580,21 +631,96 @@ class Ekf:
 
     def _update_compiled(self, z: np.ndarray, use: np.ndarray, r_diag: np.ndarray, gate_enabled: bool) -> bool:
         """The same update through the compiled kernel; False if it could not (S not PD)."""
-        p = self.preset
-        gate = p.cam_gate_chi2 if (gate_enabled and p.cam_gate_chi2 is not None) else 0.0
-        nis, dof, n_bad, gated_now, agree = self._kernel.update_kernel(
-            self.x, self.P, self._H_all, z, use, r_diag, self._angle_rows, self._gated_rows, gate,
-            self._gate_release, self._n_wheel_rows, self._wheel_xy, self._steer_state, self._radius,
+        nis, dof = self._kernel.update_kernel(
+            self.x, self.P, self._H_all, self._H_nz, self._H_nnz, z, use, r_diag, self._angle_rows,
+            self._gated_rows, self._gate_chi2 if gate_enabled else 0.0, self.preset.cam_gate_max_ticks,
+            self._gate_state, self._n_wheel_rows, self._wheel_xy, self._steer_state, self._radius,
             self.y, self.S_diag)
-        if dof < 0:  # Cholesky failed (x and P untouched): let the numpy path handle it
+        if dof < 0:  # Cholesky failed (x, P and the gate untouched): let the numpy path handle it
             return False
-        self.n_gated += int(n_bad)
-        if gate > 0.0 and agree:
-            self._gate_release = False
-        self._gated_run = self._gated_run + 1 if gated_now else 0
-        if self._gated_run > p.cam_gate_max_ticks:
-            self._gate_release = True
-            self._gated_run = 0
-        self.nis = float(nis)
-        self.nis_dof = int(dof)
+        self.nis = nis
+        self.nis_dof = dof
         return True
+
+    # ----------------------------------------------------------------- one tick, a whole table
+    def step(self, dt: float, z: np.ndarray, use: np.ndarray, r_diag: np.ndarray,
+             gate_enabled: bool = True) -> None:
+        """:meth:`predict` over ``dt`` (skipped when ``dt <= 0``), then :meth:`update`.
+
+        Compiled, both run in one call (the online tick pays one dispatch instead of two).
+        """
+        if self.compiled:
+            nis, dof = self._kernel.step_kernel(
+                self.x, self.P, self.Q0, dt, NOMINAL_DT_S, self._F, self._F_nz, self._F_nnz, self._tmp,
+                self._H_all, self._H_nz, self._H_nnz, z, use, r_diag, self._angle_rows, self._gated_rows,
+                self._gate_chi2 if gate_enabled else 0.0, self.preset.cam_gate_max_ticks, self._gate_state,
+                self._n_wheel_rows, self._wheel_xy, self._steer_state, self._radius, self.y, self.S_diag)
+            if dof >= 0:
+                self.nis = nis
+                self.nis_dof = dof
+            else:  # S not PD (predict done, update not): the numpy update decides
+                self._update_numpy(z, use, r_diag, gate_enabled)
+            return
+        if dt > 0.0:
+            self.predict(dt)
+        self.update(z, use, r_diag, gate_enabled)
+
+    def batch_filter(self, t_s: np.ndarray, z: np.ndarray, use: np.ndarray, r_diag: np.ndarray,
+                     gate_enabled: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Filter a whole table: :meth:`step` for every row, ``dt = t_s[k] - t_s[k - 1]``.
+
+        The first row is an update only (the state is taken to be at ``t_s[0]``). With numba the
+        loop itself is compiled (no Python between ticks); the result is the same as calling
+        :meth:`step` row by row.
+
+        Parameters
+        ----------
+        t_s : (n_ticks,) tick times (s).
+        z : (n_ticks, m) measurements, columns in the order of ``model.rows``.
+        use : (n_ticks, m) bool, rows to use at each tick.
+        r_diag : (m,) measurement variances (the diagonal of R).
+
+        Returns
+        -------
+        xs : (n_ticks, n) state after each tick; nis : (n_ticks,) NIS; nis_dof : (n_ticks,) rows used.
+        """
+        t_s = np.ascontiguousarray(t_s, dtype=float)
+        z = np.ascontiguousarray(z, dtype=float)
+        use = np.ascontiguousarray(use, dtype=bool)
+        r_diag = np.ascontiguousarray(r_diag, dtype=float)
+        n_ticks = len(t_s)
+        xs = np.empty((n_ticks, self.n))
+        nis = np.empty(n_ticks)
+        dof = np.empty(n_ticks, dtype=np.int64)
+        k = 0
+        while k < n_ticks:
+            if self.compiled:
+                k = self._kernel.batch_kernel(
+                    k, t_s, z, use, r_diag, self.x, self.P, self.Q0, NOMINAL_DT_S, self._F, self._F_nz,
+                    self._F_nnz, self._tmp, self._H_all, self._H_nz, self._H_nnz, self._angle_rows,
+                    self._gated_rows, self._gate_chi2 if gate_enabled else 0.0, self.preset.cam_gate_max_ticks,
+                    self._gate_state, self._n_wheel_rows, self._wheel_xy, self._steer_state, self._radius,
+                    self.y, self.S_diag, xs, nis, dof)
+                if k == n_ticks:
+                    break
+                self._update_numpy(z[k], use[k], r_diag, gate_enabled)  # predicted, S not PD
+            else:
+                self.step(t_s[k] - t_s[k - 1] if k else 0.0, z[k], use[k], r_diag, gate_enabled)
+            xs[k] = self.x
+            nis[k] = self.nis
+            dof[k] = self.nis_dof
+            k += 1
+        if n_ticks:
+            self.nis, self.nis_dof = float(nis[-1]), int(dof[-1])
+        return xs, nis, dof
+
+
+def _nonzero_columns(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of a boolean (rows, n) mask: its True columns, ascending, padded with -1 to a
+    (rows, max count) int64 array, and the count per row."""
+    cols = [np.flatnonzero(row) for row in mask]
+    width = max((len(c) for c in cols), default=0)
+    nz = np.full((len(cols), max(width, 1)), -1, dtype=np.int64)
+    for i, c in enumerate(cols):
+        nz[i, :len(c)] = c
+    return nz, np.array([len(c) for c in cols], dtype=np.int64)

@@ -9,6 +9,13 @@ Sample format: a mapping with ``t_s`` (s) and any canonical run-table columns (S
 ``wheel1_omega_radps``, ``imu_ax_mps2``, ``cam_vx_mps`` and optionally ``{group}_valid``. A row
 is used only when its group is valid (missing ``_valid`` key = valid) and its value is finite;
 missing keys are treated as invalid, never as stale values.
+
+Speed (``step()`` runs at 100 Hz inside a control loop): a tick is three compiled calls
+(:mod:`terrainml.estimation._kernel`): the measurement pre-processing (``measurements_tick``),
+the EKF (:meth:`Ekf.step`) and the per-wheel slip and dynamic state (``wheels_tick``), glued by
+the policy decisions in plain Python (camera health, fallback). Everything is preallocated: no
+pandas, no per-tick numpy temporaries. The compiled parts run the same primitives as the
+classes of :mod:`.slip` and :mod:`.dynamic_state` (one implementation of each rule).
 """
 
 from __future__ import annotations
@@ -18,22 +25,23 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from terrainml.estimation.dynamic_state import (DWELL_S, MANOEUVRE_TAU_S, THETA_M2PS3, ManoeuvreFilter,
-                                                WheelStateMachine, wheel_power)
-from terrainml.estimation.ekf import (I_AX, I_AY, I_PSI, I_R, I_VX, I_VY, I_X, I_Y, TWO_PI, Ekf,
-                                      EkfPreset, PlanarModel, get_preset)
-from terrainml.estimation.slip import DEAD_BAND_MPS, EncoderLag, slip_ratio_tick
+from terrainml.estimation._kernel import (MAX_P_DIAG, MAX_SPEED_MPS, SLIP_MEMORY_CLIP,  # noqa: F401
+                                         SLIP_MEMORY_MIN_SPEED_MPS, measurements_tick, wheels_tick)
+from terrainml.estimation.dynamic_state import DWELL_S, MANOEUVRE_TAU_S, THETA_M2PS3, WheelStateMachine
+from terrainml.estimation.ekf import Ekf, EkfPreset, PlanarModel, get_preset
+from terrainml.estimation.slip import DEAD_BAND_MPS
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import VALID_GROUPS, WHEEL_STATES
 
 PASS_WHEEL = ("omega_radps", "current_a", "steer_rad")
 PASS_BASE = ("imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2", "imu_yaw_rate_radps")
-MAX_SPEED_MPS = 50.0  # beyond this the filter is declared diverged
-MAX_P_DIAG = 1e6
 # fallback wheel-row variance at the start of a camera gap when no slip is remembered yet
 # (the IMU bridges the gap; wheels take over as it decays to r_wheel over fallback_ramp_s)
 R_WHEEL_UNCOMPENSATED = 50.0
 ACCEL_TAU_S = MANOEUVRE_TAU_S  # manoeuvre filter on the acceleration feeding the wheel Power
+# sensor groups whose freshness the estimator tracks (order of _last_seen)
+GROUPS = ("wheels", "imu", "cam", "steer")
+G_WHEELS, G_IMU, G_CAM, G_STEER = range(4)
 
 
 def est_state_columns(n_wheels: int) -> list[str]:
@@ -97,19 +105,23 @@ class OnlineEstimator:
         rows = self.model.rows
         p = self.preset
         N = self.robot.n_wheels
+        m = len(rows)
         self.n_wheels = N
         self.row_columns = [r.column for r in rows]
         self.row_groups = [r.group for r in rows]
         self.group_names = sorted(set(self.row_groups))
-        self._group_of_row = np.array([self.group_names.index(g) for g in self.row_groups])
+        self._is_wheel = np.array([r.kind == "wheel" for r in rows], dtype=bool)
+        # wheel rows come first and read wheel{i}_omega_radps: the same values feed slip
+        assert self.row_columns[:N] == [f"wheel{i}_omega_radps" for i in range(1, N + 1)]
+        assert self._is_wheel[:N].all() and not self._is_wheel[N:].any()
+        self._group_of_row = np.array([GROUPS.index(g) for g in self.row_groups], dtype=np.int64)
+        # pre-filters (eq. 6.12): z_f = alpha z_f + (1 - alpha) z, per row
         alpha = {"wheel": p.alpha_wheel, "steer": p.alpha_steer}
         self._alpha = np.array([alpha.get(r.kind, p.alpha_cam if r.group == "cam" else p.alpha_imu)
                                 for r in rows])
+        self._one_minus_alpha = 1.0 - self._alpha
+        self._any_alpha = bool(np.any(self._alpha > 0))
         self._angle = np.array([r.angle for r in rows], dtype=bool)
-        self._is_wheel = np.array([r.kind == "wheel" for r in rows], dtype=bool)
-        self._is_cam = np.array([r.group == "cam" for r in rows], dtype=bool)
-        self._yaw_rows = np.flatnonzero(self._angle)
-        self._yaw_rows_l = [int(k) for k in self._yaw_rows]
         r_of = {"wheel": p.r_wheel, "imu_ax": p.r_imu_acc, "imu_ay": p.r_imu_acc,
                 "imu_rate": p.r_imu_rate, "imu_yaw": p.r_imu_yaw, "steer": p.r_steer,
                 "cam_vx": p.r_cam_vel, "cam_vy": p.r_cam_vel, "cam_rate": p.r_cam_rate,
@@ -118,163 +130,125 @@ class OnlineEstimator:
         self._r_cam_ok = self._r_base.copy()
         if p.r_wheel_cam_ok is not None:
             self._r_cam_ok[self._is_wheel] = p.r_wheel_cam_ok
-        self._z_f = np.full(len(rows), np.nan)  # pre-filter memory
-        self._yaw_offset = np.full(len(rows), np.nan)  # yaw zeroed at the first valid sample
-        self._prev_valid = np.zeros(len(rows), dtype=bool)
-        self._last_seen = {g: -math.inf for g in ("wheels", "imu", "cam", "steer")}
+        self._r_fallback = np.empty(m)  # R during a camera gap (wheel variance ramps)
+        self._z_f = np.full(m, np.nan)  # pre-filter memory
+        self._yaw_offset = np.full(m, np.nan)  # yaw zeroed at the first valid sample
+        self._prev_valid = np.zeros(m, dtype=bool)
+        self._z = np.empty(m)  # this tick's measurements and rows used (work arrays)
+        self._use = np.empty(m, dtype=bool)
+        self._last_seen = np.full(len(GROUPS), -math.inf)  # time of the last usable row per group
         self._t_prev: float | None = None
-        self._lag = EncoderLag(N, p.encoder_lag_s)
-        self._sm = WheelStateMachine(N, theta, dwell_s)
-        self._accel_filter = ManoeuvreFilter(accel_tau_s)  # manoeuvre (ax, ay)
-        self._wx = self.model.wheel_xy_m[:, 0].copy()
-        self._wy = self.model.wheel_xy_m[:, 1].copy()
-        self._radius = self.robot.wheel_radius_m
-        self._steer_state = self.model.steer_state
-        self._steer_mask = self._steer_state >= 0
-        self._steer_idx = self._steer_state[self._steer_mask]
-        self._any_steer = bool(self._steer_mask.any())
-        self._any_alpha = bool(np.any(self._alpha > 0))
-        self._one_minus_alpha = 1.0 - self._alpha
-        self._not_wheel = ~self._is_wheel
         self._has_cam = self.robot.has_camera
-        self._valid_keys = [(g, f"{g}_valid") for g in ("wheels", "imu", "cam", "steer")]
-        self._group_rows = {g: [k for k, rg in enumerate(self.row_groups) if rg == g]
-                            for g in ("wheels", "imu", "cam", "steer")}
-        self._omega_cols = [f"wheel{i}_omega_radps" for i in range(1, N + 1)]
-        self._pass_cols = passthrough_columns(N)
-        self._copy_cache: dict = {}
         self._cam_ok_prev = False
+        # per-wheel state: encoder lag, slip memory, manoeuvre filter, state machine
+        self._wheel_xy = np.ascontiguousarray(self.model.wheel_xy_m, dtype=float)
+        self._steer_state = self.model.steer_state.astype(np.int64)
+        self._radius = float(self.robot.wheel_radius_m)
+        self._lag_y = np.zeros(N)
         self._slip_mem = np.zeros(N)  # low-passed slip while the camera is healthy
         self._slip_mem_age = 0.0  # seconds of slip observations behind it
-        # outputs of the last tick
+        self._accel_tau_s = float(accel_tau_s)
+        self._accel_y1 = np.zeros(2)  # manoeuvre filter stages on (ax, ay)
+        self._accel_y2 = np.zeros(2)
+        self._sm = WheelStateMachine(N, theta, dwell_s)
+        # step(): sample keys, the group mask per validity pattern, EST row keys
+        self._valid_keys = [f"{g}_valid" for g in GROUPS]
+        self._group_mask: dict[tuple[bool, ...], np.ndarray] = {}
+        self._nan_wheels = np.full(N, np.nan)
+        self._pass_cols = passthrough_columns(N)
+        self._copy_cache: dict = {}
+        self._row_keys = est_state_columns(N)
+        self._i_bias = self.model.i_bias
+        # outputs of the last tick (arrays are overwritten in place every tick: copy to keep)
         self.steer = np.zeros(N)
         self.v_long = np.zeros(N)
         self.slip = np.full(N, np.nan)
-        self.state = np.zeros(N, dtype=np.int8)
+        self.state = self._sm.state  # int8 codes, order of schema.WHEEL_STATES
         self.estimator_ok = False
         self.slip_available = False
         self.t_s = float("nan")
 
     # ----------------------------------------------------------------- core (shared offline/online)
-    def core(self, t_s: float, z_raw: np.ndarray, row_valid: np.ndarray, omega_radps: np.ndarray,
-             group_valid: Mapping[str, bool]) -> None:
+    def core(self, t_s: float, z_raw: np.ndarray, row_valid: np.ndarray, omega_radps: np.ndarray) -> None:
         """Advance one tick.
 
         Parameters
         ----------
         t_s : tick time (s).
-        z_raw : (m,) raw measurement per EKF row (order of ``self.row_columns``).
-        row_valid : (m,) bool, row has a fresh finite sample this tick.
-        omega_radps : (N,) raw wheel speeds (for slip; NaN where invalid).
-        group_valid : validity of the groups ``wheels``, ``imu``, ``cam``, ``steer`` this tick.
+        z_raw : (m,) float, raw measurement per EKF row (order of ``self.row_columns``).
+        row_valid : (m,) bool, row has a fresh finite sample this tick (its group valid). A
+            sensor group counts as seen when one of its rows is valid.
+        omega_radps : (N,) float, raw wheel speeds (for slip; NaN where invalid).
         """
         p = self.preset
-        ekf = self.ekf
-        for g, ok in group_valid.items():
-            if ok:
-                self._last_seen[g] = t_s
-        # ------------------------------------------------ predict
-        if self._t_prev is not None:
-            dt = t_s - self._t_prev
-            if dt > 0.0:
-                ekf.predict(dt)
-        else:
-            dt = 0.0
+        N = self.n_wheels
+        dt = 0.0 if self._t_prev is None else t_s - self._t_prev
+        first = self._t_prev is None
         self._t_prev = t_s
         # ------------------------------------------------ measurements: yaw zeroing, pre-filters
-        z = z_raw.copy()
-        use = row_valid.copy()
-        for k in self._yaw_rows_l:
-            if use[k]:
-                if math.isnan(self._yaw_offset[k]):
-                    self._yaw_offset[k] = z[k]
-                z[k] = (z[k] - self._yaw_offset[k] + math.pi) % TWO_PI - math.pi
-        if self._any_alpha:
-            fresh = use & ~self._prev_valid  # first sample after a gap: restart the EMA
-            zf = self._z_f
-            d = z - zf
-            if self._yaw_rows.size:
-                d[self._yaw_rows] = (d[self._yaw_rows] + math.pi) % TWO_PI - math.pi
-            new = zf + self._one_minus_alpha * d  # z_new = alpha z_prev + (1 - alpha) z_raw (eq. 6.12)
-            new[fresh] = z[fresh]
-            zf[use] = new[use]
-            self._prev_valid = use
-            z = zf
-        # ------------------------------------------------ update
-        cam_ok = self._has_cam and (t_s - self._last_seen["cam"] <= p.cam_timeout_s)
+        z, use = self._z, self._use
+        measurements_tick(t_s, z_raw, row_valid, self._group_of_row, self._last_seen, self._angle,
+                          self._yaw_offset, self._any_alpha, self._one_minus_alpha, self._z_f,
+                          self._prev_valid, z, use)
+        # ------------------------------------------------ camera health decides R and the wheel rows
+        cam_gap_s = t_s - float(self._last_seen[G_CAM])
+        cam_ok = self._has_cam and cam_gap_s <= p.cam_timeout_s
         r_diag = self._r_cam_ok if cam_ok else self._r_base
-        comp = (not cam_ok and self._has_cam and p.fallback_slip_comp
-                and self._slip_mem_age >= p.slip_memory_tau_s)
+        fallback = not cam_ok and self._has_cam
+        comp = fallback and p.fallback_slip_comp and self._slip_mem_age >= p.slip_memory_tau_s
         if comp:
             # slip-compensated wheel rows: the wheel speed the remembered slip implies on the ground
-            sm = self._slip_mem
-            zw = z[:self.n_wheels] if z is not z_raw else z[:self.n_wheels].copy()
-            z = z.copy()
-            z[:self.n_wheels] = np.where(sm >= 0.0, zw * (1.0 - sm), zw / (1.0 + sm))
-        if not cam_ok and self._has_cam and p.r_wheel_fallback_start is not None:
+            for i in range(N):
+                s_i = self._slip_mem[i]
+                z[i] = z[i] * (1.0 - s_i) if s_i >= 0.0 else z[i] / (1.0 + s_i)
+        if fallback and p.r_wheel_fallback_start is not None:
             # adaptive wheel variance in fallback: r_start -> r_wheel geometrically over the ramp
-            gap = t_s - self._last_seen["cam"]
-            frac = max(0.0, 1.0 - gap / p.fallback_ramp_s) if math.isfinite(gap) else 0.0
-            r_diag = self._r_base.copy()
+            frac = max(0.0, 1.0 - cam_gap_s / p.fallback_ramp_s) if math.isfinite(cam_gap_s) else 0.0
             r_start = p.r_wheel_fallback_start if comp else R_WHEEL_UNCOMPENSATED
-            r_diag[self._is_wheel] = p.r_wheel * (r_start / p.r_wheel) ** frac
+            r_diag = self._r_fallback
+            r_diag[:] = self._r_base
+            r_diag[:N] = p.r_wheel * (r_start / p.r_wheel) ** frac
         if cam_ok and p.drop_wheels_when_cam_ok:
-            use &= self._not_wheel  # zero-slip rows would bias v toward wheel odometry
+            use[:N] = False  # zero-slip rows would bias v toward wheel odometry
+            if self._any_alpha:
+                self._prev_valid[:N] = False  # a dropped row restarts its pre-filter when it returns
+        # ------------------------------------------------ EKF: predict over dt, update
         # no gate on the first camera sample after a gap (the prediction is the stale part)
-        ekf.update(z, use, r_diag, gate_enabled=self._cam_ok_prev or not cam_ok)
+        ekf = self.ekf
+        ekf.step(dt, z, use, r_diag, gate_enabled=self._cam_ok_prev or not cam_ok)
         self._cam_ok_prev = cam_ok
-        # ------------------------------------------------ slip and dynamic state
-        x = ekf.x
-        steer = self.steer
-        if self._any_steer:
-            steer[self._steer_mask] = x[self._steer_idx]
-        c, s = np.cos(steer), np.sin(steer)
-        vx, vy, r = x[I_VX], x[I_VY], x[I_R]
-        v_long = (vx - r * self._wy) * c + (vy + r * self._wx) * s  # eq. 7.3-7.5
-        self.v_long = v_long
-        v_long_lag = self._lag(v_long, dt)  # in phase with the filtered encoder
+        # ------------------------------------------------ slip and dynamic state per wheel
+        sm = self._sm
+        sane, mem_dt = wheels_tick(
+            t_s, dt, first, cam_ok, ekf.x, ekf.P, self._steer_state, self._wheel_xy, self._radius,
+            omega_radps, DEAD_BAND_MPS, p.encoder_lag_s, self._lag_y, p.fallback_slip_comp,
+            p.slip_memory_tau_s, self._slip_mem, self._accel_tau_s, self._accel_y1, self._accel_y2,
+            sm.theta, sm.dwell_s, sm.idle_speed, sm.state, sm.cand, sm.cand_since,
+            self.steer, self.v_long, self.slip)
+        sm.started = True
+        self._slip_mem_age += mem_dt
         self.slip_available = bool(cam_ok)
-        if cam_ok:
-            self.slip = np.array(slip_ratio_tick(omega_radps * self._radius, v_long_lag, DEAD_BAND_MPS))
-            if p.fallback_slip_comp and dt > 0.0:  # remember the slip for a camera gap
-                g = 1.0 - math.exp(-dt / p.slip_memory_tau_s)
-                ok = np.isfinite(self.slip) & (np.abs(v_long) >= 0.2)
-                self._slip_mem = np.where(ok, self._slip_mem + g * (np.clip(self.slip, -0.95, 0.95) - self._slip_mem),
-                                          self._slip_mem)
-                if ok.all():
-                    self._slip_mem_age += dt
-        else:
-            self.slip = np.full(self.n_wheels, np.nan)  # no camera: slip is unobservable
-        ax, ay = float(x[I_AX]), float(x[I_AY])
-        ax_f, ay_f = self._accel_filter.step_pair(t_s, ax, ay)
-        r2 = r * r
-        a_long = (ax_f - r2 * self._wx) * c + (ay_f - r2 * self._wy) * s
-        self.state = self._sm.step(t_s, a_long * v_long, v_long)
         # ------------------------------------------------ health
-        last = self._last_seen
+        last_wheels_s, last_imu_s = float(self._last_seen[G_WHEELS]), float(self._last_seen[G_IMU])
         tmo = p.sensor_timeout_s
-        fresh_ok = (t_s - last["wheels"] <= tmo and t_s - last["imu"] <= tmo
-                    and (cam_ok or not self._has_cam))
-        pmax = ekf.P.diagonal().max()
-        sane = (abs(vx) < MAX_SPEED_MPS and abs(vy) < MAX_SPEED_MPS and pmax < MAX_P_DIAG
-                and math.isfinite(pmax) and math.isfinite(x.sum()))
+        fresh_ok = t_s - last_wheels_s <= tmo and t_s - last_imu_s <= tmo and (cam_ok or not self._has_cam)
         self.estimator_ok = bool(fresh_ok and sane)
         self.t_s = t_s
 
     # ----------------------------------------------------------------- online API
     def step(self, sample: Mapping[str, Any]) -> dict[str, Any]:
         """Process one sample (canonical column names + ``t_s``); return one EST row as a dict."""
+        get = sample.get
         t = float(sample["t_s"])
-        gvalid = {g: bool(sample.get(key, True)) for g, key in self._valid_keys}
-        z = [_f(sample.get(col)) for col in self.row_columns]
-        valid_l = [gvalid[g] and v == v and abs(v) != math.inf for v, g in zip(z, self.row_groups)]
-        # a group counts as "seen" when at least one of its rows is usable
-        seen = {g: any(valid_l[k] for k in idx) for g, idx in self._group_rows.items()}
-        if gvalid["wheels"]:
-            omega = np.array([_f(sample.get(c)) for c in self._omega_cols])
-        else:
-            omega = np.full(self.n_wheels, np.nan)
-        self.core(t, np.array(z), np.array(valid_l, dtype=bool), omega, seen)
+        z = np.array([get(col, math.nan) for col in self.row_columns], dtype=float)  # None -> NaN
+        gvalid = tuple([bool(get(key, True)) for key in self._valid_keys])
+        mask = self._group_mask.get(gvalid)
+        if mask is None:  # rows whose group is valid, per validity pattern (at most 16)
+            ok = dict(zip(GROUPS, gvalid))
+            mask = self._group_mask[gvalid] = np.array([ok[g] for g in self.row_groups], dtype=bool)
+        valid = np.isfinite(z)
+        valid &= mask
+        self.core(t, z, valid, z[:self.n_wheels] if gvalid[G_WHEELS] else self._nan_wheels)
         row = self.row()
         keys = tuple(sample)
         copy = self._copy_cache.get(keys)
@@ -287,30 +261,10 @@ class OnlineEstimator:
         return row
 
     def row(self) -> dict[str, Any]:
-        """The EST columns of the last tick as a dict."""
-        x = self.ekf.x
-        out: dict[str, Any] = {
-            "t_s": self.t_s, "ekf_x_m": float(x[I_X]), "ekf_y_m": float(x[I_Y]),
-            "ekf_yaw_rad": float(x[I_PSI]), "ekf_vx_mps": float(x[I_VX]), "ekf_vy_mps": float(x[I_VY]),
-            "ekf_yaw_rate_radps": float(x[I_R]), "ekf_ax_mps2": float(x[I_AX]),
-            "ekf_ay_mps2": float(x[I_AY]),
-        }
-        N = self.n_wheels
-        for i in range(N):
-            out[f"ekf_steer{i + 1}_rad"] = float(self.steer[i])
-        out["ekf_gyro_bias_radps"] = float(x[self.model.i_bias])
-        for i in range(N):
-            out[f"slip{i + 1}"] = float(self.slip[i])
-        for i in range(N):
-            out[f"state{i + 1}"] = WHEEL_STATES[int(self.state[i])]
-        for i in range(N):
-            out[f"v_long{i + 1}_mps"] = float(self.v_long[i])
-        out["nis"] = float(self.ekf.nis)
-        out["nis_dof"] = int(self.ekf.nis_dof)
-        out["estimator_ok"] = bool(self.estimator_ok)
-        out["slip_available"] = bool(self.slip_available)
-        return out
-
-
-def _f(v: Any) -> float:
-    return float("nan") if v is None else float(v)
+        """The EST columns of the last tick as a dict (keys: :func:`est_state_columns`)."""
+        x = self.ekf.x.tolist()
+        ekf = self.ekf
+        values = [self.t_s, *x[:8], *self.steer.tolist(), x[self._i_bias], *self.slip.tolist(),
+                  *[WHEEL_STATES[c] for c in self.state.tolist()], *self.v_long.tolist(),
+                  float(ekf.nis), int(ekf.nis_dof), self.estimator_ok, bool(self.slip_available)]
+        return dict(zip(self._row_keys, values))

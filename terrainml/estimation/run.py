@@ -83,8 +83,6 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | str | None = N
     V = np.isfinite(Z)
     for k, g in enumerate(est.row_groups):
         V[:, k] &= gv[g]
-    groups = {g: [k for k in range(m) if est.row_groups[k] == g] for g in gv}
-    seen = {g: (V[:, idx].any(axis=1) if idx else np.zeros(n, dtype=bool)) for g, idx in groups.items()}
     omega = np.column_stack([table[f"wheel{i}_omega_radps"].to_numpy(dtype=float) for i in range(1, N + 1)])
     omega = np.where(gv["wheels"][:, None], omega, np.nan)
 
@@ -102,7 +100,7 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | str | None = N
     ekf = est.ekf
     step_every = max(1, n // 100)
     for k in range(n):
-        est.core(t[k], Z[k], V[k], omega[k], {g: bool(seen[g][k]) for g in seen})
+        est.core(t[k], Z[k], V[k], omega[k])
         out_x[k] = ekf.x
         out_steer[k] = est.steer
         out_slip[k] = est.slip

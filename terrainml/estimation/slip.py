@@ -20,6 +20,9 @@ import math
 
 import numpy as np
 
+# per-tick rules, compiled (one implementation, shared with the online estimator's tick)
+from terrainml.estimation._kernel import lag_step, slip_ratio_scalar  # noqa: F401
+
 DEAD_BAND_MPS = 0.05
 
 
@@ -61,26 +64,17 @@ def slip_ratio(v_ang_mps, v_long_mps, dead_band_mps: float = DEAD_BAND_MPS):
 def slip_ratio_tick(v_ang_mps, v_long_mps, dead_band_mps: float = DEAD_BAND_MPS) -> list[float]:
     """Per-tick version of :func:`slip_ratio` for a few wheels (same maths, plain floats: a
     numpy call per wheel would cost more than the arithmetic). Returns a list of N floats."""
-    out = []
-    for va, vl in zip(v_ang_mps, v_long_mps):
-        va = float(va)
-        vl = float(vl)
-        if va != va or vl != vl:  # NaN in -> NaN out
-            out.append(math.nan)
-        elif abs(va) < dead_band_mps and abs(vl) < dead_band_mps:
-            out.append(0.0)  # dead band
-        else:
-            s = (va - vl) / max(abs(va), abs(vl))  # SAE split definition, eq. 7.7
-            out.append(1.0 if s > 1.0 else (-1.0 if s < -1.0 else s))
-    return out
+    db = float(dead_band_mps)
+    return [slip_ratio_scalar(float(va), float(vl), db) for va, vl in zip(v_ang_mps, v_long_mps)]
 
 
 class EncoderLag:
     """First-order lag ``y' = (u - y) / tau`` applied to v_long so it is in phase with an
     encoder that reports a low-pass filtered speed (thesis §7.2.2, ODrive filtering).
 
-    Discretised exactly for a piecewise-constant input: ``y += (1 - exp(-dt / tau)) (u - y)``.
-    ``tau = 0`` passes the input through.
+    Discretised exactly for a piecewise-constant input: ``y += (1 - exp(-dt / tau)) (u - y)``
+    (:func:`lag_step`, which the online estimator's compiled tick runs). ``tau = 0`` passes the
+    input through.
     """
 
     def __init__(self, n_wheels: int, tau_s: float) -> None:
@@ -98,5 +92,5 @@ class EncoderLag:
             self.y[:] = u
             self._init = True
             return self.y.copy()
-        self.y += (1.0 - math.exp(-dt / self.tau_s)) * (u - self.y)
+        lag_step(self.y, np.asarray(u, dtype=float), 1.0 - math.exp(-dt / self.tau_s))
         return self.y.copy()

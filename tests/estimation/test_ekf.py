@@ -133,3 +133,73 @@ def test_compiled_kernel_equals_numpy_reference():
         np.testing.assert_allclose(outs[1][0], outs[0][0], rtol=1e-9, atol=1e-9, err_msg=preset)
         assert outs[0][1] == outs[1][1]
     assert model.n == 12
+
+
+def _bare_sequence(preset):
+    """Measurements of a run as the bare EKF sees them: a camera glitch (for the gate) and a
+    camera dropout (rows absent)."""
+    from terrainml.estimation.online import OnlineEstimator
+
+    df = kinematic_run(duration_s=8.0, slip=0.2, seed=4, yaw_rate=lambda t: 0.3 * np.sin(0.5 * t),
+                       cam_dropouts=((3.0, 3.5),))
+    df.loc[200:202, "cam_vx_mps"] += 0.8
+    est = OnlineEstimator("agrimaro", preset)
+    Z = np.column_stack([df[c].to_numpy(float) for c in est.row_columns])
+    return est.model, df["t_s"].to_numpy(), Z, np.isfinite(Z), est._r_base
+
+
+@pytest.mark.parametrize("preset", ["thesis", "robust"])
+def test_whole_table_and_tick_by_tick_are_the_same_filter(preset):
+    # offline (batch_filter: whole table), online (step: one tick) and predict()+update() are one
+    # filter: the same numbers, gate decisions included; the numpy reference agrees to 1e-9
+    model, t, Z, use, r = _bare_sequence(preset)
+    xs_batch, nis_batch, dof_batch = Ekf(model, preset).batch_filter(t, Z, use, r)
+    ekf_step, ekf_pu = Ekf(model, preset), Ekf(model, preset)
+    xs_step, xs_pu, nis_step = np.empty_like(xs_batch), np.empty_like(xs_batch), np.empty(len(t))
+    for k in range(len(t)):
+        ekf_step.step(t[k] - t[k - 1] if k else 0.0, Z[k], use[k], r)
+        if k:
+            ekf_pu.predict(t[k] - t[k - 1])
+        ekf_pu.update(Z[k], use[k], r)
+        xs_step[k], xs_pu[k], nis_step[k] = ekf_step.x, ekf_pu.x, ekf_step.nis
+    np.testing.assert_array_equal(xs_batch, xs_step)
+    np.testing.assert_array_equal(xs_batch, xs_pu)
+    np.testing.assert_array_equal(nis_batch, nis_step)
+    assert dof_batch.max() == model.m and dof_batch.min() < model.m  # all rows, and the dropout
+    ref = Ekf(model, preset, compiled=False)
+    xs_ref = ref.batch_filter(t, Z, use, r)[0]
+    np.testing.assert_allclose(xs_batch, xs_ref, rtol=1e-9, atol=1e-9)
+    if preset == "robust":  # the glitch was gated, identically on every path
+        assert ref.n_gated > 0 and ekf_step.n_gated == ekf_pu.n_gated == ref.n_gated
+
+
+def test_estimate_run_without_numba_matches_compiled():
+    # the pure-Python fallback (TERRAINML_NO_NUMBA=1: platforms without numba) gives the same
+    # EST table as the compiled kernels, to round-off
+    import json
+    import subprocess
+    import sys
+
+    from terrainml.estimation import _kernel
+
+    if not _kernel.HAVE_NUMBA:
+        pytest.skip("numba not installed: this process already runs the fallback")
+    code = ("import json, numpy as np\n"
+            "from terrainml.estimation.run import estimate_run\n"
+            "from terrainml.estimation.synthetic import kinematic_run\n"
+            "df = kinematic_run(duration_s=4.0, slip=0.2, seed=2, cam_dropouts=((2.0, 2.6),))\n"
+            "out = {p: estimate_run(df, preset=p) for p in ('thesis', 'robust')}\n"
+            "print(json.dumps({p: {'v': e[['ekf_vx_mps', 'ekf_vy_mps', 'slip1', 'v_long2_mps', 'nis']]"
+            ".fillna(-999.0).to_numpy().tolist(), 's': e['state1'].tolist(), "
+            "'ok': e['estimator_ok'].tolist()} for p, e in out.items()}))\n")
+    env = dict(__import__("os").environ, TERRAINML_NO_NUMBA="1")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert res.returncode == 0, res.stderr[-2000:]
+    fallback = json.loads(res.stdout.strip().splitlines()[-1])
+    df = kinematic_run(duration_s=4.0, slip=0.2, seed=2, cam_dropouts=((2.0, 2.6),))
+    for preset in ("thesis", "robust"):
+        est = estimate_run(df, preset=preset)
+        v = est[["ekf_vx_mps", "ekf_vy_mps", "slip1", "v_long2_mps", "nis"]].fillna(-999.0).to_numpy()
+        np.testing.assert_allclose(np.array(fallback[preset]["v"]), v, rtol=1e-9, atol=1e-9, err_msg=preset)
+        assert fallback[preset]["s"] == est["state1"].tolist()
+        assert fallback[preset]["ok"] == est["estimator_ok"].tolist()
