@@ -178,7 +178,10 @@ def channel_source(channel: str) -> tuple[str, tuple[str, ...]]:
 def _float_col(est: pd.DataFrame, name: str, n: int) -> np.ndarray:
     if name not in est.columns:
         return np.full(n, np.nan)
-    return pd.to_numeric(est[name], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
+    v = est[name]
+    if v.dtype.kind in "fiu":  # already numeric (the usual case): skip the parser
+        return v.to_numpy(dtype=np.float64)
+    return pd.to_numeric(v, errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
 
 
 def _bool_col(est: pd.DataFrame, name: str, n: int) -> np.ndarray:

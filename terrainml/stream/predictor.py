@@ -112,21 +112,37 @@ class RingBuffer:
     def full(self) -> bool:
         return self.count == self.capacity
 
-    def frame(self) -> pd.DataFrame:
-        """Rows in time order, oldest first: DataFrame, shape (count, n_fields)."""
+    def snapshot(self) -> tuple | None:
+        """Copy of the rows in time order (two arrays; tens of microseconds), or None if empty.
+
+        Taken on the tick path; :meth:`to_frame` turns it into a DataFrame later, on the
+        classification thread, so the tick never pays for building a DataFrame.
+        """
         if self._num_keys is None:
-            return pd.DataFrame()
+            return None
         if self.full:
             order = np.r_[self._i:self.capacity, 0:self._i]
         else:
             order = np.arange(self.count)
-        num = self._num[order]  # type: ignore[index]
+        return (self._num[order], self._obj[order], list(self._num_keys),  # type: ignore[index]
+                list(self._obj_keys), set(self._bool_keys))
+
+    @staticmethod
+    def to_frame(snap: tuple | None) -> pd.DataFrame:
+        """DataFrame (count, n_fields) of a :meth:`snapshot`, the offline EST table's layout."""
+        if snap is None:
+            return pd.DataFrame()
+        num, obj, num_keys, obj_keys, bool_keys = snap
         cols: dict[str, np.ndarray] = {}
-        for j, k in enumerate(self._num_keys):
-            cols[k] = num[:, j] > 0.5 if k in self._bool_keys else num[:, j]
-        for j, k in enumerate(self._obj_keys):
-            cols[k] = self._obj[order, j]  # type: ignore[index]
+        for j, k in enumerate(num_keys):
+            cols[k] = num[:, j] > 0.5 if k in bool_keys else num[:, j]
+        for j, k in enumerate(obj_keys):
+            cols[k] = obj[:, j]
         return pd.DataFrame(cols, copy=False)
+
+    def frame(self) -> pd.DataFrame:
+        """Rows in time order, oldest first: DataFrame, shape (count, n_fields)."""
+        return self.to_frame(self.snapshot())
 
 
 # --------------------------------------------------------------------------- predictor
@@ -359,7 +375,7 @@ class Predictor:
         if self._last_attempt_t is not None and t - self._last_attempt_t < self.hop_s - 1e-9:
             return
         self._last_attempt_t = t
-        frame = self.ring.frame()
+        snap = self.ring.snapshot()
         if self.classify_lag_ticks > 0:
             if self._executor is None:
                 from concurrent.futures import ThreadPoolExecutor
@@ -368,19 +384,19 @@ class Predictor:
                 # a short GIL switch interval lets the tick path preempt the worker quickly
                 self._old_switch_s = sys.getswitchinterval()
                 sys.setswitchinterval(min(self._old_switch_s, GIL_SWITCH_INTERVAL_S))
-            self._pending = (self._executor.submit(self._timed_classify, frame), t,
+            self._pending = (self._executor.submit(self._timed_classify, snap), t,
                              self.classify_lag_ticks)
             self._pending_age = 0
             return
         try:
-            self._apply(self._timed_classify(frame), t)
+            self._apply(self._timed_classify(snap), t)
         except Exception as exc:  # noqa: BLE001 - classification must never crash serving
             self._fail(t, exc)
 
-    def _timed_classify(self, frame: pd.DataFrame) -> np.ndarray | None:
+    def _timed_classify(self, snap: tuple | None) -> np.ndarray | None:
         c0 = time.perf_counter()
         try:
-            return self.classifier.classify(frame)  # type: ignore[union-attr]
+            return self.classifier.classify(RingBuffer.to_frame(snap))  # type: ignore[union-attr]
         finally:
             self.classify_ms.append((time.perf_counter() - c0) * 1e3)
 
