@@ -545,8 +545,7 @@ def side_channel_features(X: np.ndarray, channels: Sequence[str], rate_hz: float
         for ch in IMU_CHANNELS:
             if ch not in pos:
                 continue
-            x = X[:, pos[ch]]
-            s_ch, d_ch = x.std(axis=1), np.abs(np.diff(x, axis=1)).mean(axis=1)
+            s_ch, d_ch = std[:, pos[ch]], dabs[:, pos[ch]]  # the per-channel std and mad_diff above
             cols[f"{ch}__log_std_per_speed2"] = np.log10(s_ch / v_floor ** 2 + 1e-9)
             cols[f"{ch}__log_std_per_speed"] = np.log10(s_ch / v_floor + 1e-9)
             cols[f"{ch}__log_mad_diff_per_speed"] = np.log10(d_ch / v_floor + 1e-9)

@@ -136,6 +136,17 @@ def test_side_channel_features_hand_worked():
     assert f["current_total__per_speed"] == pytest.approx(8.0 / v)
     assert f["current_lr__diff_mean"] == pytest.approx(-2.0)
     assert f["current_left__per_speed"] == pytest.approx(3.0 / 0.8)
+    # roughness invariant: a unit-amplitude sine has std 1/sqrt(2) (170 samples hold an integer
+    # number of 12 Hz periods only approximately, hence the tolerance)
+    assert f["imu_az__log_std_per_speed2"] == pytest.approx(np.log10(2 ** -0.5 / v ** 2), abs=0.01)
+    assert f["current_total__log_abs_per_speed"] == pytest.approx(np.log10(8.0 / v), abs=1e-6)
+    # twice the speed, same surface (twice the frequency, same profile): the invariant std / v^2
+    # of a profile whose vibration amplitude grows with v^2 stays put
+    x_fast = x.copy()
+    x_fast[0] = 9.81 + 4.0 * np.sin(2 * np.pi * 24.0 * t)
+    x_fast[4:6] *= 2.0
+    f_fast = dict(zip(fn, side_channel_features(x_fast[None], names, rate, track_m=track)[0][0]))
+    assert f_fast["imu_az__log_std_per_speed2"] == pytest.approx(f["imu_az__log_std_per_speed2"], abs=0.01)
     # a robot that turns at 0.2 rad/s with equal wheel speeds skids: residual 0.2
     x[5] = 0.8
     F2, _ = side_channel_features(x[None], names, rate, track_m=track)
