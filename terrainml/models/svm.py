@@ -393,10 +393,8 @@ class SVMClassifier(ClassifierMixin, BaseEstimator):
         more than the SVM itself when the stream classifies one window at a time.
         """
         c = self._compiled()
-        if c is None:
-            F = self.transform_features(X)
-            fast = self._fast_calibrated_proba(F)
-            return fast if fast is not None else self.model_.predict_proba(F)
+        if c is None:  # no numpy form (other model shape, or it disagreed with sklearn)
+            return self.model_.predict_proba(self.transform_features(X))
         if c.columns is not None:  # only the selected features are computed
             F = self.features_._transform_columns(X, c.columns)
         else:
@@ -407,24 +405,6 @@ class SVMClassifier(ClassifierMixin, BaseEstimator):
         if not len(F) or not np.isfinite(F).all():  # sklearn's validation names the problem
             return self.model_.predict_proba(F)
         return _calibrated_proba(c, _decision(c, F))
-
-    def _fast_calibrated_proba(self, F: np.ndarray) -> np.ndarray | None:
-        """Sigmoid-calibrated multiclass probabilities (None when the fast path does not apply)."""
-        ccs = self.model_.calibrated_classifiers_
-        K = len(self.classes_)
-        if len(ccs) != 1 or K < 3 or getattr(ccs[0], "method", "sigmoid") != "sigmoid":
-            return None
-        cc = ccs[0]
-        if len(cc.calibrators) != K:
-            return None
-        d = cc.estimator.decision_function(F)                     # (n, K), one-vs-rest
-        a = np.array([c.a_ for c in cc.calibrators])
-        b = np.array([c.b_ for c in cc.calibrators])
-        proba = expit(-(a * d + b))
-        den = proba.sum(axis=1, keepdims=True)
-        proba = np.divide(proba, den, out=np.full_like(proba, 1.0 / K), where=den != 0)
-        proba[(1.0 < proba) & (proba <= 1.0 + 1e-5)] = 1.0
-        return proba
 
     def predict(self, X) -> np.ndarray:
         """Most probable class per window (argmax of the calibrated probabilities)."""

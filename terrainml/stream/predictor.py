@@ -112,11 +112,12 @@ class RingBuffer:
     def full(self) -> bool:
         return self.count == self.capacity
 
-    def snapshot(self) -> tuple | None:
+    def snapshot(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Copy of the rows in time order (two arrays; tens of microseconds), or None if empty.
 
         Taken on the tick path; :meth:`to_frame` turns it into a DataFrame later, on the
-        classification thread, so the tick never pays for building a DataFrame.
+        classification thread, so the tick never pays for building a DataFrame (the field
+        names are fixed by the first row, so they need no copy).
         """
         if self._num_keys is None:
             return None
@@ -124,19 +125,17 @@ class RingBuffer:
             order = np.r_[self._i:self.capacity, 0:self._i]
         else:
             order = np.arange(self.count)
-        return (self._num[order], self._obj[order], list(self._num_keys),  # type: ignore[index]
-                list(self._obj_keys), set(self._bool_keys))
+        return self._num[order], self._obj[order]  # type: ignore[index]
 
-    @staticmethod
-    def to_frame(snap: tuple | None) -> pd.DataFrame:
+    def to_frame(self, snap: tuple[np.ndarray, np.ndarray] | None) -> pd.DataFrame:
         """DataFrame (count, n_fields) of a :meth:`snapshot`, the offline EST table's layout."""
         if snap is None:
             return pd.DataFrame()
-        num, obj, num_keys, obj_keys, bool_keys = snap
+        num, obj = snap
         cols: dict[str, np.ndarray] = {}
-        for j, k in enumerate(num_keys):
-            cols[k] = num[:, j] > 0.5 if k in bool_keys else num[:, j]
-        for j, k in enumerate(obj_keys):
+        for j, k in enumerate(self._num_keys):  # type: ignore[arg-type]
+            cols[k] = num[:, j] > 0.5 if k in self._bool_keys else num[:, j]
+        for j, k in enumerate(self._obj_keys):
             cols[k] = obj[:, j]
         return pd.DataFrame(cols, copy=False)
 
@@ -393,10 +392,10 @@ class Predictor:
         except Exception as exc:  # noqa: BLE001 - classification must never crash serving
             self._fail(t, exc)
 
-    def _timed_classify(self, snap: tuple | None) -> np.ndarray | None:
+    def _timed_classify(self, snap: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
         c0 = time.perf_counter()
         try:
-            return self.classifier.classify(RingBuffer.to_frame(snap))  # type: ignore[union-attr]
+            return self.classifier.classify(self.ring.to_frame(snap))  # type: ignore[union-attr]
         finally:
             self.classify_ms.append((time.perf_counter() - c0) * 1e3)
 
