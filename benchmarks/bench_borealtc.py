@@ -5,13 +5,13 @@
 1. Data: the BorealTC folder (Clearpath Husky, five terrains, CC0) read by
    :mod:`terrainml.io.borealtc`, 5-s chunks, 1.7-s windows of the 10 raw channels (6 IMU, left
    and right motor current, left and right wheel speed), class-balanced like the authors'
-   "homogeneous augmentation" (:mod:`terrainml.models.protocols`).
+   "homogeneous augmentation" (:mod:`terrainml.evaluation.protocols`).
 2. Protocol (a), the authors' (stratified 5-fold over 5-s chunks, not grouped by run, seed 21):
    accuracy, balanced accuracy and per-class recall of
    * ``svm``: ``terrainml.models.svm.SVMClassifier`` on
-     :class:`~terrainml.models.protocols.SideChannelFeatures` (RBF, balanced, C and gamma by an
+     :class:`~terrainml.evaluation.protocols.SideChannelFeatures` (RBF, balanced, C and gamma by an
      inner 3-fold search grouped by chunk, calibrated);
-   * ``hgb``: :class:`~terrainml.models.protocols.BoostedTrees`, gradient-boosted trees on the
+   * ``hgb``: :class:`~terrainml.evaluation.protocols.BoostedTrees`, gradient-boosted trees on the
      same features (fixed settings, no search);
    * ``svm+hgb``: the mean of the SVM's and the trees' out-of-fold probabilities (fixed rule);
    * ``cnn``: ``terrainml.models.cnn.CNNClassifier`` on the raw windows (early stopping on
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from terrainml.models.report import markdown_table
+from terrainml.evaluation.report import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "datasets" / "borealtc"
 PUBLISHED = {  # label -> file (1.7-s windows)
@@ -102,7 +102,7 @@ def channel_ablation(W, folds_by_protocol: dict, classes, track_m: float) -> lis
     from sklearn.preprocessing import StandardScaler
     from sklearn.svm import SVC
 
-    from terrainml.models.protocols import side_channel_features
+    from terrainml.evaluation.protocols import side_channel_features
 
     y = W.meta["terrain"].to_numpy()
     rows = []
@@ -124,7 +124,7 @@ def run(quick: bool = False) -> str:
     import torch
 
     from terrainml.io.borealtc import load_borealtc
-    from terrainml.models.protocols import (average_results, chunk_windows, evaluate_protocol,
+    from terrainml.evaluation.protocols import (average_results, chunk_windows, evaluate_protocol,
                                             make_chunks, protocol_a_folds, protocol_b_folds,
                                             protocol_models)
     from terrainml.robot import load_robot
@@ -239,7 +239,7 @@ def run(quick: bool = False) -> str:
     out.append(_confusion_md(res_a[best_name]))
     fig_dir = Path(__file__).resolve().parents[1] / "docs" / "borealtc_figures"
     try:
-        from terrainml.models.report import plot_confusion
+        from terrainml.evaluation.report import plot_confusion
 
         fig_dir.mkdir(parents=True, exist_ok=True)
         figs = [plot_confusion(np.asarray(r.pooled["confusion_matrix"]), short,

@@ -1,7 +1,7 @@
 """SVM vs CNN vs MiniRocket on the same grouped folds (issue 8).
 
 All three models see the same raw windows (n, C, 200) and the same folds: ``StratifiedGroupKFold``
-by run, 5 folds, seed 0 (``terrainml.models.cv.grouped_folds``), so no run is in the training and
+by run, 5 folds, seed 0 (``terrainml.evaluation.cv.grouped_folds``), so no run is in the training and
 test parts of a fold. Per model: balanced accuracy and macro-F1 (mean ± std over folds), training
 time per fold, and per-window inference latency (one window per call, p50/p99, after warm-up).
 
@@ -16,7 +16,7 @@ Data, in order of preference:
 
 1. ``TERRAINML_BENCH_WINDOWS=path`` to a windows file from ``terrainml dataset build``;
 2. the simulated dataset of issue 7 (recipe ``datasets/sim_default.yaml``: 12 runs per class,
-   mixed scenarios, seed 0) through ``terrainml.sim.recipes.simulated_dataset`` (cached,
+   mixed scenarios, seed 0) through ``terrainml.experiments.recipes.simulated_dataset`` (cached,
    shared with ``bench_svm``);
 3. a synthetic stand-in (clearly labelled as such in the output) when the simulator is not
    available yet. Final figures must come from 1 or 2.
@@ -44,7 +44,7 @@ T_WINDOW = 200
 # ------------------------------------------------------------------------------------ data
 @dataclass
 class BenchData:
-    ds: object  # terrainml.models.dataset.Dataset
+    ds: object  # terrainml.pipeline.dataset.Dataset
     source: str
 
     @property
@@ -80,9 +80,9 @@ def _labelled(ds):
 
 def simulated(quick: bool, log=print):
     """Issue 7's simulated dataset: recipe ``datasets/sim_default.yaml`` (12 runs per class,
-    mixed scenarios, seed 0), built and cached by ``terrainml.sim.recipes.simulated_dataset``
+    mixed scenarios, seed 0), built and cached by ``terrainml.experiments.recipes.simulated_dataset``
     (the same cache as ``bench_svm``). Quick: 5 runs per class of 40 s, Parquet logs."""
-    from terrainml.sim.recipes import load_recipe, simulated_dataset
+    from terrainml.experiments.recipes import load_recipe, simulated_dataset
 
     r = load_recipe("sim_default")
     if quick:
@@ -140,7 +140,7 @@ def synthetic_windows(runs_per_class: int = 12, windows_per_run: int = 30, seed:
     import pandas as pd
 
     from terrainml.features.windows import Windows, WindowSpec
-    from terrainml.models.dataset import Dataset
+    from terrainml.pipeline.dataset import Dataset
     from terrainml.robot import load_robot
 
     meta = pd.DataFrame({"run_id": groups, "terrain": y, "t_start_s": 0.0, "t_end_s": 2.0,
@@ -154,7 +154,7 @@ def synthetic_windows(runs_per_class: int = 12, windows_per_run: int = 30, seed:
 def load_dataset(quick: bool = False, log=print) -> BenchData:
     path = os.environ.get("TERRAINML_BENCH_WINDOWS")
     if path:
-        from terrainml.models.dataset import read_windows
+        from terrainml.pipeline.dataset import read_windows
 
         return BenchData(_labelled(read_windows(path)), f"windows file {path}")
     runs = 5 if quick else 12
@@ -201,7 +201,7 @@ class MiniRocketReference:
 
 def _folds(y, groups):
     try:
-        from terrainml.models.cv import grouped_folds
+        from terrainml.evaluation.cv import grouped_folds
 
         return grouped_folds(y, groups, N_FOLDS, SEED)
     except ImportError:
@@ -256,7 +256,7 @@ class _torch_threads:
 
 def model_factories(data: BenchData, quick: bool) -> dict:
     """The models of the comparison: ours exactly as ``terrainml train`` builds them."""
-    from terrainml.models.train import make_factory
+    from terrainml.pipeline.train import make_factory
 
     return {
         "SVM": make_factory("svm", data.ds, seed=SEED, n_jobs=1),

@@ -33,7 +33,7 @@ def _merge_vs_central(n_robots: int = 5, n_per_robot: int = 4000) -> tuple[float
 
 
 def run(quick: bool = False) -> str:
-    from terrainml.slipmap.experiment import ExperimentConfig, run_experiment
+    from terrainml.experiments.slipmap_laps import ExperimentConfig, run_experiment
 
     robots, laps = (3, 3) if quick else (5, 5)
     t0 = time.perf_counter()

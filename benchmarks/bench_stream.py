@@ -178,8 +178,8 @@ CL_MODES = (
 
 def _cl_train_model(tmp, runs_per_class: int) -> str:
     """SVM on a small simulated labelled dataset (the `make demo` chain): generate -> windows -> train."""
-    from terrainml.models.dataset import build_dataset
-    from terrainml.models.train import train
+    from terrainml.pipeline.dataset import build_dataset
+    from terrainml.pipeline.train import train
     from terrainml.robot import load_robot
     from terrainml.sim.generate import generate_dataset
 
@@ -195,7 +195,7 @@ def _cl_one(terrain: str, mode: int, seed: int, scenario: str, duration_s: float
             model_dir: str | None) -> dict:
     from terrainml.control.traction import tuned_config
     from terrainml.robot import load_robot
-    from terrainml.sim.closed_loop import run_closed_loop
+    from terrainml.experiments.closed_loop import run_closed_loop
 
     _label, policy, kw = CL_MODES[mode]
     kw = dict(kw)

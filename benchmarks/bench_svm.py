@@ -4,7 +4,7 @@ dataset-build throughput, train time and per-window latency.
 ``run(quick)`` returns a Markdown section:
 
 1. Dataset: recipe ``datasets/sim_default.yaml`` (12 runs per class, mixed scenarios, seed 0;
-   quick: 5 runs per class, 40 s, Parquet logs) built with ``terrainml.models.dataset``.
+   quick: 5 runs per class, 40 s, Parquet logs) built with ``terrainml.pipeline.dataset``.
 2. SVM (``terrainml.models.svm.SVMClassifier``: features, StandardScaler, RBF SVC balanced,
    nested grouped search, calibrated) under grouped 5-fold CV by run, seed 0: per fold and
    mean ± std of balanced accuracy, macro-F1, desired-slip error; acceptance checks.
@@ -12,7 +12,7 @@ dataset-build throughput, train time and per-window latency.
    ``make_pipeline(StandardScaler(), SVC())`` (no search, no class weights); ratio ours/reference.
 3. Feature-set ablation (kinematic / currents / imu / all) on the same folds.
 4. Transfer: the model trained on all of dataset A scored on dataset B (recipe
-   ``sim_eval_seed1``: another seed) with ``terrainml.models.train.evaluate``.
+   ``sim_eval_seed1``: another seed) with ``terrainml.pipeline.train.evaluate``.
 5. Speed: dataset build throughput (runs/s, windows/s) with 1 and 2 joblib jobs on the same
    logs (ratio); SVM final-fit time; per-window inference latency p50/p99 (one window per call).
 """
@@ -25,14 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
-from terrainml.models.report import markdown_table
+from terrainml.evaluation.report import markdown_table
 
 SEED = 0
 N_FOLDS = 5
 
 
 def _recipe(quick: bool, name: str) -> dict:
-    from terrainml.sim.recipes import load_recipe
+    from terrainml.experiments.recipes import load_recipe
 
     r = load_recipe(name)
     if quick:
@@ -65,7 +65,7 @@ def _reference_cv(ds, folds) -> dict:
 
 
 def _throughput(logs: list[Path], robot, spec) -> list[list[str]]:
-    from terrainml.models.dataset import build_dataset
+    from terrainml.pipeline.dataset import build_dataset
 
     rows = []
     for jobs in (1, 2):
@@ -79,9 +79,9 @@ def _throughput(logs: list[Path], robot, spec) -> list[list[str]]:
 
 
 def run(quick: bool = False) -> str:
-    from terrainml.sim.recipes import simulated_dataset
-    from terrainml.models.dataset import find_logs
-    from terrainml.models.train import evaluate, train
+    from terrainml.experiments.recipes import simulated_dataset
+    from terrainml.pipeline.dataset import find_logs
+    from terrainml.pipeline.train import evaluate, train
 
     ra, rb = _recipe(quick, "sim_default"), _recipe(quick, "sim_eval_seed1")
     t0 = time.perf_counter()

@@ -138,7 +138,7 @@ def step_simulate(out: Path, seed: int, console: Console, runs_per_class: int = 
 
 def step_build(logs: Path, out: Path, robot: RobotSpec, console: Console, n_jobs: int = 2):
     """3. ingest -> EKF -> slip/state -> steady windows, with the rejection counts."""
-    from terrainml.models.dataset import build_dataset, write_windows
+    from terrainml.pipeline.dataset import build_dataset, write_windows
 
     with _progress(console) as bar:
         task = bar.add_task("build windows", total=None)
@@ -153,7 +153,7 @@ def step_build(logs: Path, out: Path, robot: RobotSpec, console: Console, n_jobs
 
 def step_train(ds, out: Path, seed: int, console: Console, folds: int = 5) -> Path:
     """4. SVM, grouped CV by run, report and artifact."""
-    from terrainml.models.train import train
+    from terrainml.pipeline.train import train
 
     model_dir = out / "model"
     with console.status("training SVM (grouped cross-validation by run)..."):

@@ -53,7 +53,7 @@ def evaluate_protocol_cmd(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from terrainml.io.borealtc import BorealTCError, load_borealtc
-    from terrainml.models.protocols import (average_results, chunk_windows, evaluate_protocol, make_chunks,
+    from terrainml.evaluation.protocols import (average_results, chunk_windows, evaluate_protocol, make_chunks,
                                             protocol_a_folds, protocol_b_folds, protocol_models)
     from terrainml.robot import RobotSpecError, load_robot
 

@@ -40,7 +40,7 @@ def closed_loop(
     from terrainml.control.pid import SlipPIDConfig
     from terrainml.control.traction import POLICIES, tuned_config
     from terrainml.robot import load_robot
-    from terrainml.sim.closed_loop import SCENARIOS, run_closed_loop
+    from terrainml.experiments.closed_loop import SCENARIOS, run_closed_loop
 
     console = Console(stderr=True, soft_wrap=True)
     if policy not in POLICIES:

@@ -38,7 +38,7 @@ def build_with_progress(source: Path, *, robot: Optional[str], preset: str, n_jo
     """Build a Dataset from a folder of logs (or BorealTC layout) with a rich progress bar."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from terrainml.models.dataset import build_dataset, build_from_tables, find_logs
+    from terrainml.pipeline.dataset import build_dataset, build_from_tables, find_logs
     from terrainml.robot import load_robot
 
     if fmt == "borealtc":
@@ -92,7 +92,7 @@ def build(
     Example (cluster): ``terrainml dataset build logs/ --out w.parquet --dask-address tcp://10.0.0.5:8786``
     """
     from terrainml.features.windows import WindowSpec
-    from terrainml.models.dataset import DatasetError, write_windows
+    from terrainml.pipeline.dataset import DatasetError, write_windows
 
     try:
         spec = WindowSpec(window_s=window_s, hop_s=hop_s if hop_s is not None else window_s,
@@ -128,7 +128,7 @@ def show(path: Path = typer.Argument(..., help="Windows file written by `dataset
 
     Example: ``terrainml dataset show data/windows.parquet``
     """
-    from terrainml.models.dataset import DatasetError, read_windows
+    from terrainml.pipeline.dataset import DatasetError, read_windows
 
     try:
         ds = read_windows(path)

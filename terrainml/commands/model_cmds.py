@@ -25,7 +25,7 @@ def _fail(msg: str) -> None:
 def _load_data(data: Path, *, robot, preset: str, n_jobs: int, dask_address, fmt: str, spec=None,
                quiet: bool = False):
     """A Dataset from a windows Parquet or (built first) a folder of logs."""
-    from terrainml.models.dataset import read_windows
+    from terrainml.pipeline.dataset import read_windows
 
     if data.is_file() and data.suffix == ".parquet":
         import pyarrow.parquet as pq
@@ -64,8 +64,8 @@ def train(
 
     Example (from logs, both models): ``terrainml train --data data/sim --model all --out runs/all``
     """
-    from terrainml.models.train import MODEL_KINDS
-    from terrainml.models.train import train as do_train
+    from terrainml.pipeline.train import MODEL_KINDS
+    from terrainml.pipeline.train import train as do_train
 
     kinds = list(MODEL_KINDS) if model == "all" else [m.strip() for m in model.split(",")]
     for k in kinds:
@@ -120,7 +120,7 @@ def evaluate(
     Example: ``terrainml evaluate runs/svm --data data/sim_seed2 --out runs/svm/eval_seed2.json``
     """
     from terrainml.models.artifacts import ArtifactError, read_manifest
-    from terrainml.models.train import evaluate as do_eval
+    from terrainml.pipeline.train import evaluate as do_eval
 
     try:
         manifest = read_manifest(model_dir)

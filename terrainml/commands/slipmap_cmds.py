@@ -120,7 +120,7 @@ def experiment_cmd(robots: int = typer.Option(5, help="Robots on the path (paper
     """
     from rich.progress import Progress
 
-    from terrainml.slipmap.experiment import ExperimentConfig, run_experiment, write_report
+    from terrainml.experiments.slipmap_laps import ExperimentConfig, run_experiment, write_report
 
     if robots < 1 or laps < 2:
         _fail("--robots must be >= 1 and --laps >= 2")

@@ -4,7 +4,7 @@
 per-wheel slip error into a correction of the low-level wheel-speed command (eq. 8.3);
 :mod:`terrainml.control.traction` holds :class:`~terrainml.control.traction.SlipController`
 (measured sample -> correction, with the online estimator or predictor). Nothing here imports
-the simulator; the simulated closed-loop experiment is :mod:`terrainml.sim.closed_loop`.
+the simulator; the simulated closed-loop experiment is :mod:`terrainml.experiments.closed_loop`.
 """
 
 from terrainml.control.pid import PIDStep, SlipPID, SlipPIDConfig

@@ -1,7 +1,7 @@
 """Traction controller: measured sample -> per-wheel wheel-speed corrections (SYSTEM §12).
 
 :class:`SlipController` is what runs on the robot (or in the simulator's closed-loop hook, see
-:mod:`terrainml.sim.closed_loop`): every control tick (100 Hz) it takes one measured sample (the
+:mod:`terrainml.experiments.closed_loop`): every control tick (100 Hz) it takes one measured sample (the
 canonical run-table columns of SYSTEM §5 plus ``t_s``), estimates slip, wheel states and
 wheel-centre speeds with the online estimator, picks the desired slip per wheel and returns the
 slip PID's output ``PID_out`` (rad/s, shape (N,)), to be added to the low-level wheel-speed

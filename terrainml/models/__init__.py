@@ -1,6 +1,6 @@
-"""Terrain classifiers on raw windows (SYSTEM §9).
+"""Terrain classifiers on windows (design §9): estimators only.
 
-:mod:`.svm` (features + RBF SVM), :mod:`.cnn` (1-D CNN), :mod:`.cv` (grouped CV),
-:mod:`.metrics`, :mod:`.artifacts` (verified model folders), :mod:`.report`, :mod:`.dataset`
-(window datasets from logs), :mod:`.train` (train / evaluate).
+:mod:`.svm` (features + RBF SVM), :mod:`.cnn` (1-D CNN), :mod:`.artifacts` (verified model
+folders), :mod:`.onnx_export`. Cross-validation and reports live in :mod:`terrainml.evaluation`,
+dataset build and training in :mod:`terrainml.pipeline`.
 """

@@ -7,7 +7,7 @@
 - :mod:`terrainml.slipmap.kinematics`: paper eq. 5-8 (slippage, slip angle, compensation).
 - :mod:`terrainml.slipmap.exponential`: the fixed exponential baseline.
 - :mod:`terrainml.slipmap.tracker`: closed spline path and pure pursuit.
-- :mod:`terrainml.slipmap.experiment`: the lap experiment (paper Fig. 3-4).
+- :mod:`terrainml.experiments.slipmap_laps`: the lap experiment (paper Fig. 3-4).
 - :mod:`terrainml.slipmap.fit`: fit a map from canonical run tables.
 """
 

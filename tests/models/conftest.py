@@ -21,6 +21,6 @@ def log_dir2(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def dataset(log_dir):
-    from terrainml.models.dataset import build_dataset
+    from terrainml.pipeline.dataset import build_dataset
 
     return build_dataset(log_dir, "agrimaro")

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from terrainml.models import artifacts
 from terrainml.models.artifacts import ArtifactError, load_artifact
-from terrainml.models.train import evaluate, train
+from terrainml.pipeline.train import evaluate, train
 
 SMALL = {"svm": {"C_grid": (10.0,), "gamma_grid": ("scale",)},
          "cnn": {"max_epochs": 2, "conv_channels": (4, 4, 4), "patience": 1}}
@@ -107,7 +107,7 @@ def test_skops_types_outside_the_allow_list_are_refused(trained, tmp_path, monke
 
 def test_cli_train_and_evaluate(log_dir, log_dir2, tmp_path, monkeypatch):
     from terrainml.cli import app
-    from terrainml.models import train as train_mod
+    from terrainml.pipeline import train as train_mod
 
     real = train_mod.make_factory
     monkeypatch.setattr(train_mod, "make_factory",

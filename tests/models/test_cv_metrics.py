@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from terrainml.models.cv import check_no_shared_runs, grouped_folds
-from terrainml.models.metrics import (classification_metrics, desired_slip_errors,
+from terrainml.evaluation.cv import check_no_shared_runs, grouped_folds
+from terrainml.evaluation.metrics import (classification_metrics, desired_slip_errors,
                                       expected_calibration_error)
 
 

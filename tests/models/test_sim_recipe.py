@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from terrainml.sim.recipes import load_recipe, simulated_dataset
+from terrainml.experiments.recipes import load_recipe, simulated_dataset
 
 
 def test_default_recipe_meets_the_issue_size():

@@ -7,11 +7,11 @@ import pandas as pd
 import pytest
 
 from terrainml.features.windows import Windows
-from terrainml.models.cv import cross_validate
-from terrainml.models.dataset import (DatasetError, build_dataset, find_logs, read_windows,
+from terrainml.evaluation.cv import cross_validate
+from terrainml.pipeline.dataset import (DatasetError, build_dataset, find_logs, read_windows,
                                       write_windows)
 from terrainml.models.svm import SVMClassifier
-from terrainml.models.train import make_factory
+from terrainml.pipeline.train import make_factory
 
 from logs_synth import CLASS_SLIP
 

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from terrainml.features.windows import Windows
-from terrainml.models.protocols import (ProtocolResult, check_groups_not_split, chunk_windows,
+from terrainml.evaluation.protocols import (ProtocolResult, check_groups_not_split, chunk_windows,
                                         evaluate_protocol, make_chunks, protocol_a_folds,
                                         protocol_b_folds, side_channel_features, windows_per_chunk)
 
@@ -190,7 +190,7 @@ def test_evaluate_protocol_recall_and_confusion_hand_worked():
 def test_average_results_is_the_mean_of_probabilities():
     # two "models" on the same 4 windows, 2 classes: p1 = (0.9, 0.1), (0.4, 0.6), ...; the average
     # of 0.4/0.6 and 0.8/0.2 is 0.6/0.4 -> class 0
-    from terrainml.models.protocols import _result, average_results
+    from terrainml.evaluation.protocols import _result, average_results
 
     y = np.array([0, 0, 1, 1])
     fold_of = np.array([0, 0, 1, 1])

@@ -6,7 +6,7 @@ import numpy as np
 from typer.testing import CliRunner
 
 from terrainml.cli import app
-from terrainml.slipmap.experiment import ExperimentConfig, run_experiment
+from terrainml.experiments.slipmap_laps import ExperimentConfig, run_experiment
 
 
 def test_reduced_experiment_irls_improves_and_ends_best(tmp_path):

@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from terrainml.cli import app
-from terrainml.sim.closed_loop import run_closed_loop
+from terrainml.experiments.closed_loop import run_closed_loop
 from terrainml.control.pid import SlipPIDConfig
 
 KEYS = ("energy_j_per_m", "mean_speed_mps", "mean_tractive_efficiency", "stuck_events")
@@ -62,7 +62,7 @@ def test_terrain_aware_targets_keep_speed_on_deformable_soil():
 
 def test_hook_gives_the_controller_the_simulators_own_setpoints():
     """The set-points in the controller's sample are those the simulator applies (zero offset)."""
-    from terrainml.sim.closed_loop import closed_loop_hook
+    from terrainml.experiments.closed_loop import closed_loop_hook
     from terrainml.sim.scenarios import make_scenario
     from terrainml.sim.simulator import Simulator
 

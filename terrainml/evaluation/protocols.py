@@ -49,8 +49,8 @@ from sklearn.model_selection import StratifiedGroupKFold, StratifiedKFold
 from sklearn.utils.validation import check_is_fitted
 
 from terrainml.features.windows import Windows
-from terrainml.models.cv import check_no_shared_runs
-from terrainml.models.metrics import classification_metrics
+from terrainml.evaluation.cv import check_no_shared_runs
+from terrainml.evaluation.metrics import classification_metrics
 
 __all__ = [
     "SIDE_CHANNELS", "ChunkSet", "make_chunks", "chunk_windows", "protocol_a_folds",
@@ -277,7 +277,7 @@ def protocol_b_folds(windows: Windows, n_splits: int = 5, seed: int = 0) -> list
 
 def check_groups_not_split(folds, groups) -> None:
     """AssertionError if a group (a run, or a 5-s chunk under protocol (a)) is in train and test
-    of a fold, or in two test parts: :func:`terrainml.models.cv.check_no_shared_runs`."""
+    of a fold, or in two test parts: :func:`terrainml.evaluation.cv.check_no_shared_runs`."""
     check_no_shared_runs(folds, groups)
 
 
@@ -291,7 +291,7 @@ class ProtocolResult:
     name : protocol label. classes : labels (K,). class_names : names (K,).
     y_true, y_pred : ndarray (n,). fold_of : ndarray (n,), fold that predicted each window.
     fold_metrics : list of dict (accuracy, balanced_accuracy, fit_time_s, best_params).
-    pooled : dict, :func:`~terrainml.models.metrics.classification_metrics` of all
+    pooled : dict, :func:`~terrainml.evaluation.metrics.classification_metrics` of all
         out-of-fold predictions (accuracy, balanced_accuracy, macro_f1, confusion_matrix with rows
         true and columns predicted, recall_per_class).
     proba : ndarray (n, K) or None, out-of-fold probabilities (columns in ``classes`` order) when

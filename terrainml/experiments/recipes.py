@@ -3,7 +3,7 @@
 * :func:`load_recipe` reads a recipe (a YAML path or a name in ``datasets/``).
 * :func:`simulated_dataset` / :func:`simulated_windows` generate a recipe's simulated logs
   (:func:`terrainml.sim.generate.generate_dataset`), build the windows
-  (:func:`terrainml.models.dataset.build_dataset`) and cache the result. The logs are keyed by
+  (:func:`terrainml.pipeline.dataset.build_dataset`) and cache the result. The logs are keyed by
   the recipe and a hash of the simulator, lookup and io sources (what writes them); the windows
   file additionally by the estimation and feature sources, so a change there rebuilds only the
   windows. Cache folder: ``$TERRAINML_CACHE`` or ``~/.cache/terrainml``.
@@ -80,9 +80,9 @@ def simulated_dataset(recipe: str | Path | dict = "sim_default", *, runs_per_cla
 
     Returns
     -------
-    terrainml.models.dataset.Dataset
+    terrainml.pipeline.dataset.Dataset
     """
-    from terrainml.models.dataset import build_dataset, read_windows as _read, write_windows
+    from terrainml.pipeline.dataset import build_dataset, read_windows as _read, write_windows
 
     r = dict(recipe) if isinstance(recipe, dict) else load_recipe(recipe)
     for k, v in (("runs_per_class", runs_per_class), ("seed", seed), ("duration_s", duration_s), ("format", fmt)):

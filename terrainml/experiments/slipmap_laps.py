@@ -51,7 +51,7 @@ from terrainml.slipmap.slipmap import SlipMap, SlipMapConfig, merge_maps
 from terrainml.slipmap.tracker import ClosedSplinePath, path_following_yaw_rate
 
 METHODS = ("none", "exponential", "irls")
-REPORT_SCHEMA = "terrainml.slipmap.experiment"
+REPORT_SCHEMA = "terrainml.experiments.slipmap_laps"
 REPORT_VERSION = 1
 
 # steady longitudinal slip ratio at 1 m/s per terrain class id (SYSTEM §6.1 calibration targets,
@@ -408,7 +408,7 @@ def run_experiment(cfg: ExperimentConfig | None = None,
         "exponential_constants": exp_model.to_dict(),
         "mean_tracking_error_m": errors,
         "irls_refits": refits["irls"],
-        "model": "kinematic skid-steer with per-patch nonlinear slip (terrainml.slipmap.experiment)",
+        "model": "kinematic skid-steer with per-patch nonlinear slip (terrainml.experiments.slipmap_laps)",
     }
     if progress is not None:
         progress("done", 1.0)

@@ -1,6 +1,6 @@
 """Training reports: ``report.md``, ``report.json``, confusion-matrix PNGs, per-fold CSVs, ablation.
 
-:func:`write_report` takes the results of :func:`terrainml.models.train.train` and writes, into
+:func:`write_report` takes the results of :func:`terrainml.pipeline.train.train` and writes, into
 the model folder:
 
 * ``report.json``: dataset summary (runs, windows, classes, rejection counts, fingerprint), per
@@ -74,7 +74,7 @@ def plot_confusion(cm: np.ndarray, names: Sequence[str], path: Path, title: str)
 
 
 def write_report(out: str | Path, result: Any) -> dict:
-    """Write the report files for a :class:`terrainml.models.train.TrainResult`; return report.json's dict."""
+    """Write the report files for a :class:`terrainml.pipeline.train.TrainResult`; return report.json's dict."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     names = list(result.class_names)

@@ -19,7 +19,7 @@ import pandas as pd
 from joblib import Parallel, delayed
 from sklearn.model_selection import StratifiedGroupKFold
 
-from terrainml.models.metrics import classification_metrics, summarise_folds
+from terrainml.evaluation.metrics import classification_metrics, summarise_folds
 
 __all__ = ["grouped_folds", "cross_validate", "CVResult", "check_no_shared_runs"]
 

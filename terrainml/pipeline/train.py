@@ -1,10 +1,10 @@
 """Train, cross-validate, report and save; evaluate a saved model on other data.
 
 :func:`train` runs, for every requested model kind (``svm``, ``cnn``), grouped K-fold CV
-(:mod:`terrainml.models.cv`, seeded) and a final fit on all windows, measures per-window
+(:mod:`terrainml.evaluation.cv`, seeded) and a final fit on all windows, measures per-window
 latency, runs the SVM feature-set ablation (kinematic / currents / imu / all) on the same folds,
 then writes the artifact (:mod:`terrainml.models.artifacts`) and the report
-(:mod:`terrainml.models.report`) into one folder whose manifest hashes every file. The model
+(:mod:`terrainml.evaluation.report`) into one folder whose manifest hashes every file. The model
 with the best CV balanced accuracy is the folder's default (served) model.
 
 :func:`evaluate` loads a verified model folder and scores it on another dataset.
@@ -21,9 +21,9 @@ import pandas as pd
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.features.sets import FEATURE_SUBSETS, FeatureSet
-from terrainml.models.cv import cross_validate, grouped_folds
-from terrainml.models.dataset import Dataset
-from terrainml.models.metrics import classification_metrics, latency_per_window_ms
+from terrainml.evaluation.cv import cross_validate, grouped_folds
+from terrainml.pipeline.dataset import Dataset
+from terrainml.evaluation.metrics import classification_metrics, latency_per_window_ms
 
 __all__ = ["MODEL_KINDS", "make_factory", "train", "evaluate", "TrainResult", "desired_slip_table_for"]
 
@@ -128,7 +128,7 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
 
     Parameters
     ----------
-    ds : Dataset (from :func:`terrainml.models.dataset.build_dataset` or ``read_windows``).
+    ds : Dataset (from :func:`terrainml.pipeline.dataset.build_dataset` or ``read_windows``).
     out : model folder (``runs/NAME``), created.
     models : model kinds among ``svm``, ``cnn``.
     folds : outer grouped folds. seed : seed of folds and models.
@@ -142,7 +142,7 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     TrainResult (its ``manifest`` is the written manifest).
     """
     from terrainml.models.artifacts import save_artifact, write_manifest
-    from terrainml.models.report import write_report
+    from terrainml.evaluation.report import write_report
 
     say = progress or (lambda msg: None)
     out = Path(out)
