@@ -1,0 +1,55 @@
+"""The layers contract (design §2) and the linter run in `make test`; a deliberate back-import must fail.
+
+`lint-imports` reads the contract from pyproject.toml. To prove the contract can fail, the package is
+copied to a temporary folder, a module of the io layer is given an import of the simulator (the
+chain must never import sim), and lint-imports is run against the copy, which then shadows the
+installed package on PYTHONPATH.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+LINT_IMPORTS = Path(sys.executable).with_name("lint-imports")
+
+
+def _lint(package_parent: Path) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(package_parent))
+    return subprocess.run([str(LINT_IMPORTS), "--config", str(ROOT / "pyproject.toml"), "--no-cache"],
+                          cwd=package_parent, env=env, capture_output=True, text=True, timeout=300)
+
+
+def _copy_package(tmp_path: Path) -> Path:
+    shutil.copytree(ROOT / "terrainml", tmp_path / "terrainml",
+                    ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc"))
+    return tmp_path
+
+
+def test_the_repository_keeps_the_layers_contract():
+    res = _lint(ROOT)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "1 kept, 0 broken" in res.stdout
+
+
+def test_a_back_import_from_the_chain_into_sim_breaks_the_contract(tmp_path):
+    parent = _copy_package(tmp_path)
+    module = parent / "terrainml" / "io" / "_back_import.py"
+    module.write_text('"""A deliberate violation."""\n\nimport terrainml.sim  # noqa: F401\n')
+    res = _lint(parent)
+    assert res.returncode != 0
+    assert "terrainml.io is not allowed to import terrainml.sim" in res.stdout
+    assert "terrainml.io._back_import -> terrainml.sim" in res.stdout
+
+
+def test_a_lower_layer_importing_a_higher_one_breaks_the_contract(tmp_path):
+    parent = _copy_package(tmp_path)
+    module = parent / "terrainml" / "estimation" / "_back_import.py"
+    module.write_text('"""A deliberate violation."""\n\nfrom terrainml.stream import message  # noqa: F401\n')
+    res = _lint(parent)
+    assert res.returncode != 0
+    assert "terrainml.estimation is not allowed to import terrainml.stream" in res.stdout
