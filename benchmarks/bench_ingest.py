@@ -2,7 +2,7 @@
 
 Reference, same run, same file: rosbags' ``AnyReader`` reading and deserialising every message
 (``reader.deserialize``, rosbags' generated CDR deserialiser) -- no resampling at all. Ours:
-``terrainml.io.stream_ingest.ingest_to_parquet`` (what ``terrainml ingest LOG --out RUN.parquet``
+``terrainml.io.ingest.ingest_to_parquet`` (what ``terrainml ingest LOG --out RUN.parquet``
 runs: two streaming passes, decode, T265 transform, sort, resample to 100 Hz in 30 s chunks,
 Parquet row groups written) and, for reference, the in-memory ``terrainml.io.ingest.load_run``.
 
@@ -87,7 +87,7 @@ def ours(path: Path) -> tuple[int, float, int]:
 
 
 def ours_stream(path: Path, out: Path) -> tuple[int, float, int]:
-    from terrainml.io.stream_ingest import ingest_to_parquet
+    from terrainml.io.ingest import ingest_to_parquet
 
     t0 = time.perf_counter()
     rep = ingest_to_parquet(path, out)
@@ -107,12 +107,12 @@ _PEAK = ("def peak():\n"
          "    except OSError:\n"
          "        pass\n"
          "    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n")
-_IMPORTS = "import sys\nimport terrainml.io.ingest, terrainml.io.stream_ingest, pyarrow.parquet\n"
+_IMPORTS = "import sys\nimport terrainml.io.ingest, pyarrow.parquet\n"
 _SNIPPETS = {
     "imports": _PEAK + _IMPORTS + "print(peak())\n",
     "load_run": _PEAK + _IMPORTS + ("r = terrainml.io.ingest.load_run(sys.argv[1])\nassert r.report.usable\n"
                                     "print(peak())\n"),
-    "stream": _PEAK + _IMPORTS + ("r = terrainml.io.stream_ingest.ingest_to_parquet(sys.argv[1], sys.argv[2])\n"
+    "stream": _PEAK + _IMPORTS + ("r = terrainml.io.ingest.ingest_to_parquet(sys.argv[1], sys.argv[2])\n"
                                   "assert r.usable\nprint(peak())\n"),
 }
 

@@ -47,7 +47,7 @@ def ingest(
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from terrainml.io.stream_ingest import ingest_to_parquet
+    from terrainml.io.ingest import ingest_to_parquet
 
     try:
         with Progress(TextColumn("[bold]ingest[/] {task.description}"), BarColumn(), TimeRemainingColumn(),

@@ -25,6 +25,7 @@ import struct
 from dataclasses import dataclass
 
 import numpy as np
+from rosbags.typesys import Stores, get_typestore
 
 _U32 = struct.Struct("<I")
 
@@ -318,8 +319,6 @@ _TYPESTORES: dict = {}
 
 
 def typestore(ros_version: int = 2):
-    from rosbags.typesys import Stores, get_typestore
-
     key = ros_version
     if key not in _TYPESTORES:
         _TYPESTORES[key] = get_typestore(Stores.ROS2_HUMBLE if ros_version == 2 else Stores.ROS1_NOETIC)

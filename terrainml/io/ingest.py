@@ -1,8 +1,12 @@
-"""Log ingest: ROS 2 MCAP, ROS 1 bag, CSV or Parquet -> canonical run table (SYSTEM §5, contract 1).
+"""Log ingest: ROS 2 MCAP, ROS 1 bag, CSV or Parquet -> canonical run table (design §5, contract 1).
 
-``load_run(path, robot=None, topic_map=None, rate_hz=100.0) -> IngestResult`` with ``.table`` (a
-validated canonical DataFrame, metadata in ``attrs["terrainml"]``; zero rows when nothing usable
-was found) and ``.report`` (per-topic counts, warnings, ``usable``).
+``load_run(path, robot=None, topic_map=None, rate_hz=100.0) -> IngestResult``: ``.table`` (validated
+canonical DataFrame, metadata in ``attrs["terrainml"]``; zero rows when nothing usable was found) and
+``.report`` (per-topic counts, warnings, ``usable``). ``ingest_to_parquet(LOG, OUT)`` (``terrainml
+ingest LOG --out RUN.parquet``) writes the same table ``chunk_s`` seconds at a time, one row group
+per chunk, with peak memory that does not grow with the log. Both run the engine of
+:mod:`terrainml.io.ingest_engine` into a sink (DataFrame or Parquet); CSV/Parquet inputs are
+tables already and are resampled in memory.
 
 Never raises on bad input: damage is counted per topic and reported; the report's ``errors`` say
 why a file gave no usable table. ``write_run_mcap`` writes a run table back to a ROS 2 MCAP with
@@ -11,57 +15,36 @@ the default topic map's messages, so a hand-made table round-trips.
 
 from __future__ import annotations
 
-import hashlib
+import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 from scipy.spatial.transform import Rotation
 
-from terrainml.io import cdr, t265, topics
-from terrainml.io.readers import LogReadError, ReadResult, read_bag, read_mcap, sniff_format
-from terrainml.io.resample import clean_times, gap_threshold_s, resample
-from terrainml.io.topicmap import Source, TopicMap, TopicMapError, load_topic_map
+from terrainml.hashing import sha256_file
+from terrainml.io import t265, topics
+from terrainml.io.ingest_engine import FileLog, IngestReport, MemoryLog, produce, scan_log
+from terrainml.io.ingest_signals import PREVIOUS_COLUMNS, Signal, assemble
+from terrainml.io.mcap_writer import RosMcapWriter
+from terrainml.io.readers import LogReadError, sniff_format
+from terrainml.io.resample import clean_times, gap_threshold_s
+from terrainml.io.topicmap import TopicMap, TopicMapError, load_topic_map
 from terrainml.robot import RobotSpec, RobotSpecError, load_robot
-from terrainml.schema import (DEFAULT_RATE_HZ, VALID_GROUPS, WHEEL_STATES, SchemaError, column_map,
-                              make_metadata, validate_run_table)
+from terrainml.schema import (DEFAULT_RATE_HZ, METADATA_KEY, VALID_GROUPS, SchemaError, column_map,
+                              make_metadata, valid_column, validate_run_table, wheel_col,
+                              write_run_parquet)
 
-# columns that do not take part in their group's validity
-_NOT_IN_VALIDITY = {"imu_yaw_rad", "imu_roll_rate_radps", "imu_pitch_rate_radps", "cam_confidence"}
-_PREVIOUS_COLUMNS = ("_omega_radps", "_steer_rad")
-_CODE_TO_STATE = {v: k for k, v in topics.WHEEL_STATE_CODES.items()}
+__all__ = ["IngestReport", "IngestResult", "load_run", "ingest_to_parquet", "write_run_mcap"]
 
-
-@dataclass
-class IngestReport:
-    """What ingest found: per-topic counts, warnings, and whether a usable table resulted."""
-
-    source: str
-    format: str = ""
-    topics: dict[str, dict[str, Any]] = field(default_factory=dict)
-    warnings: list[str] = field(default_factory=list)
-    errors: list[str] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)   # e.g. optional topics absent
-    usable: bool = False
-    rows: int = 0
-    span_s: float = 0.0
-    rate_hz: float = DEFAULT_RATE_HZ
-    valid_fraction: dict[str, float] = field(default_factory=dict)
-
-    def skipped_per_topic(self) -> dict[str, int]:
-        return {t: d["skipped"] for t, d in self.topics.items() if d.get("skipped")}
-
-    def corrupt_per_topic(self) -> dict[str, int]:
-        return {t: d["corrupt"] for t, d in self.topics.items() if d.get("corrupt")}
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"source": self.source, "format": self.format, "usable": self.usable, "rows": self.rows,
-                "span_s": self.span_s, "rate_hz": self.rate_hz, "topics": self.topics,
-                "valid_fraction": self.valid_fraction, "warnings": self.warnings, "errors": self.errors,
-                "notes": self.notes}
+DEFAULT_CHUNK_S = 30.0
+LOG_FORMATS = ("mcap", "bag")
 
 
 @dataclass
@@ -70,347 +53,112 @@ class IngestResult:
     report: IngestReport
 
 
+# ----------------------------------------------------------------------------- sinks
 @dataclass
-class _Signal:
-    column: str
-    t_s: np.ndarray
-    values: np.ndarray
-    method: str
-    max_gap_s: float
-    extra_invalid: np.ndarray | None = None   # per-sample flag (e.g. low confidence)
+class _Tally:
+    """Row count, last tick and valid ticks per group of the chunks a sink took."""
+
+    rows: int = 0
+    last_t_s: float = 0.0
+    valid: dict[str, int] = field(default_factory=lambda: {g: 0 for g in VALID_GROUPS})
+
+    def add(self, df: pd.DataFrame) -> None:
+        self.rows += len(df)
+        self.last_t_s = float(df["t_s"].iloc[-1])
+        for g in VALID_GROUPS:
+            if valid_column(g).name in df:
+                self.valid[g] += int(df[valid_column(g).name].sum())
+
+    def finish(self, rep: IngestReport, path: Path) -> None:
+        """Rows, span, valid fractions and ``usable`` into the report."""
+        rep.rows, rep.span_s = self.rows, self.last_t_s
+        rep.valid_fraction = {g: v / self.rows for g, v in self.valid.items()} if self.rows else {}
+        rep.usable = self.rows >= 2 and any(rep.valid_fraction.get(g, 0.0) > 0 for g in ("wheels", "imu", "cam"))
+        if not rep.usable:
+            rep.errors.append(f"{path}: no valid wheel, IMU or camera sample on the base grid")
+
+
+@dataclass
+class _FrameSink:
+    """Chunks kept in memory and joined into one DataFrame (``load_run``)."""
+
+    chunks: list[pd.DataFrame] = field(default_factory=list)
+
+    def write(self, chunk: pd.DataFrame) -> None:
+        self.chunks.append(chunk)
+
+    def table(self) -> pd.DataFrame | None:
+        if not self.chunks:
+            return None
+        return self.chunks[0] if len(self.chunks) == 1 else pd.concat(self.chunks, ignore_index=True)
+
+
+@dataclass
+class _ParquetSink:
+    """Chunks appended to a Parquet file as row groups (``ingest_to_parquet``): written to a
+    hidden ``.part`` file beside ``out``, moved over ``out`` only when the table is usable."""
+
+    out: Path
+    meta: dict[str, Any]
+    run_id: str
+    n_wheels: int
+    tally: _Tally = field(default_factory=_Tally)
+    writer: pq.ParquetWriter | None = None
+    schema: pa.Schema | None = None
+
+    @property
+    def tmp(self) -> Path:
+        return self.out.with_name(f".{self.out.name}.part")
+
+    def write(self, chunk: pd.DataFrame) -> None:
+        chunk["run_id"] = self.run_id
+        if self.writer is None:  # every chunk has the same columns and dtypes: check the first,
+            chunk = validate_run_table(chunk, self.n_wheels, source=self.meta["source_file"])  # the
+            table = pa.Table.from_pandas(chunk, preserve_index=False)          # Parquet schema the rest
+            kv = dict(table.schema.metadata or {})
+            kv[METADATA_KEY] = json.dumps(self.meta, default=str).encode()
+            self.schema = table.schema.with_metadata(kv)
+            self.out.parent.mkdir(parents=True, exist_ok=True)
+            self.writer = pq.ParquetWriter(self.tmp, self.schema)
+        # columns straight to Arrow (pandas' converter is ~2x slower per chunk)
+        text = (pa.types.is_string, pa.types.is_large_string)
+        table = pa.Table.from_arrays([pa.array(chunk[f.name].to_numpy(dtype=object if any(k(f.type) for k in text)
+                                                                      else None), type=f.type)
+                                      for f in self.schema], schema=self.schema)
+        self.writer.write_table(table)
+        self.tally.add(chunk)
+
+    def close(self, keep: bool) -> None:
+        """Finish the file; move it to ``out`` when ``keep``, else leave nothing behind."""
+        if self.writer is not None:
+            self.writer.close()
+        if keep:
+            os.replace(self.tmp, self.out)
+        else:
+            self.tmp.unlink(missing_ok=True)
 
 
 # ----------------------------------------------------------------------------- helpers
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def _imu_rotation(robot: RobotSpec, tmap: TopicMap) -> Rotation:
-    m = tmap.imu_mount
-    if m == "robot":
-        m = {"roll_rad": robot.imu.roll_rad, "pitch_rad": robot.imu.pitch_rad, "yaw_rad": robot.imu.yaw_rad}
-    return Rotation.from_euler("xyz", [m["roll_rad"], m["pitch_rad"], m["yaw_rad"]])
-
-
-def _expand(template: str, i: int) -> str:
-    return template.replace("{i}", str(i))
-
-
 def _empty_table(robot: RobotSpec) -> pd.DataFrame:
     cols = {c.name: pd.Series([], dtype="float64") for c in column_map(robot.n_wheels).values() if c.required}
     return validate_run_table(pd.DataFrame(cols), robot.n_wheels)
 
 
-# ----------------------------------------------------------------------------- per-kind signals
-def _sorted_part(part: dict, topic: str, rep: IngestReport, t0_ns: int) -> tuple[dict, np.ndarray]:
-    order, ooo, dup = clean_times(part["t_ns"])
-    d = rep.topics[topic]
-    d["out_of_order"] = d.get("out_of_order", 0) + ooo
-    d["duplicates"] = d.get("duplicates", 0) + dup
-    if ooo == 0 and dup == 0:
-        out = part  # already in order: no copy
-    else:
-        out = {k: (v[order] if isinstance(v, np.ndarray) else v) for k, v in part.items()}
-    return out, (out["t_ns"] - t0_ns) * 1e-9
-
-
-def _signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap: TopicMap,
-                 rate_hz: float, *, gap_s: float | None = None, imu_orientation: bool | None = None,
-                 cam_yaw0_rad: float | None = None) -> list[_Signal]:
-    """Canonical-column signals of one sorted source part.
-
-    The keyword arguments carry whole-log facts when ``part`` is only a time slice of the source
-    (streaming ingest): ``gap_s`` the source's gap threshold, ``imu_orientation`` whether the IMU
-    ever publishes an orientation, ``cam_yaw0_rad`` the raw T265 yaw of the first valid pose. None:
-    computed from ``part`` itself (the whole source, in-memory path).
-    """
-    gap = gap_threshold_s(t_s, rate_hz) if gap_s is None else float(gap_s)
-    sig: list[_Signal] = []
-
-    def add(col, values, method="linear", extra=None):
-        sig.append(_Signal(col, t_s, np.asarray(values, float), method, gap, extra))
-
-    kind = src.kind
-    if kind == "imu":
-        rot = _imu_rotation(robot, tmap)
-        acc = rot.apply(part["accel"])
-        gyr = rot.apply(part["gyro"])
-        add("imu_ax_mps2", acc[:, 0]); add("imu_ay_mps2", acc[:, 1]); add("imu_az_mps2", acc[:, 2])
-        add("imu_roll_rate_radps", gyr[:, 0]); add("imu_pitch_rate_radps", gyr[:, 1])
-        add("imu_yaw_rate_radps", gyr[:, 2])
-        q = part["orientation"]
-        if src.options.get("yaw_from_orientation", True):
-            norm = np.linalg.norm(np.nan_to_num(q), axis=1)
-            never_set = _imu_orientation_never_set(q) if imu_orientation is None else not imu_orientation
-            if not never_set:  # an IMU without orientation publishes identity (or zeros) throughout
-                ok = np.isfinite(q).all(axis=1) & (norm > 1e-6)
-                qs = np.where(ok[:, None], q, [0.0, 0.0, 0.0, 1.0])
-                yaw = (Rotation.from_quat(qs) * rot.inv()).as_euler("ZYX")[:, 0]
-                add("imu_yaw_rad", np.where(ok, yaw, np.nan), "angle")
-    elif kind == "t265_odometry":
-        out = t265.t265_odometry_to_body(part["position"], part["orientation"], part["linear"],
-                                         part["angular"])
-        conf = part["cov0"]
-        min_conf = src.options.get("min_confidence", 2)
-        low = None if min_conf is None else ~(conf >= float(min_conf))
-        add("cam_vx_mps", out["vx_mps"], extra=low)
-        add("cam_vy_mps", out["vy_mps"], extra=low)
-        add("cam_yaw_rate_radps", out["yaw_rate_radps"], extra=low)
-        yaw = out["yaw_rad"] if cam_yaw0_rad is None else t265.wrap_angle(out["yaw_raw_rad"] - cam_yaw0_rad)
-        add("cam_yaw_rad", yaw, "angle", extra=low)
-        add("cam_confidence", conf, "previous")
-    elif kind == "ground_truth":
-        q = part["orientation"]
-        ok = np.isfinite(q).all(axis=1) & (np.linalg.norm(np.nan_to_num(q), axis=1) > 1e-9)
-        qs = np.where(ok[:, None], q, [0.0, 0.0, 0.0, 1.0])
-        yaw = np.where(ok, Rotation.from_quat(qs).as_euler("ZYX")[:, 0], np.nan)
-        add("gt_x_m", part["position"][:, 0]); add("gt_y_m", part["position"][:, 1])
-        add("gt_yaw_rad", yaw, "angle")
-        add("gt_vx_mps", part["linear"][:, 0]); add("gt_vy_mps", part["linear"][:, 1])
-        add("gt_yaw_rate_radps", part["angular"][:, 2])
-    elif kind == "diff_drive_odometry":
-        v, w = part["linear"][:, 0], part["angular"][:, 2]
-        track = 2.0 * float(np.mean([abs(wh.y_m) for wh in robot.wheels]))
-        for i, wh in enumerate(robot.wheels, start=1):
-            side = -1.0 if wh.y_m > 0 else 1.0          # left wheels: v - w * track / 2
-            add(f"wheel{i}_omega_radps", (v + side * w * track / 2.0) / robot.wheel_radius_m)
-            add(f"wheel{i}_steer_rad", np.zeros_like(v))
-    elif kind == "twist":
-        for col, fld in src.columns.items():
-            grp, axis = fld.split(".")
-            add(col, part[grp][:, "xyz".index(axis)])
-    elif kind == "label":
-        add("terrain", part["data"], "previous")
-        sig[-1].max_gap_s = np.inf
-    return sig
-
-
-def _imu_orientation_never_set(q: np.ndarray) -> bool:
-    """An IMU without orientation publishes identity (or zeros) throughout."""
-    qf = np.nan_to_num(q)
-    return bool(np.allclose(qf, [0.0, 0.0, 0.0, 1.0]) or np.allclose(qf, 0.0))
-
-
-def _joint_signals(src: Source, parts: list[dict], t0_ns: int, robot: RobotSpec, rate_hz: float,
-                   rep: IngestReport) -> list[_Signal]:
-    """Columns of a joint_state source; each column collects samples from every joint-name set."""
-    sig = []
-    for template, spec in src.columns.items():
-        for i in range(1, robot.n_wheels + 1) if "{i}" in template else [None]:
-            col = _expand(template, i) if i else template
-            joint = _expand(spec["joint"], i) if i else spec["joint"]
-            ts, vs = [], []
-            for p in parts:
-                if joint in p["names"]:
-                    k = p["names"].index(joint)
-                    ts.append(p["t_ns"])
-                    vs.append(p[spec["field"]][:, k])
-            if not ts:
-                rep.warnings.append(f"{rep.source}: topic {src.topic}: no joint '{joint}' for column {col}")
-                continue
-            t = np.concatenate(ts)
-            v = np.concatenate(vs)
-            order, _, _ = clean_times(t)
-            t_s = (t[order] - t0_ns) * 1e-9
-            method = spec.get("resample", "previous" if col.endswith(_PREVIOUS_COLUMNS) else "linear")
-            gap = np.inf if col.startswith("gt_state") else gap_threshold_s(t_s, rate_hz)
-            sig.append(_Signal(col, t_s, v[order], method, gap))
-    return sig
-
-
-# ----------------------------------------------------------------------------- table assembly
-def _assemble(signals: list[_Signal], grid: np.ndarray, robot: RobotSpec, rep: IngestReport) -> pd.DataFrame:
-    n = robot.n_wheels
-    spec = column_map(n)
-    data: dict[str, np.ndarray] = {"t_s": grid}
-    col_valid: dict[str, np.ndarray] = {}
-    while signals:
-        s = signals.pop(0)  # release each source signal once resampled (bounded peak memory)
-        vals = s.values
-        if s.column.startswith("gt_state") or s.column == "terrain":
-            out, valid = resample(s.t_s, vals, grid, method="previous", max_gap_s=s.max_gap_s)
-        else:
-            out, valid = resample(s.t_s, vals, grid, method=s.method, max_gap_s=s.max_gap_s)
-        if s.extra_invalid is not None and len(s.t_s):
-            low, _ = resample(s.t_s, s.extra_invalid.astype(float), grid, method="previous",
-                              max_gap_s=np.inf)
-            valid = valid & ~(low > 0.5)
-        data[s.column] = out
-        col_valid[s.column] = valid
-    m = len(grid)
-    # fixed wheels: steering is known to be zero
-    for i, wh in enumerate(robot.wheels, start=1):
-        c = f"wheel{i}_steer_rad"
-        if c not in data and not wh.steerable:
-            data[c] = np.zeros(m)
-            col_valid[c] = np.ones(m, bool)
-    always = {"cam_vx_mps", "cam_vy_mps", "cam_yaw_rate_radps", "cam_yaw_rad",
-              "cmd_vx_mps", "cmd_vy_mps", "cmd_yaw_rate_radps"}
-    for c in spec.values():
-        if (c.required or c.name in always) and c.name not in data:
-            data[c.name] = np.full(m, np.nan)
-            col_valid[c.name] = np.zeros(m, bool)
-    for g in VALID_GROUPS:  # every group gets its validity column (False when the group is absent)
-        members = [c for c in col_valid if c in spec and spec[c].group == g and c not in _NOT_IN_VALIDITY
-                   and not c.endswith("_cmd_omega_radps")]
-        data[f"{g}_valid"] = (np.logical_and.reduce([col_valid[c] for c in members]) if members
-                              else np.zeros(m, bool))
-    if "terrain" in data:
-        t = data["terrain"]
-        data["terrain"] = np.where(np.isfinite(t), np.nan_to_num(t, nan=-1), -1).astype(np.int64)
-    for i in range(1, n + 1):
-        c = f"gt_state{i}"
-        if c in data:
-            codes = data[c]
-            data[c] = np.array([_CODE_TO_STATE.get(int(x), "unknown") if np.isfinite(x) else "unknown"
-                                for x in codes], dtype=object) if m < 50_000 else \
-                _codes_to_states_fast(codes)
-    ordered = [c.name for c in spec.values() if c.name in data]
-    ordered += [k for k in data if k not in ordered]
-    return pd.DataFrame({k: data.pop(k) for k in ordered}, copy=False)
-
-
-def _codes_to_states_fast(codes: np.ndarray) -> np.ndarray:
-    names = np.array(list(WHEEL_STATES) + ["unknown"], dtype=object)
-    idx = np.where(np.isfinite(codes), np.nan_to_num(codes, nan=4), 4).astype(int)
-    idx = np.where((idx >= 0) & (idx < 4), idx, 4)
-    return names[idx]
-
-
-# ----------------------------------------------------------------------------- logs
-def _wanted_for(tmap: TopicMap) -> tuple[Callable[[str, str], str | None], dict[str, str]]:
-    """The reader's ``wanted(topic, type) -> decode kind`` for a topic map, and the dict it fills
-    with mapped topics whose type does not match."""
-    by_topic = tmap.by_topic()
-    mismatched: dict[str, str] = {}
-
-    def wanted(topic: str, type_name: str) -> str | None:
-        src = by_topic.get(topic)
-        if src is None:
-            return None
-        expected = src.type
-        if (expected and type_name != expected) or cdr.KIND_OF_TYPE.get(type_name) != src.decode_kind:
-            mismatched[topic] = type_name
-            return None
-        return src.decode_kind
-
-    return wanted, mismatched
-
-
-def _read_log(path: Path, fmt: str, tmap: TopicMap, wanted, progress=None, on_part=None,
-              validate_crcs: bool = True) -> ReadResult:
-    use_header = tmap.stamp == "header"
-    if fmt == "mcap":
-        return read_mcap(path, wanted, use_header_stamp=use_header, progress=progress, on_part=on_part,
-                         validate_crcs=validate_crcs)
-    return read_bag(path, wanted, use_header_stamp=use_header, progress=progress, on_part=on_part)
-
-
-def _report_read(path: Path, res: ReadResult, tmap: TopicMap, mismatched: dict[str, str],
-                 rep: IngestReport) -> None:
-    """Per-topic counts and the reader's warnings into the report (shared by both ingest paths)."""
-    by_topic = tmap.by_topic()
-    rep.warnings.extend(res.warnings)
-    for topic, st in res.stats.items():
-        rep.topics[topic] = {"type": st.type, "mapped": topic in by_topic, "read": st.read,
-                             "decoded": st.decoded, "corrupt": st.corrupt, "skipped": st.skipped,
-                             "out_of_order": 0, "duplicates": 0, "non_finite": 0}
-        if st.corrupt:
-            rep.warnings.append(f"{path}: topic {topic}: {st.corrupt} corrupt message(s) skipped")
-    if res.unattributed_corrupt:
-        rep.topics.setdefault("<unknown channel>", {"type": "", "mapped": False, "read": 0, "decoded": 0,
-                                                    "corrupt": res.unattributed_corrupt, "skipped": 0})
-    for topic, type_name in mismatched.items():
-        src = by_topic[topic]
-        rep.warnings.append(f"{path}: topic {topic} has type {type_name}, the topic map expects "
-                            f"{src.type or src.decode_kind}: {res.stats[topic].read} message(s) skipped")
-    for src in tmap.sources:
-        if src.topic not in res.stats:
-            (rep.notes if src.options.get("optional") else rep.warnings).append(f"{path}: mapped topic {src.topic} ({src.type or src.kind}) is not in the log")
-
-
-def _no_message_error(path: Path, tmap: TopicMap) -> str:
-    return (f"{path}: no readable message on any mapped topic "
-            f"({', '.join(s.topic for s in tmap.sources)}); `terrainml inspect` lists the "
-            "log's topics, `--topics MAP.yaml` maps them")
-
-
-def _from_log(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap, rate_hz: float,
-              rep: IngestReport, progress) -> pd.DataFrame | None:
-    by_topic = tmap.by_topic()
-    wanted, mismatched = _wanted_for(tmap)
-    res = _read_log(path, fmt, tmap, wanted, progress)
-    _report_read(path, res, tmap, mismatched, rep)
-    # time origin: first decoded message of a mapped topic
-    joined: dict[str, Any] = {}
-    firsts = []
-    for topic in list(res.parts):
-        parts = res.parts.pop(topic)  # free the per-block parts as soon as they are joined
-        if not parts:
-            continue
-        kind = res.kinds[topic]
-        joined[topic] = cdr.concat_parts(kind, parts)
-        del parts
-        ts = [p["t_ns"] for p in (joined[topic] if isinstance(joined[topic], list) else [joined[topic]])]
-        firsts.append(min(int(t.min()) for t in ts if len(t)))
-    if not firsts:
-        rep.errors.append(_no_message_error(path, tmap))
-        return None
-    t0 = min(firsts)
-    signals: list[_Signal] = []
-    for topic in list(joined):
-        part = joined.pop(topic)
-        src = by_topic[topic]
-        if src.kind == "joint_state":
-            fixed = []
-            for p in part:
-                ps, _ = _sorted_part(p, topic, rep, t0)
-                fixed.append(ps)
-            _count_nonfinite(rep, topic, path, [p[f] for p in fixed for f in ("position", "velocity", "effort")
-                                                if np.isfinite(p[f]).any()])
-            signals += _joint_signals(src, fixed, t0, robot, rate_hz, rep)
-        else:
-            ps, t_s = _sorted_part(part, topic, rep, t0)
-            _count_nonfinite(rep, topic, path, [v for k, v in ps.items()
-                                                if k not in ("t_ns", "orientation", "cov0") and isinstance(v, np.ndarray)])
-            signals += _signals_for(src, ps, t_s, robot, tmap, rate_hz)
-        d = rep.topics[topic]
-        if d.get("out_of_order") or d.get("duplicates"):
-            rep.warnings.append(f"{path}: topic {topic}: {d['out_of_order']} out-of-order and "
-                                f"{d['duplicates']} duplicate timestamp(s) (sorted, duplicates dropped)")
-    t_end = max(float(s.t_s[-1]) for s in signals if len(s.t_s)) if signals else 0.0
-    grid = np.arange(int(math.floor(t_end * rate_hz + 1e-6)) + 1) / rate_hz
-    return _assemble(signals, grid, robot, rep)
-
-
-def _count_nonfinite(rep: IngestReport, topic: str, path: Path, arrays: list[np.ndarray]) -> None:
-    if not arrays:
-        return
-    n = len(arrays[0])
-    bad = np.zeros(n, bool)
-    for a in arrays:
-        a2 = a.reshape(len(a), -1)
-        if len(a2) == n:
-            bad |= ~np.isfinite(a2).all(axis=1)
-    k = int(bad.sum())
-    if k:
-        rep.topics[topic]["non_finite"] = rep.topics[topic].get("non_finite", 0) + k
-        rep.warnings.append(f"{path}: topic {topic}: {k} message(s) with NaN/Inf fields (ticks marked invalid)")
+def _topic_map(topic_map, fmt: str) -> TopicMap | None:
+    """The topic map of a log (default map for MCAP) or of a table (None: canonical names)."""
+    if fmt in LOG_FORMATS:
+        return load_topic_map(topic_map if topic_map is not None else ("default" if fmt == "mcap" else None))
+    return load_topic_map(topic_map) if topic_map is not None else None
 
 
 # ----------------------------------------------------------------------------- tables (CSV/Parquet)
 def _from_tabular(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap | None, rate_hz: float,
                   rep: IngestReport) -> pd.DataFrame | None:
+    """The canonical columns of a CSV/Parquet table resampled onto the base grid (None: error in ``rep``)."""
     try:
         if fmt == "csv":
             df = pd.read_csv(path)
         else:
-            import pyarrow.parquet as pq
-
             df = pq.read_table(path).to_pandas()
     except Exception as exc:  # noqa: BLE001 - parser errors of several types
         rep.errors.append(f"{path}: not a readable {fmt.upper()} file ({exc})")
@@ -455,14 +203,15 @@ def _from_tabular(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap | None,
         if col == "terrain":
             v = np.where(v < 0, np.nan, v)
         g = spec[col].group
-        if f"{g}_valid" in df.columns and g in VALID_GROUPS:
-            v = np.where(df[f"{g}_valid"].astype(bool).to_numpy(), v, np.nan)
+        vcol = valid_column(g).name
+        if vcol in df.columns and g in VALID_GROUPS:
+            v = np.where(df[vcol].astype(bool).to_numpy(), v, np.nan)
         ok = np.isfinite(v)
-        method = "previous" if col.endswith(_PREVIOUS_COLUMNS) or col == "cam_confidence" else \
+        method = "previous" if col.endswith(PREVIOUS_COLUMNS) or col == "cam_confidence" else \
             ("angle" if col.endswith("yaw_rad") else "linear")
         ts = t_s[ok]
         gap = np.inf if col == "terrain" or col.startswith("gt_state") else gap_threshold_s(ts, rate_hz)
-        signals.append(_Signal(col, ts, v[ok], method, gap))
+        signals.append(Signal(col, ts, v[ok], method, gap))
     missing = [c.name for c in spec.values() if c.required and c.name not in df.columns]
     if missing:
         rep.warnings.append(f"{path}: column(s) {', '.join(missing)} missing (group marked invalid)")
@@ -470,7 +219,7 @@ def _from_tabular(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap | None,
         rep.errors.append(f"{path}: no canonical column found (give a topic map with 'columns')")
         return None
     grid = np.arange(int(math.floor(t_s[-1] * rate_hz + 1e-6)) + 1) / rate_hz
-    return _assemble(signals, grid, robot, rep)
+    return assemble(signals, grid, robot)
 
 
 # ----------------------------------------------------------------------------- public API
@@ -499,12 +248,15 @@ def load_run(path: str | Path, *, robot: RobotSpec | str | Path | None = None,
         return IngestResult(_empty_table(robot_spec), rep)
     fmt = rep.format
     try:
-        if fmt in ("mcap", "bag"):
-            tmap = load_topic_map(topic_map if topic_map is not None else
-                                  ("default" if fmt == "mcap" else None))
-            df = _from_log(path, fmt, robot_spec, tmap, float(rate_hz), rep, progress)
+        tmap = _topic_map(topic_map, fmt)
+        if fmt in LOG_FORMATS:
+            sink = _FrameSink()
+            log = MemoryLog(path, fmt, tmap, progress)
+            p = scan_log(log, tmap, robot_spec, float(rate_hz), rep)
+            if p is not None:
+                produce(log, p, tmap, robot_spec, float(rate_hz), sink)
+            df = sink.table()
         else:
-            tmap = load_topic_map(topic_map) if topic_map is not None else None
             df = _from_tabular(path, fmt, robot_spec, tmap, float(rate_hz), rep)
     except (LogReadError, TopicMapError) as exc:
         rep.errors.append(str(exc))
@@ -520,14 +272,65 @@ def load_run(path: str | Path, *, robot: RobotSpec | str | Path | None = None,
     except SchemaError as exc:
         rep.errors.append(str(exc))
         return IngestResult(_empty_table(robot_spec), rep)
-    rep.rows = len(df)
-    rep.span_s = float(df["t_s"].iloc[-1])
-    rep.valid_fraction = {g: float(df[f"{g}_valid"].mean()) for g in VALID_GROUPS if f"{g}_valid" in df}
-    rep.usable = any(rep.valid_fraction.get(g, 0.0) > 0 for g in ("wheels", "imu", "cam"))
-    if not rep.usable:
-        rep.errors.append(f"{path}: no valid wheel, IMU or camera sample on the base grid")
+    tally = _Tally()
+    tally.add(df)
+    tally.finish(rep, path)
     df.attrs["terrainml"] = _run_metadata(path, robot_spec, tmap, rate_hz, rep, run_id)
     return IngestResult(df, rep)
+
+
+def ingest_to_parquet(path: str | Path, out: str | Path, *, robot: RobotSpec | str | Path | None = None,
+                      topic_map: TopicMap | str | Path | dict | None = None, rate_hz: float = DEFAULT_RATE_HZ,
+                      chunk_s: float = DEFAULT_CHUNK_S,
+                      progress: Callable[[int, int], None] | None = None) -> IngestReport:
+    """Ingest a log into a Parquet run table with memory bounded by ``chunk_s`` (not the log length).
+
+    Parameters
+    ----------
+    path : ``.mcap`` (ROS 2) or ``.bag`` (ROS 1) streamed; ``.csv``/``.parquet`` via ``load_run``.
+    out : output ``.parquet``; written only when a usable table resulted (else nothing is left).
+    robot, topic_map, rate_hz : as :func:`load_run`.
+    chunk_s : seconds of base-rate ticks per chunk (one Parquet row group each).
+    progress : optional ``(done, total)`` callback (two passes over the file's bytes).
+
+    Returns
+    -------
+    IngestReport, as ``load_run(...).report`` (``rows``, ``span_s``, ``valid_fraction``,
+    ``usable``, per-topic counts, warnings, errors). The file equals
+    ``write_run_parquet(load_run(...).table, out)`` read back, within float rounding.
+    """
+    path, out = Path(path), Path(out)
+    rep = IngestReport(source=str(path), rate_hz=float(rate_hz))
+    path, robot_spec, ok = _open_input(path, robot, rate_hz, rep)
+    if not ok:
+        return rep
+    fmt = rep.format
+    if fmt not in LOG_FORMATS:
+        res = load_run(path, robot=robot_spec, topic_map=topic_map, rate_hz=rate_hz, progress=progress)
+        if res.report.usable:
+            write_run_parquet(res.table, out)
+        return res.report
+    if not (isinstance(chunk_s, (int, float)) and np.isfinite(chunk_s) and chunk_s > 0):
+        rep.errors.append(f"chunk_s must be a positive number, got {chunk_s!r}")
+        return rep
+    try:
+        tmap = _topic_map(topic_map, fmt)
+        log = FileLog(path, fmt, tmap, progress)
+        p = scan_log(log, tmap, robot_spec, float(rate_hz), rep)
+        if p is None:
+            return rep
+        sink = _ParquetSink(out, _run_metadata(path, robot_spec, tmap, rate_hz, rep, path.stem), path.stem,
+                            robot_spec.n_wheels)
+        try:
+            produce(log, p, tmap, robot_spec, float(rate_hz), sink, max(int(round(chunk_s * rate_hz)), 1))
+        except BaseException:
+            sink.close(keep=False)
+            raise
+        sink.tally.finish(rep, path)
+        sink.close(keep=rep.usable)
+    except (LogReadError, TopicMapError, SchemaError) as exc:
+        rep.errors.append(str(exc))
+    return rep
 
 
 def _open_input(path: Path, robot, rate_hz: float, rep: IngestReport) -> tuple[Path, RobotSpec, bool]:
@@ -559,9 +362,9 @@ def _open_input(path: Path, robot, rate_hz: float, rep: IngestReport) -> tuple[P
 
 def _run_metadata(path: Path, robot_spec: RobotSpec, tmap: TopicMap | None, rate_hz: float,
                   rep: IngestReport, run_id: str) -> dict[str, Any]:
-    """SYSTEM §5 table metadata of an ingested log."""
+    """Design §5 table metadata of an ingested log."""
     return make_metadata(
-        robot_json=robot_spec.to_json(), source_file=str(path), source_sha256=_sha256(path),
+        robot_json=robot_spec.to_json(), source_file=str(path), source_sha256=sha256_file(path),
         topic_map=tmap.to_dict() if tmap is not None else None, rate_hz=float(rate_hz),
         skipped=rep.skipped_per_topic(), corrupt=rep.corrupt_per_topic(), run_id=run_id,
         warnings=list(rep.warnings))
@@ -577,8 +380,6 @@ def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec | str
     :func:`terrainml.io.t265.body_to_t265_odometry` (robot pose integrated from the camera yaw and
     velocities); labels are written when they change and once a second.
     """
-    from terrainml.io.mcap_writer import RosMcapWriter
-
     robot = load_robot(robot)
     n = robot.n_wheels
     df = validate_run_table(table, n)
@@ -589,7 +390,8 @@ def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec | str
         return df[name].to_numpy(float) if name in df else np.full(len(df), default)
 
     def valid(g):
-        return df[f"{g}_valid"].to_numpy(bool) if f"{g}_valid" in df else np.zeros(len(df), bool)
+        c = valid_column(g).name
+        return df[c].to_numpy(bool) if c in df else np.zeros(len(df), bool)
 
     acc = rot_inv.apply(np.column_stack([col("imu_ax_mps2"), col("imu_ay_mps2"), col("imu_az_mps2")]))
     gyr = rot_inv.apply(np.column_stack([col("imu_roll_rate_radps", 0.0), col("imu_pitch_rate_radps", 0.0),
@@ -606,13 +408,13 @@ def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec | str
         msg = t265.body_to_t265_odometry(xw, yw, yaw, vx, vy, np.nan_to_num(col("cam_yaw_rate_radps")), mount)
         conf = col("cam_confidence", 3.0)
     wv, sv, cv, iv, camv, cmdv = (valid(g) for g in ("wheels", "steer", "current", "imu", "cam", "cmd"))
-    omega = np.column_stack([col(f"wheel{i}_omega_radps") for i in range(1, n + 1)])
-    steer = np.column_stack([col(f"wheel{i}_steer_rad", 0.0) for i in range(1, n + 1)])
-    cur = np.column_stack([col(f"wheel{i}_current_a") for i in range(1, n + 1)])
+    omega = np.column_stack([col(wheel_col("omega", i)) for i in range(1, n + 1)])
+    steer = np.column_stack([col(wheel_col("steer", i), 0.0) for i in range(1, n + 1)])
+    cur = np.column_stack([col(wheel_col("current", i)) for i in range(1, n + 1)])
     terrain = df["terrain"].to_numpy() if "terrain" in df else None
     has_gt = "gt_vx_mps" in df
-    has_slip = f"gt_slip1" in df
-    has_state = f"gt_state1" in df
+    has_slip = "gt_slip1" in df
+    has_state = "gt_state1" in df
     last_label, last_label_t = None, -1e9
     with RosMcapWriter(path, n, start_time_ns=start_time_ns) as w:
         for k in range(len(df)):

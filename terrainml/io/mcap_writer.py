@@ -25,10 +25,12 @@ Message conventions (documented for users reproducing them on a robot)
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Sequence
 
 from mcap_ros2.writer import Writer
+from rosbags.typesys import Stores, get_typestore
 
 from terrainml.io import cdr, topics
 
@@ -38,8 +40,6 @@ _ZERO36 = [0.0] * 36
 
 def msgdef(datatype: str) -> str:
     """Concatenated ROS 2 message definition text for ``datatype`` (e.g. sensor_msgs/msg/Imu)."""
-    from rosbags.typesys import Stores, get_typestore
-
     text, _ = get_typestore(Stores.ROS2_HUMBLE).generate_msgdef(datatype, ros_version=2)
     return text
 
@@ -182,8 +182,6 @@ class RosMcapWriter:
 
     def write_ground_truth(self, t_s: float, x_m: float, y_m: float, yaw_rad: float,
                            vx_mps: float, vy_mps: float, yaw_rate_radps: float) -> None:
-        import math
-
         half = 0.5 * yaw_rad
         self.write_odometry(topics.SIM_GROUND_TRUTH, t_s, (x_m, y_m, 0.0),
                             (0.0, 0.0, math.sin(half), math.cos(half)),

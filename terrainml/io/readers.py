@@ -21,20 +21,29 @@ from __future__ import annotations
 
 import os
 import struct
-import zlib
 from dataclasses import dataclass, field
+from io import BytesIO
 from pathlib import Path
 from typing import Callable
 
+import lz4.frame
 import numpy as np
+import zstandard
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import get_chunk_data_stream
+from rosbags.highlevel import AnyReader
 
 from terrainml.io import cdr
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 BAG_MAGIC = b"#ROSBAG V2.0"
-_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_MSG_INDEX, _OP_FOOTER, _OP_DATA_END = 3, 4, 5, 6, 7, 2, 15
-_HDR = struct.Struct("<BQ")
-_MSG = struct.Struct("<HIQQ")
+_HDR = struct.Struct("<BQ")            # MCAP record framing: opcode, body length
+_MSG_HDR = struct.calcsize("<HIQQ")    # Message body before its data: channel, sequence, log/publish time
+_COMPRESSIONS = ("", "zstd", "lz4")
+_DAMAGE = (McapError, struct.error, UnicodeDecodeError)   # what parsing a damaged record raises
 
 
 class LogReadError(ValueError):
@@ -96,38 +105,38 @@ def sniff_format(path: Path) -> str:
 
 
 # ----------------------------------------------------------------------------- MCAP
-def _str(buf: bytes, p: int) -> tuple[str, int]:
-    n = struct.unpack_from("<I", buf, p)[0]
-    return buf[p + 4:p + 4 + n].decode("utf-8", "replace"), p + 4 + n
+def _record(record_type, body: bytes, *args):
+    """One ``mcap.records`` record parsed from its body bytes."""
+    return record_type.read(ReadDataStream(BytesIO(body)), *args)
+
+
+def _message_index(body: bytes) -> tuple[int, np.ndarray]:
+    """Channel id and (n, 2) [log time ns, offset] entries of a MessageIndex record: the layout of
+    ``mcap.records.MessageIndex``, its entries read as one array rather than a list of tuples."""
+    stream = ReadDataStream(BytesIO(body))
+    cid, n_bytes = stream.read2(), stream.read4()
+    n = min(n_bytes, len(body) - stream.count) // 16
+    return cid, np.frombuffer(body, "<u8", count=2 * n, offset=stream.count).reshape(-1, 2)
 
 
 def _partial_decompress(compression: str, data: bytes) -> bytes:
     try:
         if compression == "zstd":
-            import zstandard
-
             return zstandard.ZstdDecompressor().decompressobj().decompress(data)
         if compression == "lz4":
-            import lz4.frame
-
             return lz4.frame.LZ4FrameDecompressor().decompress(data)
         return data
     except Exception:  # noqa: BLE001 - whatever came out before the damage is all there is
         return b""
 
 
-def _decompress(compression: str, data: bytes, size: int) -> bytes:
-    if compression == "zstd":
-        import zstandard
-
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == "lz4":
-        import lz4.frame
-
-        return lz4.frame.decompress(data)
-    if compression == "":
-        return data
-    raise ValueError(f"unsupported chunk compression {compression!r}")
+def _chunk_bytes(body: bytes, validate_crc: bool) -> bytes:
+    """The decompressed records of a Chunk record (``mcap.stream_reader`` checks the CRC)."""
+    chunk = _record(Chunk, body)
+    if chunk.compression not in _COMPRESSIONS:
+        raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
+    stream, size = get_chunk_data_stream(chunk, validate_crc=validate_crc)
+    return stream.read(size)   # the whole buffer: no copy
 
 
 class _TopicSink:
@@ -217,42 +226,43 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
     size = os.path.getsize(path)
     schemas: dict[int, str] = {}
     channels: dict[int, _TopicSink] = {}
-    chan_topic: dict[int, tuple[str, int]] = {}
-    pending_bad_chunk = False
 
-    def add_channel(cid: int, topic: str, sid: int) -> None:
-        if cid in channels:
-            return
-        type_name = cdr.normalize_type(schemas.get(sid, ""))
-        kind = wanted(topic, type_name)
-        channels[cid] = _TopicSink(topic, type_name, kind, res, block, use_header_stamp, keep_times, on_part)
+    def add_record(op: int, body: bytes) -> None:
+        """A Message, Schema or Channel record (top level or inside a chunk)."""
+        if op == Opcode.MESSAGE:
+            msg = _record(Message, body, len(body))
+            sink = channels.get(msg.channel_id)
+            if sink is None:
+                res.unattributed_corrupt += 1
+            else:
+                sink.add(msg.data, msg.log_time)
+        elif op == Opcode.SCHEMA:
+            schema = _record(Schema, body)
+            schemas[schema.id] = schema.name
+        elif op == Opcode.CHANNEL:
+            ch = _record(Channel, body)
+            if ch.id not in channels:
+                type_name = cdr.normalize_type(schemas.get(ch.schema_id, ""))
+                channels[ch.id] = _TopicSink(ch.topic, type_name, wanted(ch.topic, type_name), res, block,
+                                             use_header_stamp, keep_times, on_part)
 
-    def handle_records(buf: bytes, start: int, end: int) -> None:
-        p = start
-        while p + 9 <= end:
+    def walk_records(buf: bytes) -> None:
+        """Every record of a decompressed chunk, in order; a record cut short ends the walk."""
+        p, end = 0, len(buf)
+        while p + _HDR.size <= end:
             op, ln = _HDR.unpack_from(buf, p)
-            body = p + 9
+            body = p + _HDR.size
             if body + ln > end:
                 res.truncated = True
                 break
-            if op == _OP_MESSAGE:
-                cid, _seq, log_t, _pub = _MSG.unpack_from(buf, body)
-                sink = channels.get(cid)
-                if sink is None:
-                    res.unattributed_corrupt += 1
-                else:
-                    sink.add(buf[body + 22:body + ln], log_t)
-            elif op == _OP_SCHEMA:
-                sid = struct.unpack_from("<H", buf, body)[0]
-                name, _ = _str(buf, body + 2)
-                schemas[sid] = name
-            elif op == _OP_CHANNEL:
-                cid, sid = struct.unpack_from("<HH", buf, body)
-                topic, _ = _str(buf, body + 4)
-                add_channel(cid, topic, sid)
+            if op in (Opcode.MESSAGE, Opcode.SCHEMA, Opcode.CHANNEL):
+                try:
+                    add_record(op, buf[body:body + ln])
+                except _DAMAGE:
+                    pass   # a damaged record: only it is lost
             p = body + ln
 
-    pending: list = []  # [decompressed chunk, [(channel id, index bytes), ...]] awaiting its indexes
+    pending: list = []  # [decompressed chunk, [(channel id, index entries), ...]] awaiting its indexes
 
     def process_chunk() -> None:
         """Decode the pending chunk: vectorised from its message indexes when it holds only
@@ -261,106 +271,96 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
             return
         buf, indexes = pending
         pending.clear()
-        if indexes and all(cid in channels for cid, _ in indexes):
-            per = []
-            total = 0
-            for cid, rec in indexes:
-                ix = np.frombuffer(rec, dtype="<u8").reshape(-1, 2)
-                if len(ix):
-                    per.append((cid, ix[:, 0].astype(np.int64), ix[:, 1].astype(np.int64)))
-            arr8 = np.frombuffer(buf, dtype=np.uint8)
-            ok = True
-            lens = []
-            for cid, t, off in per:
-                if off.size and int(off.max()) + 31 > len(buf):
-                    ok = False
-                    break
-                ln = arr8[(off + 1)[:, None] + np.arange(8)].copy().view("<u8")[:, 0].astype(np.int64)
-                if not np.all(arr8[off] == _OP_MESSAGE) or np.any(ln < 22) or int((off + 9 + ln).max()) > len(buf):
-                    ok = False
-                    break
-                lens.append(ln)
-                total += int((9 + ln).sum())
-            if ok and total == len(buf):
-                for (cid, t, off), ln in zip(per, lens):
-                    sink = channels[cid]
-                    for L in np.unique(ln):
-                        sel = ln == L
-                        sink.add_view(cdr.RowView(arr8, off[sel] + 31, int(L) - 22), t[sel])
-                return
-        handle_records(buf, 0, len(buf))
-        for sink in channels.values():  # keep decoded parts in file order
-            sink.flush()
+        if not (indexes and all(cid in channels for cid, _ in indexes) and _vectorised(buf, indexes)):
+            walk_records(buf)
+            for sink in channels.values():  # keep decoded parts in file order
+                sink.flush()
 
+    def _vectorised(buf: bytes, indexes: list) -> bool:
+        """Decode a chunk's messages per channel and length at once; False (nothing decoded) when
+        its message indexes do not account for every byte of it."""
+        arr8 = np.frombuffer(buf, dtype=np.uint8)
+        per, total = [], 0
+        for cid, ix in indexes:
+            if not len(ix):
+                continue
+            t, off = ix[:, 0].astype(np.int64), ix[:, 1].astype(np.int64)
+            if int(off.max()) + _HDR.size + _MSG_HDR > len(buf):
+                return False
+            # the record length follows the opcode byte
+            ln = arr8[(off + 1)[:, None] + np.arange(8)].copy().view("<u8")[:, 0].astype(np.int64)
+            if not np.all(arr8[off] == Opcode.MESSAGE) or np.any(ln < _MSG_HDR) or \
+                    int((off + _HDR.size + ln).max()) > len(buf):
+                return False
+            per.append((channels[cid], t, off + _HDR.size + _MSG_HDR, ln - _MSG_HDR))
+            total += int((_HDR.size + ln).sum())
+        if total != len(buf):
+            return False
+        for sink, t, data_off, data_len in per:
+            for n in np.unique(data_len):
+                sel = data_len == n
+                sink.add_view(cdr.RowView(arr8, data_off[sel], int(n)), t[sel])
+        return True
+
+    def read_truncated_tail(op: int, rest: bytes) -> None:
+        """The last record runs past the end of the file: keep what a cut chunk still holds."""
+        res.truncated = True
+        process_chunk()
+        if op == Opcode.CHUNK:
+            try:
+                chunk = _record(Chunk, rest)   # its data: the bytes that are there
+                walk_records(_partial_decompress(chunk.compression, chunk.data))
+            except _DAMAGE:
+                pass
+
+    pending_bad_chunk = False
     with open(path, "rb") as f:
-        if f.read(8) != MCAP_MAGIC:
+        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
             raise LogReadError(f"{path}: not an MCAP file (bad magic)")
-        done = 8
+        done = len(MCAP_MAGIC)
         while True:
-            head = f.read(9)
-            if len(head) < 9:
-                if head or done < size:
-                    res.truncated = True
-                else:
-                    res.truncated = True  # no footer
+            head = f.read(_HDR.size)
+            if len(head) < _HDR.size:
+                res.truncated = True   # cut inside a record header, or no footer
                 break
             op, ln = _HDR.unpack(head)
-            if ln > size - done - 9:
-                # record runs past the end of the file: truncated (or a corrupt length)
-                res.truncated = True
-                process_chunk()
-                rest = f.read()
-                if op == _OP_CHUNK and len(rest) > 32:
-                    try:
-                        comp, p = _str(rest, 28)
-                        data = rest[p + 8:]
-                        buf = _partial_decompress(comp, data)
-                        handle_records(buf, 0, len(buf))
-                    except (struct.error, UnicodeDecodeError):
-                        pass
+            if ln > size - done - _HDR.size:   # runs past the end of the file: truncated (or a corrupt length)
+                read_truncated_tail(op, f.read())
                 break
             body = f.read(ln)
-            done += 9 + ln
+            done += _HDR.size + ln
             if progress is not None:
                 progress(done, size)
-            if op != _OP_MSG_INDEX:
+            if op != Opcode.MESSAGE_INDEX:
                 process_chunk()
-            if op == _OP_CHUNK:
-                pending_bad_chunk = False
+            if op == Opcode.CHUNK:
                 try:
-                    _s, _e, usize, crc = struct.unpack_from("<QQQI", body, 0)
-                    comp, p = _str(body, 28)
-                    clen = struct.unpack_from("<Q", body, p)[0]
-                    data = body[p + 8:p + 8 + clen]
-                    buf = _decompress(comp, data, usize)
-                    if validate_crcs and crc != 0 and zlib.crc32(buf) != crc:
-                        raise ValueError("CRC mismatch")
+                    buf = _chunk_bytes(body, validate_crcs)
                 except Exception as exc:  # noqa: BLE001 - any damage drops this chunk only
                     res.corrupt_chunks += 1
-                    res.warnings.append(f"{path}: corrupt chunk at byte {done - 9 - ln} ({exc}); "
+                    res.warnings.append(f"{path}: corrupt chunk at byte {done - _HDR.size - ln} ({exc}); "
                                         "its messages are counted as corrupt, reading goes on")
                     pending_bad_chunk = True
                     continue
-                pending.extend([buf, []])
-            elif op == _OP_MSG_INDEX:
-                if pending:
-                    cid = struct.unpack_from("<H", body, 0)[0]
-                    n = struct.unpack_from("<I", body, 2)[0]
-                    pending[1].append((cid, body[6:6 + n]))
-                elif pending_bad_chunk:
-                    cid = struct.unpack_from("<H", body, 0)[0]
-                    n = struct.unpack_from("<I", body, 2)[0] // 16
-                    if cid in channels:
-                        channels[cid].stat.corrupt += n
-                    else:
-                        res.unattributed_corrupt += n
-            elif op in (_OP_MESSAGE, _OP_SCHEMA, _OP_CHANNEL):
                 pending_bad_chunk = False
-                handle_records(head + body, 0, 9 + ln)
-            elif op in (_OP_DATA_END, _OP_FOOTER):
+                pending.extend([buf, []])
+            elif op == Opcode.MESSAGE_INDEX:
+                cid, ix = _message_index(body)
+                if pending:
+                    pending[1].append((cid, ix))
+                elif pending_bad_chunk:   # the indexes of a dropped chunk count its lost messages
+                    if cid in channels:
+                        channels[cid].stat.corrupt += len(ix)
+                    else:
+                        res.unattributed_corrupt += len(ix)
+            elif op in (Opcode.DATA_END, Opcode.FOOTER):
                 break
             else:
                 pending_bad_chunk = False
+                try:
+                    add_record(op, body)
+                except _DAMAGE:
+                    pass   # a damaged top-level record: only it is lost
     process_chunk()
     for sink in channels.values():
         sink.flush()
@@ -384,8 +384,6 @@ def read_bag(path: Path, wanted: Callable[[str, str], str | None], *, use_header
 
     ``on_part``: optional ``(topic, one-row part)`` consumer (streaming ingest); see :func:`read_mcap`.
     """
-    from rosbags.highlevel import AnyReader
-
     path = Path(path)
     res = ReadResult(path=path, format="bag")
     parts: dict[str, list] = {}

@@ -3,7 +3,6 @@ file and topic, and gives exit 0 (usable, with warnings) or 2 (not usable) witho
 
 from __future__ import annotations
 
-import shutil
 
 import numpy as np
 import pytest

@@ -16,7 +16,7 @@ from terrainml.io.inspect import inspect_log
 from terrainml.io.mcap_writer import RosMcapWriter
 from terrainml.io.resample import resample
 from terrainml.robot import load_robot
-from terrainml.schema import read_run_parquet, write_run_parquet
+from terrainml.schema import write_run_parquet
 
 
 def handmade_table(n=400, rate=100.0):

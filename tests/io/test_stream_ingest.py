@@ -1,5 +1,6 @@
-"""Bounded-memory ingest (``ingest_to_parquet``, ``terrainml ingest --out``): the chunked Parquet file
-equals the in-memory ``load_run`` table on a log whose awkward spots straddle chunk boundaries."""
+"""The two sinks of the one ingest engine agree: the chunked Parquet file of ``ingest_to_parquet``
+(``terrainml ingest --out``, bounded memory) equals the in-memory ``load_run`` table on a log whose
+awkward spots straddle chunk boundaries (``*_valid`` columns included)."""
 
 from __future__ import annotations
 
@@ -8,10 +9,9 @@ import pytest
 from typer.testing import CliRunner
 
 from terrainml.cli import app
-from terrainml.io import stream_ingest, t265, topics
-from terrainml.io.ingest import load_run
+from terrainml.io import ingest_engine, t265, topics
+from terrainml.io.ingest import ingest_to_parquet, load_run
 from terrainml.io.mcap_writer import RosMcapWriter
-from terrainml.io.stream_ingest import ingest_to_parquet
 from terrainml.schema import read_run_parquet
 
 CHUNK_S = 0.5       # 0.5 s chunks: boundaries at 0.50, 1.00, 1.50, ... s (ticks 0.49 | 0.50)
@@ -77,15 +77,15 @@ def awkward(tmp_path_factory):
     mem = load_run(path)
     out = d / "awkward.parquet"
     with pytest.MonkeyPatch.context() as mp:   # merge every ~60 decoded rows: chunks are emitted while
-        mp.setattr(stream_ingest, "DRAIN_ROWS", 60)  # reading, not only at the end of the file
+        mp.setattr(ingest_engine, "DRAIN_ROWS", 60)  # reading, not only at the end of the file
         emitted_at = []
-        real = stream_ingest._Producer._emit_chunk
+        real = ingest_engine.Producer._emit_chunk
 
         def spy(self, a, b):
             emitted_at.append(self.rows_seen.get(topics.IMU, 0))
             return real(self, a, b)
 
-        mp.setattr(stream_ingest._Producer, "_emit_chunk", spy)
+        mp.setattr(ingest_engine.Producer, "_emit_chunk", spy)
         rep = ingest_to_parquet(path, out, chunk_s=CHUNK_S)
     total_imu = rep.topics[topics.IMU]["decoded"]
     assert len(emitted_at) == 8 and emitted_at[0] < 0.4 * total_imu   # streamed, one row group per chunk
@@ -184,7 +184,6 @@ def test_streamed_gap_threshold_equals_whole_series_median(period_ms):
     """The scan's constant-memory median period == resample.gap_threshold_s on the whole series
     (jittered stamps, duplicates, a mix of periods around the base period, fed in pieces)."""
     from terrainml.io.resample import clean_times, gap_threshold_s
-    from terrainml.io.stream_ingest import _Series
 
     rng = np.random.default_rng(int(period_ms))
     for trial in range(20):
@@ -192,7 +191,7 @@ def test_streamed_gap_threshold_equals_whole_series_median(period_ms):
         steps = rng.choice([period_ms, 10.0, 12.0, 0.0], size=n, p=[0.55, 0.2, 0.2, 0.05])
         t_ns = (np.cumsum(steps + rng.normal(0, 0.3, n) * (steps > 0)) * 1e6).astype(np.int64)
         t_ns = np.maximum.accumulate(t_ns) + 1_700_000_000_000_000_000
-        s = _Series(base_ns=1e9 / 100.0)
+        s = ingest_engine.Series(base_ns=1e9 / 100.0)
         for piece in np.array_split(t_ns, int(rng.integers(1, 6))):
             s.add(piece)
         order, _, dups = clean_times(t_ns)

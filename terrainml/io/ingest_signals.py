@@ -1,0 +1,189 @@
+"""Canonical-column signals of a decoded log source, and the run table they resample into (design §5).
+
+A *signal* is one canonical column sampled at a source's own stamps (seconds from the log's first
+message) with its resampling method and gap threshold. :func:`signals_for` turns a time slice of a
+decoded source (a :mod:`terrainml.io.cdr` part) into signals; :func:`assemble` resamples signals
+onto a slice of the base-rate grid and adds the ``{group}_valid`` columns. The ingest engine
+(:mod:`terrainml.io.ingest_engine`) calls both chunk by chunk; CSV/Parquet tables call
+:func:`assemble` once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.spatial.transform import Rotation
+
+from terrainml.io import t265
+from terrainml.io.resample import resample
+from terrainml.io.topicmap import Source, TopicMap
+from terrainml.robot import RobotSpec
+from terrainml.schema import VALID_GROUPS, WHEEL_STATES, column_map, valid_column, wheel_col
+
+# columns that do not take part in their group's validity
+_NOT_IN_VALIDITY = {"imu_yaw_rad", "imu_roll_rate_radps", "imu_pitch_rate_radps", "cam_confidence"}
+PREVIOUS_COLUMNS = ("_omega_radps", "_steer_rad")   # sample-and-hold by default (joint_state)
+# optional columns a log table always carries (NaN, group invalid, when the source is absent)
+_ALWAYS = {"cam_vx_mps", "cam_vy_mps", "cam_yaw_rate_radps", "cam_yaw_rad",
+           "cmd_vx_mps", "cmd_vy_mps", "cmd_yaw_rate_radps"}
+
+
+@dataclass
+class Signal:
+    column: str
+    t_s: np.ndarray                  # (n,) sorted unique stamps, s from the log's first message
+    values: np.ndarray               # (n,)
+    method: str                      # resample method: linear, previous, angle
+    max_gap_s: float
+    extra_invalid: np.ndarray | None = None   # (n,) per-sample flag (e.g. low camera confidence)
+
+
+@dataclass
+class SourceFacts:
+    """Whole-log facts of one source that a time slice of it cannot tell (taken by the scan)."""
+
+    gap_s: float                          # gap threshold of the source's stamps
+    imu_orientation: bool = True          # the IMU ever publishes an orientation
+    cam_yaw0_rad: float | None = None     # raw T265 yaw of the first valid pose
+
+
+@dataclass
+class JointColumn:
+    """One canonical column of a joint_state source: which joint and message field feed it."""
+
+    column: str
+    joint: str
+    field: str                            # position, velocity or effort
+    method: str
+
+
+def joint_columns(src: Source, n_wheels: int) -> list[JointColumn]:
+    """Columns of a joint_state source in topic-map order (``{i}`` templates expanded per wheel)."""
+    cols = []
+    for template, spec in src.columns.items():
+        for i in range(1, n_wheels + 1) if "{i}" in template else [None]:
+            col = template.replace("{i}", str(i)) if i else template
+            joint = spec["joint"].replace("{i}", str(i)) if i else spec["joint"]
+            method = spec.get("resample", "previous" if col.endswith(PREVIOUS_COLUMNS) else "linear")
+            cols.append(JointColumn(col, joint, spec["field"], method))
+    return cols
+
+
+def imu_rotation(robot: RobotSpec, tmap: TopicMap) -> Rotation:
+    m = tmap.imu_mount
+    if m == "robot":
+        m = {"roll_rad": robot.imu.roll_rad, "pitch_rad": robot.imu.pitch_rad, "yaw_rad": robot.imu.yaw_rad}
+    return Rotation.from_euler("xyz", [m["roll_rad"], m["pitch_rad"], m["yaw_rad"]])
+
+
+def _yaw_of(q: np.ndarray, min_norm: float, rot: Rotation | None = None) -> np.ndarray:
+    """Yaw (ZYX) of quaternions (n, 4) xyzw; NaN where a quaternion is non-finite or ~zero."""
+    ok = np.isfinite(q).all(axis=1) & (np.linalg.norm(np.nan_to_num(q), axis=1) > min_norm)
+    r = Rotation.from_quat(np.where(ok[:, None], q, [0.0, 0.0, 0.0, 1.0]))
+    return np.where(ok, (r if rot is None else r * rot.inv()).as_euler("ZYX")[:, 0], np.nan)
+
+
+def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap: TopicMap,
+                facts: SourceFacts) -> list[Signal]:
+    """Canonical-column signals of one sorted time slice ``part`` of a (non joint_state) source."""
+    sig: list[Signal] = []
+
+    def add(col, values, method="linear", extra=None):
+        sig.append(Signal(col, t_s, np.asarray(values, float), method, facts.gap_s, extra))
+
+    kind = src.kind
+    if kind == "imu":
+        rot = imu_rotation(robot, tmap)
+        acc = rot.apply(part["accel"])
+        gyr = rot.apply(part["gyro"])
+        for j, axis in enumerate("xyz"):
+            add(f"imu_a{axis}_mps2", acc[:, j])
+        for j, name in enumerate(("roll", "pitch", "yaw")):
+            add(f"imu_{name}_rate_radps", gyr[:, j])
+        # an IMU without orientation publishes identity (or zeros) throughout: no yaw column then
+        if src.options.get("yaw_from_orientation", True) and facts.imu_orientation:
+            add("imu_yaw_rad", _yaw_of(part["orientation"], 1e-6, rot), "angle")
+    elif kind == "t265_odometry":
+        out = t265.t265_odometry_to_body(part["position"], part["orientation"], part["linear"],
+                                         part["angular"])
+        conf = part["cov0"]
+        min_conf = src.options.get("min_confidence", 2)
+        low = None if min_conf is None else ~(conf >= float(min_conf))
+        add("cam_vx_mps", out["vx_mps"], extra=low)
+        add("cam_vy_mps", out["vy_mps"], extra=low)
+        add("cam_yaw_rate_radps", out["yaw_rate_radps"], extra=low)
+        yaw = out["yaw_rad"] if facts.cam_yaw0_rad is None else \
+            t265.wrap_angle(out["yaw_raw_rad"] - facts.cam_yaw0_rad)
+        add("cam_yaw_rad", yaw, "angle", extra=low)
+        add("cam_confidence", conf, "previous")
+    elif kind == "ground_truth":
+        add("gt_x_m", part["position"][:, 0])
+        add("gt_y_m", part["position"][:, 1])
+        add("gt_yaw_rad", _yaw_of(part["orientation"], 1e-9), "angle")
+        add("gt_vx_mps", part["linear"][:, 0])
+        add("gt_vy_mps", part["linear"][:, 1])
+        add("gt_yaw_rate_radps", part["angular"][:, 2])
+    elif kind == "diff_drive_odometry":
+        v, w = part["linear"][:, 0], part["angular"][:, 2]
+        track = 2.0 * float(np.mean([abs(wh.y_m) for wh in robot.wheels]))
+        for i, wh in enumerate(robot.wheels, start=1):
+            side = -1.0 if wh.y_m > 0 else 1.0          # left wheels: v - w * track / 2
+            add(wheel_col("omega", i), (v + side * w * track / 2.0) / robot.wheel_radius_m)
+            add(wheel_col("steer", i), np.zeros_like(v))
+    elif kind == "twist":
+        for col, fld in src.columns.items():
+            grp, axis = fld.split(".")
+            add(col, part[grp][:, "xyz".index(axis)])
+    elif kind == "label":
+        add("terrain", part["data"], "previous")
+        sig[-1].max_gap_s = np.inf
+    return sig
+
+
+def assemble(signals: list[Signal], grid: np.ndarray, robot: RobotSpec) -> pd.DataFrame:
+    """Resample ``signals`` onto ``grid`` (m,) s: the canonical columns, each ``{group}_valid``."""
+    spec = column_map(robot.n_wheels)
+    data: dict[str, np.ndarray] = {"t_s": grid}
+    col_valid: dict[str, np.ndarray] = {}
+    while signals:
+        s = signals.pop(0)  # release each source signal once resampled (bounded peak memory)
+        held = s.column.startswith("gt_state") or s.column == "terrain"
+        out, valid = resample(s.t_s, s.values, grid, method="previous" if held else s.method,
+                              max_gap_s=s.max_gap_s)
+        if s.extra_invalid is not None and len(s.t_s):
+            low, _ = resample(s.t_s, s.extra_invalid.astype(float), grid, method="previous", max_gap_s=np.inf)
+            valid = valid & ~(low > 0.5)
+        data[s.column] = out
+        col_valid[s.column] = valid
+    m = len(grid)
+    for i, wh in enumerate(robot.wheels, start=1):   # fixed wheels: steering is known to be zero
+        c = wheel_col("steer", i)
+        if c not in data and not wh.steerable:
+            data[c] = np.zeros(m)
+            col_valid[c] = np.ones(m, bool)
+    for c in spec.values():
+        if (c.required or c.name in _ALWAYS) and c.name not in data:
+            data[c.name] = np.full(m, np.nan)
+            col_valid[c.name] = np.zeros(m, bool)
+    for g in VALID_GROUPS:  # every group gets its validity column (False when the group is absent)
+        members = [c for c in col_valid if c in spec and spec[c].group == g and c not in _NOT_IN_VALIDITY
+                   and not c.endswith("_cmd_omega_radps")]
+        data[valid_column(g).name] = (np.logical_and.reduce([col_valid[c] for c in members]) if members
+                                      else np.zeros(m, bool))
+    if "terrain" in data:
+        t = data["terrain"]
+        data["terrain"] = np.where(np.isfinite(t), np.nan_to_num(t, nan=-1), -1).astype(np.int64)
+    for c in [c for c in data if c.startswith("gt_state")]:
+        data[c] = _codes_to_states(data[c])
+    ordered = [c.name for c in spec.values() if c.name in data]
+    ordered += [k for k in data if k not in ordered]
+    return pd.DataFrame({k: data.pop(k) for k in ordered}, copy=False)
+
+
+def _codes_to_states(codes: np.ndarray) -> np.ndarray:
+    """``/sim/wheel_state`` codes (``topics.WHEEL_STATE_CODES``, WHEEL_STATES order) -> names."""
+    names = np.array(list(WHEEL_STATES) + ["unknown"], dtype=object)
+    idx = np.where(np.isfinite(codes), np.nan_to_num(codes, nan=4), 4).astype(int)
+    return names[np.where((idx >= 0) & (idx < 4), idx, 4)]
