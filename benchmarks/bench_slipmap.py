@@ -11,10 +11,11 @@ import time
 
 import numpy as np
 
+from terrainml.experiments.slipmap_laps import ExperimentConfig, run_experiment
+from terrainml.slipmap import SlipMap, SlipMapConfig, merge_maps
+
 
 def _merge_vs_central(n_robots: int = 5, n_per_robot: int = 4000) -> tuple[float, float, float]:
-    from terrainml.slipmap import SlipMap, SlipMapConfig, merge_maps
-
     rng = np.random.default_rng(0)
     cfg = SlipMapConfig(input_scale_radps=8.0)
     data = []
@@ -33,8 +34,6 @@ def _merge_vs_central(n_robots: int = 5, n_per_robot: int = 4000) -> tuple[float
 
 
 def run(quick: bool = False) -> str:
-    from terrainml.experiments.slipmap_laps import ExperimentConfig, run_experiment
-
     robots, laps = (3, 3) if quick else (5, 5)
     t0 = time.perf_counter()
     res = run_experiment(ExperimentConfig(n_robots=robots, n_laps=laps, seed=0))

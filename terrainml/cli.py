@@ -1,17 +1,20 @@
 """terrainml command line (typer + rich). Every command has ``--help`` with an example.
 
-Sub-apps are registered by their modules' owners below; each import is local to its command so
-``terrainml --help`` stays fast.
+Sub-apps are registered from :data:`terrainml.commands.AREAS`, one module per area. The command
+modules and ``demo`` import the heavy parts of the package (simulator, slip maps, models: seconds,
+torch comes in through skops) inside their commands, so ``terrainml --help`` stays fast.
 """
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 
 import typer
 from rich.console import Console
 
 from terrainml import __version__
+from terrainml.commands import AREAS
 
 app = typer.Typer(
     name="terrainml",
@@ -36,21 +39,13 @@ def demo(out: Path = typer.Option(Path("runs/demo"), help="Output folder for the
 
     Example: ``terrainml demo --out runs/demo``
     """
-    from terrainml.demo import run_demo
+    from terrainml.demo import run_demo  # lazy: importing the whole chain takes seconds
 
     run_demo(out, seed=seed, console=console)
 
 
-def _register_areas() -> None:
-    import importlib
-
-    from terrainml.commands import AREAS
-
-    for area in AREAS:
-        importlib.import_module(f"terrainml.commands.{area}").register(app)
-
-
-_register_areas()
+for _area in AREAS:
+    importlib.import_module(f"terrainml.commands.{_area}").register(app)
 
 
 def main() -> None:  # pragma: no cover - console entry

@@ -23,9 +23,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 from rich.table import Table
 
+from terrainml.io.ingest import load_run, write_run_mcap
+from terrainml.io.inspect import inspect_log
+from terrainml.pipeline.dataset import build_dataset, write_windows
+from terrainml.pipeline.train import train
 from terrainml.robot import RobotSpec, load_robot
+from terrainml.schema import write_run_parquet
+from terrainml.sim.generate import generate_dataset, simulate, write_run
+from terrainml.stream.runner import replay_summary
 
 
 def handmade_run_table(robot: RobotSpec, seed: int = 0, seconds: float = 20.0,
@@ -69,20 +77,14 @@ def handmade_run_table(robot: RobotSpec, seed: int = 0, seconds: float = 20.0,
 
 
 def step_write_mcap(table: pd.DataFrame, robot: RobotSpec, path: Path) -> Path:
-    from terrainml.io.ingest import write_run_mcap
-
     return write_run_mcap(table, path, robot)
 
 
 def step_inspect(path: Path) -> dict:
-    from terrainml.io.inspect import inspect_log
-
     return inspect_log(path)
 
 
 def step_ingest(path: Path, robot: RobotSpec):
-    from terrainml.io.ingest import load_run
-
     return load_run(path, robot=robot)
 
 
@@ -106,8 +108,6 @@ DEMO_COURSE_DURATION_S = 120.0
 
 def step_contract(out: Path, robot: RobotSpec, seed: int, console: Console) -> None:
     """1. hand-made table -> MCAP -> inspect -> ingest (the data contract)."""
-    from terrainml.schema import write_run_parquet
-
     table = handmade_run_table(robot, seed=seed)
     mcap_path = step_write_mcap(table, robot, out / "handmade.mcap")
     info = step_inspect(mcap_path)
@@ -117,8 +117,6 @@ def step_contract(out: Path, robot: RobotSpec, seed: int, console: Console) -> N
 
 
 def _progress(console: Console):
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
-
     return Progress("[progress.description]{task.description}", BarColumn(), MofNCompleteColumn(),
                     TimeElapsedColumn(), console=console, transient=False)
 
@@ -126,8 +124,6 @@ def _progress(console: Console):
 def step_simulate(out: Path, seed: int, console: Console, runs_per_class: int = DEMO_RUNS_PER_CLASS,
                   duration_s: float = DEMO_RUN_DURATION_S, n_jobs: int = 2) -> Path:
     """2. a small labelled dataset from the simulator (ROS 2 MCAP logs plus index.csv)."""
-    from terrainml.sim.generate import generate_dataset
-
     logs = out / "logs"
     with _progress(console) as bar:
         task = bar.add_task("simulate labelled runs", total=runs_per_class * 8)
@@ -138,8 +134,6 @@ def step_simulate(out: Path, seed: int, console: Console, runs_per_class: int = 
 
 def step_build(logs: Path, out: Path, robot: RobotSpec, console: Console, n_jobs: int = 2):
     """3. ingest -> EKF -> slip/state -> steady windows, with the rejection counts."""
-    from terrainml.pipeline.dataset import build_dataset, write_windows
-
     with _progress(console) as bar:
         task = bar.add_task("build windows", total=None)
         ds = build_dataset(logs, robot, n_jobs=n_jobs,
@@ -153,8 +147,6 @@ def step_build(logs: Path, out: Path, robot: RobotSpec, console: Console, n_jobs
 
 def step_train(ds, out: Path, seed: int, console: Console, folds: int = 5) -> Path:
     """4. SVM, grouped CV by run, report and artifact."""
-    from terrainml.pipeline.train import train
-
     model_dir = out / "model"
     with console.status("training SVM (grouped cross-validation by run)..."):
         res = train(ds, model_dir, models=("svm",), folds=folds, seed=seed, n_jobs=2, ablation=False,
@@ -171,16 +163,12 @@ def step_train(ds, out: Path, seed: int, console: Console, folds: int = 5) -> Pa
 
 def step_course(out: Path, seed: int, duration_s: float = DEMO_COURSE_DURATION_S) -> Path:
     """5a. a held-out mixed-terrain course (a seed the training set never used)."""
-    from terrainml.sim.generate import simulate, write_run
-
     res = simulate(None, "mixed", speed_mps=0.8, duration_s=duration_s, seed=10_000 + seed)
     return write_run(res, out / "course.mcap", "demo_course")
 
 
 def step_serve(model_dir: Path, course: Path, console: Console) -> list[dict]:
     """5b. replay the course through the online predictor; print what it served."""
-    from terrainml.stream.runner import replay_summary
-
     segments = replay_summary(model_dir, course, console=console)
     classified = [s for s in segments if not s.get("fallback_reason") and s.get("true_class") is not None]
     n = sum(s["ticks"] for s in classified)

@@ -1,4 +1,8 @@
-"""CLI of the control area: ``terrainml control closed-loop`` (SYSTEM §12, §15)."""
+"""CLI of the control area: ``terrainml control closed-loop`` (SYSTEM §12, §15).
+
+The controller (online predictor, models) and the simulator are imported inside the command so
+that ``terrainml --help`` stays fast.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +11,11 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.console import Console
+from rich.progress import Progress
+
+from terrainml.classes import class_id
+from terrainml.robot import load_robot
 
 control_app = typer.Typer(help="Traction control in the simulator.", no_args_is_help=True)
 
@@ -27,19 +36,18 @@ def closed_loop(
     duration_s: float = typer.Option(60.0, "--duration-s", help="Simulated duration, s."),
     seed: int = typer.Option(0, "--seed", help="Seed of the terrain draw and sensor noise."),
     speed_mps: float = typer.Option(1.0, "--speed-mps", help="Commanded cruise speed, m/s."),
-    kp: Optional[float] = typer.Option(None, "--kp", help="Slip PID proportional gain, rad/s per unit slip (default: tuned)."),
-    ki: Optional[float] = typer.Option(None, "--ki", help="Slip PID integral gain, rad/s per (unit slip s) (default: tuned)."),
-    thesis_pid: bool = typer.Option(False, "--thesis-pid", help="Thesis P controller (Kp 1, two-sided, no feed-forward)."),
-    scenario: str = typer.Option("straight", "--scenario", help="straight (1 m/s^2 start, cruise, brake) or step_stop_and_go (speed steps, hard starts)."),
+    kp: Optional[float] = typer.Option(None, "--kp", help="Slip PID proportional gain, rad/s per unit slip "
+                                       "(default: tuned)."),
+    ki: Optional[float] = typer.Option(None, "--ki", help="Slip PID integral gain, rad/s per (unit slip s) "
+                                       "(default: tuned)."),
+    thesis_pid: bool = typer.Option(False, "--thesis-pid", help="Thesis P controller (Kp 1, two-sided, "
+                                    "no feed-forward)."),
+    scenario: str = typer.Option("straight", "--scenario", help="straight (1 m/s^2 start, cruise, brake) or "
+                                 "step_stop_and_go (speed steps, hard starts)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Write the JSON report here."),
 ) -> None:
-    from rich.console import Console
-    from rich.progress import Progress
-
-    from terrainml.classes import class_id
     from terrainml.control.pid import SlipPIDConfig
     from terrainml.control.traction import POLICIES, tuned_config
-    from terrainml.robot import load_robot
     from terrainml.experiments.closed_loop import SCENARIOS, run_closed_loop
 
     console = Console(stderr=True, soft_wrap=True)

@@ -1,6 +1,7 @@
 """CLI of the simulator area: ``terrainml sim generate`` and ``terrainml sim plot``.
 
-Bad input gives a clear message and exit code 2, never a traceback.
+Bad input gives a clear message and exit code 2, never a traceback. The simulator (numba kernels)
+and matplotlib are imported inside the commands so that ``terrainml --help`` stays fast.
 """
 
 from __future__ import annotations
@@ -10,6 +11,10 @@ from typing import Optional
 
 import typer
 from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from terrainml.classes import class_id
+from terrainml.robot import RobotSpecError, load_robot
 
 console = Console(stderr=True, soft_wrap=True)
 sim_app = typer.Typer(name="sim", help="Simulate the reference robot on the eight terrain classes "
@@ -47,10 +52,6 @@ def generate(
 
     Example (dataset): ``terrainml sim generate --runs-per-class 4 --seed 0 --out runs/simdata --n-jobs 2``
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    from terrainml.classes import class_id
-    from terrainml.robot import RobotSpecError, load_robot
     from terrainml.sim.scenarios import SCENARIOS
 
     try:

@@ -1,4 +1,8 @@
-"""CLI: ``terrainml slipmap fit|merge|experiment`` (SYSTEM §13, the IRLS paper)."""
+"""CLI: ``terrainml slipmap fit|merge|experiment`` (SYSTEM §13, the IRLS paper).
+
+The slip maps (statsmodels), run tables (pyarrow) and the experiment are imported inside the
+commands so that ``terrainml --help`` stays fast.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +12,10 @@ from typing import List, Optional
 
 import typer
 from rich.console import Console
+from rich.progress import Progress
+from rich.table import Table
+
+from terrainml.robot import RobotSpec, RobotSpecError, load_robot
 
 console = Console(stderr=True, soft_wrap=True)
 slipmap_app = typer.Typer(help="Slip maps (IRLS paper): per-terrain robust slippage estimators, "
@@ -34,11 +42,8 @@ def _load_tables(directory: Path):
             except SchemaError as exc:
                 _fail(str(exc))
         else:
-            try:
-                from terrainml.io.ingest import load_run
-            except ImportError:
-                _fail(f"{f}: reading {f.suffix} logs needs terrainml.io.ingest (not available); "
-                      "convert to Parquet with `terrainml ingest` first")
+            from terrainml.io.ingest import load_run
+
             res = load_run(f)
             if not res.report.usable:
                 _fail(f"{f}: log not usable ({res.report})")
@@ -59,10 +64,9 @@ def fit_cmd(directory: Path = typer.Argument(..., help="Folder of run tables (.p
 
     Example: ``terrainml slipmap fit runs/husky_tables --out runs/maps/husky1.json --robot husky``
     """
-    from terrainml.robot import RobotSpec, RobotSpecError, load_robot
     from terrainml.slipmap.fit import SlipFitError, fit_slip_map
-    from terrainml.slipmap.slipmap import SlipMapConfig
     from terrainml.slipmap.kinematics import side_geometry
+    from terrainml.slipmap.slipmap import SlipMapConfig
 
     if not directory.is_dir():
         _fail(f"{directory}: not a folder")
@@ -118,8 +122,6 @@ def experiment_cmd(robots: int = typer.Option(5, help="Robots on the path (paper
 
     Example: ``terrainml slipmap experiment --robots 5 --laps 5 --seed 0 --out runs/slipmap/report.json``
     """
-    from rich.progress import Progress
-
     from terrainml.experiments.slipmap_laps import ExperimentConfig, run_experiment, write_report
 
     if robots < 1 or laps < 2:
@@ -133,8 +135,6 @@ def experiment_cmd(robots: int = typer.Option(5, help="Robots on the path (paper
                                                                       description=f"method {m}"))
     path_json, png = write_report(result, out)
     errs = result.report["mean_tracking_error_m"]
-    from rich.table import Table
-
     table = Table(title="mean tracking error per lap (m)")
     table.add_column("method")
     for i in range(laps):

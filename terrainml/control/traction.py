@@ -51,9 +51,15 @@ from typing import Any, Callable
 import numpy as np
 
 from terrainml.control.pid import SlipPID, SlipPIDConfig
+from terrainml.estimation.ekf import I_VX, I_VY
+from terrainml.estimation.online import OnlineEstimator
+from terrainml.lookup.policy import desired_slip_per_wheel
+from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
+from terrainml.stream.predictor import Predictor
 
-__all__ = ["FIXED_TARGET", "ON_FALLBACK", "POLICIES", "STEADY_TARGETS", "FixedTargetTable", "SlipController", "tuned_config"]
+__all__ = ["FIXED_TARGET", "ON_FALLBACK", "POLICIES", "STEADY_TARGETS", "FixedTargetTable", "SlipController",
+           "tuned_config"]
 
 POLICIES = ("none", "fixed", "terrain-aware")
 STEADY_TARGETS = ("peak", "served")
@@ -132,21 +138,13 @@ class SlipController:
         self.true_class = true_class
         self.table: Any = None
         if policy == "terrain-aware" and model is not None:
-            from terrainml.stream.predictor import Predictor
-
             self.predictor = Predictor.from_model_dir(model, robot=robot, preset=preset)
         elif policy != "none":
-            from terrainml.estimation.online import OnlineEstimator
-
             self.estimator = OnlineEstimator(robot, preset, has_imu_yaw=False)
         if policy == "fixed":
             self.table = FixedTargetTable()
         elif policy == "terrain-aware" and self.predictor is None:
-            if table is None:
-                from terrainml.lookup.table import DesiredSlipTable
-
-                table = DesiredSlipTable.build(robot)
-            self.table = table
+            self.table = table if table is not None else DesiredSlipTable.build(robot)
         n = robot.n_wheels
         self._cmd_keys = [f"wheel{i}_cmd_omega_radps" for i in range(1, n + 1)]
         self._t_prev: float | None = None
@@ -197,9 +195,6 @@ class SlipController:
     def __call__(self, sample: dict) -> np.ndarray | None:
         if self.policy == "none":
             return None
-        from terrainml.estimation.ekf import I_VX, I_VY
-        from terrainml.lookup.policy import desired_slip_per_wheel
-
         s = self._prepare(sample)
         t = float(s["t_s"])
         dt = 0.01 if self._t_prev is None else t - self._t_prev

@@ -32,6 +32,7 @@ import numpy as np
 from terrainml.classes import class_id
 from terrainml.control.pid import SlipPIDConfig
 from terrainml.control.traction import POLICIES, SlipController
+from terrainml.lookup import terramechanics as tm
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.sim import physics as ph
 from terrainml.sim.control import inverse_kinematics
@@ -64,8 +65,6 @@ def closed_loop_hook(sim: Simulator, controller: Callable[[dict], Any]) -> Calla
 
 def tractive_efficiency(res: SimResult) -> float:
     """Time mean of eta = (DP/H)(1 - s) over wheels in traction (H > 0, moving >= 0.2 m/s)."""
-    from terrainml.lookup import terramechanics as tm
-
     rb = res.robot
     rows = np.arange(0, len(res.log), 10)  # 20 Hz is plenty for a mean
     slip = res.true_slip()[rows]

@@ -8,8 +8,8 @@
   file additionally by the estimation and feature sources, so a change there rebuilds only the
   windows. Cache folder: ``$TERRAINML_CACHE`` or ``~/.cache/terrainml``.
 
-This lives in ``sim`` (not ``features``) because it drives the simulator: nothing in the
-io -> estimation -> features -> models chain imports ``sim``.
+This lives in ``experiments`` (not ``features`` or ``sim``) because it drives both the simulator
+and the dataset pipeline: nothing in the io -> estimation -> features -> models chain imports it.
 """
 
 from __future__ import annotations
@@ -20,7 +20,11 @@ import os
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from terrainml.features.windows import Windows, WindowSpec
+from terrainml.pipeline.dataset import build_dataset, read_windows, write_windows
+from terrainml.sim.generate import generate_dataset
 
 __all__ = ["load_recipe", "simulated_dataset", "simulated_windows", "RECIPES_DIR"]
 
@@ -41,8 +45,6 @@ def load_recipe(recipe: str | Path = "sim_default") -> dict:
     if p.suffix not in (".yaml", ".yml"):
         p = RECIPES_DIR / f"{recipe}.yaml"
     if p.is_file():
-        import yaml
-
         doc = yaml.safe_load(p.read_text())
         if not isinstance(doc, dict):
             raise ValueError(f"{p}: a dataset recipe must be a mapping")
@@ -82,8 +84,6 @@ def simulated_dataset(recipe: str | Path | dict = "sim_default", *, runs_per_cla
     -------
     terrainml.pipeline.dataset.Dataset
     """
-    from terrainml.pipeline.dataset import build_dataset, read_windows as _read, write_windows
-
     r = dict(recipe) if isinstance(recipe, dict) else load_recipe(recipe)
     for k, v in (("runs_per_class", runs_per_class), ("seed", seed), ("duration_s", duration_s), ("format", fmt)):
         if v is not None:
@@ -97,11 +97,9 @@ def simulated_dataset(recipe: str | Path | dict = "sim_default", *, runs_per_cla
     folder = root / f"{r.get('name', 'sim')}_{recipe_key}_{_code_hash(('sim', 'lookup', 'io'))}"
     windows_path = folder / f"windows_{_code_hash()}.parquet"
     if windows_path.is_file():
-        return _read(windows_path)
+        return read_windows(windows_path)
     logs = folder / "logs"
     if not (logs / "index.csv").is_file():
-        from terrainml.sim.generate import generate_dataset  # noqa: PLC0415
-
         generate_dataset(logs, int(r["runs_per_class"]), int(r["seed"]), n_jobs=n_jobs,
                          duration_s=r.get("duration_s"), fmt=r.get("format", "mcap"), robot=r.get("robot"),
                          progress=(lambda d, t: progress("simulate", d, t)) if progress else None)

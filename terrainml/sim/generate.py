@@ -12,8 +12,10 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from joblib import Parallel, delayed
 
 from terrainml.classes import TERRAIN_CLASSES, class_id
+from terrainml.sim.output import write_mcap, write_parquet
 from terrainml.sim.scenarios import LABELLED_SCENARIOS, make_scenario
 from terrainml.sim.simulator import SimResult, Simulator
 
@@ -33,8 +35,6 @@ def simulate(terrain, scenario: str = "straight", *, speed_mps: float = 1.0, dur
 
 
 def write_run(res: SimResult, path: Path, run_id: str | None = None) -> Path:
-    from terrainml.sim.output import write_mcap, write_parquet
-
     path = Path(path)
     if path.suffix == ".parquet":
         return write_parquet(res, path, run_id)
@@ -87,8 +87,6 @@ def generate_dataset(out_dir: str | Path, runs_per_class: int, seed: int = 0, *,
 
     ``fmt``: ``mcap`` (ROS 2 logs) or ``parquet`` (canonical run tables, faster).
     """
-    from joblib import Parallel, delayed
-
     if fmt not in ("mcap", "parquet"):
         raise ValueError(f"format must be mcap or parquet, got {fmt!r}")
     out_dir = Path(out_dir)

@@ -11,15 +11,20 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-import pandas as pd
+import matplotlib
 
-from terrainml.sim.truth import slip_sae
+matplotlib.use("Agg")  # files only, no display
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from scipy.signal import lfilter  # noqa: E402
+
+from terrainml.io.ingest import load_run  # noqa: E402
+from terrainml.robot import load_robot  # noqa: E402
+from terrainml.sim.truth import slip_sae  # noqa: E402
 
 
 def _ema(x: np.ndarray, alpha: float) -> np.ndarray:
-    from scipy.signal import lfilter
-
     x = np.nan_to_num(np.asarray(x, float))
     zi = [alpha * x[0]] if len(x) else [0.0]
     return lfilter([1 - alpha], [1, -alpha], x, zi=zi)[0] if len(x) else x
@@ -44,14 +49,6 @@ def measured_slip(table: pd.DataFrame, robot) -> np.ndarray:
 
 def plot_run(path: str | Path, out_dir: str | Path, robot=None) -> list[Path]:
     """Write ``<stem>_slip.png`` (true and measured slip per wheel) and ``<stem>_speed.png``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from terrainml.io.ingest import load_run
-    from terrainml.robot import load_robot
-
     robot = load_robot(robot)
     res = load_run(path, robot=robot)
     if not res.report.usable:

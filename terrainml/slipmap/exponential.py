@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from scipy.optimize import curve_fit
 
 _MIN_YAW_RATE = 1e-6
 
@@ -69,8 +70,6 @@ class ExponentialSlipModel:
         v_mps, yaw_rate_radps : arrays, shape (n,)  commanded twist of each sample (|omega| > 0).
         beta_left_mps, beta_right_mps, alpha_rad : arrays, shape (n,)  measured slippage.
         """
-        from scipy.optimize import curve_fit
-
         v = np.asarray(v_mps, float)
         w = np.asarray(yaw_rate_radps, float)
         keep = np.abs(w) > _MIN_YAW_RATE

@@ -21,6 +21,8 @@ import numpy as np
 from sklearn.base import BaseEstimator, RegressorMixin
 from sklearn.preprocessing import PolynomialFeatures
 from sklearn.utils.validation import check_is_fitted
+from statsmodels.robust import norms
+from statsmodels.robust.robust_linear_model import RLM
 
 NORMS = ("huber", "bisquare")
 _DEFAULT_TUNING = {"huber": 1.345, "bisquare": 4.685}
@@ -28,8 +30,6 @@ _DEFAULT_TUNING = {"huber": 1.345, "bisquare": 4.685}
 
 def make_norm(norm: str, tuning: float | None = None):
     """The statsmodels robust norm for ``norm`` ("huber" or "bisquare")."""
-    from statsmodels.robust import norms
-
     if norm not in NORMS:
         raise ValueError(f"norm must be one of {NORMS}, got {norm!r}")
     t = _DEFAULT_TUNING[norm] if tuning is None else float(tuning)
@@ -178,15 +178,13 @@ class IRLSRegressor(RegressorMixin, BaseEstimator):
         y : array, shape (n_samples,)
             Target (e.g. longitudinal slippage, m/s, or slip angle, rad).
         """
-        import statsmodels.api as sm
-
         self._check_params()
         x, y = self._check_xy(X, y)
         feats = polynomial_features(x, int(self.degree), float(self.input_scale))
         if x.shape[0] < feats.shape[1] + 1:
             raise ValueError(f"need more than {feats.shape[1]} samples for degree {self.degree} "
                              f"with {x.shape[1]} inputs, got {x.shape[0]}")
-        res = sm.RLM(y, feats, M=make_norm(self.norm, self.tuning)).fit(
+        res = RLM(y, feats, M=make_norm(self.norm, self.tuning)).fit(
             maxiter=int(self.max_iter), tol=float(self.tol))
         w = np.asarray(res.weights, dtype=float)
         if not np.all(np.isfinite(w)) or w.sum() <= 0:  # degenerate (e.g. zero residual scale)

@@ -11,6 +11,7 @@ that direction, not the body axis, towards the look-ahead point.
 from __future__ import annotations
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 
 class ClosedSplinePath:
@@ -23,8 +24,6 @@ class ClosedSplinePath:
     """
 
     def __init__(self, via_points_m, spacing_m: float = 0.01):
-        from scipy.interpolate import CubicSpline
-
         p = np.asarray(via_points_m, dtype=float)
         if p.ndim != 2 or p.shape[1] != 2 or len(p) < 3:
             raise ValueError("via_points_m must have shape (k >= 3, 2)")

@@ -4,13 +4,11 @@ benchmarks/bench_estimation.py). Skipped when the simulator is not importable.""
 import numpy as np
 import pytest
 
-sim = pytest.importorskip("terrainml.sim")
-output = pytest.importorskip("terrainml.sim.output")
-truth = pytest.importorskip("terrainml.sim.truth")
-
-from terrainml.estimation.consistency import consistency_report, truth_metrics  # noqa: E402
-from terrainml.estimation.dynamic_state import classify_states  # noqa: E402
-from terrainml.estimation.run import estimate_run_detailed  # noqa: E402
+from terrainml import sim
+from terrainml.estimation.consistency import consistency_report, truth_metrics
+from terrainml.estimation.dynamic_state import classify_states
+from terrainml.estimation.run import estimate_run_detailed
+from terrainml.sim import output, truth
 
 
 @pytest.fixture(scope="module")

@@ -8,13 +8,13 @@ import numpy as np
 from typer.testing import CliRunner
 
 from terrainml.cli import app
+from terrainml.io.ingest import load_run
+from terrainml.schema import read_run_parquet
 
 runner = CliRunner()
 
 
 def test_generate_one_run_and_ingest(tmp_path):
-    from terrainml.io.ingest import load_run
-
     out = tmp_path / "grass.mcap"
     r = runner.invoke(app, ["sim", "generate", "--terrain", "short_grass", "--scenario", "straight",
                             "--speed-mps", "1.0", "--duration-s", "4", "--seed", "3", "--out", str(out)])
@@ -28,8 +28,6 @@ def test_generate_one_run_and_ingest(tmp_path):
 
 
 def test_generate_parquet_table(tmp_path):
-    from terrainml.schema import read_run_parquet
-
     out = tmp_path / "sand.parquet"
     r = runner.invoke(app, ["sim", "generate", "--terrain", "dry_sand", "--scenario", "arc", "--duration-s", "3",
                             "--seed", "1", "--out", str(out)])

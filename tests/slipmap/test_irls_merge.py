@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+import statsmodels.api as sm
 
 from terrainml.slipmap import IRLSRegressor, SlipMap, SlipMapConfig, SlipMapError, merge_maps
 from terrainml.slipmap.irls import polynomial_features
@@ -22,8 +23,6 @@ def _robot_data(rng, n, outlier_fraction=0.05):
 
 
 def test_merged_estimate_equals_centralised_weighted_fit():
-    import statsmodels.api as sm
-
     rng = np.random.default_rng(7)
     cfg = SlipMapConfig(input_scale_radps=8.0)
     data = [_robot_data(rng, n) for n in (300, 450, 200)]

@@ -10,8 +10,14 @@ import pytest
 from typer.testing import CliRunner
 
 from terrainml.cli import app
-from terrainml.experiments.closed_loop import run_closed_loop
 from terrainml.control.pid import SlipPIDConfig
+from terrainml.control.traction import SlipController
+from terrainml.estimation.synthetic import kinematic_run
+from terrainml.experiments.closed_loop import closed_loop_hook, run_closed_loop
+from terrainml.robot import load_robot
+from terrainml.sim.generate import simulate
+from terrainml.sim.scenarios import make_scenario
+from terrainml.sim.simulator import Simulator
 
 KEYS = ("energy_j_per_m", "mean_speed_mps", "mean_tractive_efficiency", "stuck_events")
 
@@ -29,8 +35,6 @@ def test_cli_report_has_the_contract_keys(tmp_path):
 
 
 def test_no_control_matches_the_plain_simulator():
-    from terrainml.sim.generate import simulate
-
     rep = run_closed_loop("dry_sand", "none", duration_s=6.0, seed=3)
     plain = simulate(6, "straight", duration_s=6.0, seed=3)  # same scenario and seed, no controller
     assert rep["energy_j_per_m"] == pytest.approx(plain.energy_j / plain.distance_m, rel=1e-9)
@@ -62,10 +66,6 @@ def test_terrain_aware_targets_keep_speed_on_deformable_soil():
 
 def test_hook_gives_the_controller_the_simulators_own_setpoints():
     """The set-points in the controller's sample are those the simulator applies (zero offset)."""
-    from terrainml.experiments.closed_loop import closed_loop_hook
-    from terrainml.sim.scenarios import make_scenario
-    from terrainml.sim.simulator import Simulator
-
     sim = Simulator(make_scenario("arc", "short_grass", speed_mps=0.8, duration_s=12.0,
                                   rng=np.random.default_rng(1)), seed=1)
     seen = []
@@ -91,10 +91,6 @@ def test_predictor_fallback_releases_the_wheels_instead_of_capping_them(model_di
     """Before the first classification the predictor serves its fallback row (pavement, a 0.16
     traction target). A wheel slipping 0.5 on soft soil must then be left alone (capping it at
     0.16 would stall the robot); with on_fallback="serve" the same wheel is pulled back."""
-    from terrainml.control.traction import SlipController
-    from terrainml.estimation.synthetic import kinematic_run
-    from terrainml.robot import load_robot
-
     robot = load_robot()
     table = kinematic_run(robot, duration_s=1.5, seed=4, slip=0.5)
     recs = table[[c for c in table.columns if not c.startswith("gt_")]].to_dict("records")
