@@ -39,11 +39,18 @@ def register(app: typer.Typer) -> None:
         idle_timeout_s: Optional[float] = typer.Option(
             None, "--idle-timeout-s", help="UDP source: stop after this many seconds without a datagram."),
         verbose: bool = typer.Option(False, "--verbose", "-v", help="More log output on stderr."),
+        max_clock_gap_s: float = typer.Option(
+            1.0, "--max-clock-gap-s", min=1e-3,
+            help="Clock policy: a t_s step larger than this (either way) is a clock jump."),
+        reanchor_after: int = typer.Option(
+            5, "--reanchor-after", min=1,
+            help="Clock policy: consistent samples on a new timeline before the stream re-anchors."),
     ) -> None:
         from terrainml.stream.runner import run_predict
 
         code = run_predict(model=model, source=source, sinks=list(sink), realtime=realtime,
                            robot=robot, preset=preset, idle_timeout_s=idle_timeout_s,
-                           verbose=verbose)
+                           verbose=verbose, max_clock_gap_s=max_clock_gap_s,
+                           reanchor_after=reanchor_after)
         if code:
             raise typer.Exit(code)

@@ -21,6 +21,9 @@ import numpy as np
 import pandas as pd
 
 from terrainml.classes import TERRAIN_CLASSES
+from terrainml.features.windows import WindowSpec, cut_windows
+from terrainml.lookup.table import DesiredSlipTable
+from terrainml.models.artifacts import load_artifact
 from terrainml.robot import RobotSpec, load_robot
 
 
@@ -64,8 +67,6 @@ class WindowClassifier:
         self.class_ids = [int(c) for c in ids]
 
     def classify(self, window: pd.DataFrame) -> np.ndarray | None:
-        from terrainml.features.windows import WindowSpec, cut_windows
-
         spec = self.window_spec if self.window_spec is not None else WindowSpec()
         # labels are not known online: never let a logged label gate or inform the window
         drop = [c for c in window.columns if c in ("terrain", "run_id") or c.startswith("gt_")]
@@ -91,10 +92,6 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | str | None = No
     if not model_dir.is_dir():
         raise ModelLoadError(f"{model_dir}: no such model folder (train one with `terrainml train`)")
     try:
-        from terrainml.models.artifacts import load_artifact
-    except ImportError as exc:
-        raise ModelLoadError(f"model artifacts are not available in this install ({exc})") from None
-    try:
         art = load_artifact(model_dir, model_name)
     except Exception as exc:  # noqa: BLE001 - ArtifactError names the file; keep the message
         raise ModelLoadError(str(exc)) from None
@@ -102,11 +99,12 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | str | None = No
     if rb.n_wheels != art.robot.n_wheels:
         raise ModelLoadError(f"{model_dir}: model trained for {art.robot.n_wheels} wheels, robot "
                              f"'{rb.name}' has {rb.n_wheels}")
-    table = art.table
-    if table is None:
-        from terrainml.lookup.table import DesiredSlipTable
-
-        table = DesiredSlipTable.build(rb)
+    stored = art.attachments.get("desired_slip_table.json")  # written by terrainml.pipeline.train
+    try:
+        table = (DesiredSlipTable.from_json(stored.read_text(), robot=art.robot, source=str(stored))
+                 if stored is not None else DesiredSlipTable.build(rb))
+    except ValueError as exc:
+        raise ModelLoadError(str(exc)) from None
     ids = [int(c) for c in art.class_ids]
     names = list(TERRAIN_CLASSES) + [str(i) for i in range(len(TERRAIN_CLASSES), max(ids) + 1)]
     for cid, name in zip(ids, art.class_names or []):

@@ -2,13 +2,14 @@
 
 Rules
 -----
-* **Ordering**: a sample whose ``t_s`` is not finite, equal to the last accepted one (duplicate)
-  or earlier (out of order) is dropped and counted; nothing is emitted for it.
+* **Ordering** of time stamps is the clock policy of :mod:`terrainml.stream.clock`.
 * **Validity**: a sensor group (``wheels``, ``steer``, ``current``, ``imu``, ``cam``, ``cmd``) is
   *fresh* on a tick when all its data columns are present and finite and its ``{group}_valid``
   flag (if the sample carries one) is true. Otherwise the group's columns are set to NaN and
   ``{group}_valid=False`` before the estimator sees the sample (so the EKF drops those rows and
-  never sees a stale or non-finite value).
+  never sees a stale or non-finite value). A value that is not a number (a string, a list, an
+  integer too large for a float, ...) counts as non-finite. Extras pass as finite floats or NaN;
+  ``run_id`` and simulator truth (``gt_*``) may also be strings.
 * **Health**: a monitored group (wheels, current, imu; steer when the robot steers; cam when it
   has a camera) that has not been fresh for more than ``silent_s`` (default 0.2 s) makes the
   estimator unhealthy. Health returns as soon as every monitored group is fresh again.
@@ -20,16 +21,35 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from terrainml.robot import RobotSpec
 from terrainml.schema import VALID_GROUPS, column_map, group_columns
 
+_NAN = float("nan")
+
+
 def _is_finite_number(v: Any) -> bool:
-    if isinstance(v, bool) or v is None:
+    if isinstance(v, (bool, np.ndarray)) or v is None:  # an array is not a number, even of size 1
         return False
     try:
         return math.isfinite(float(v))
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, ArithmeticError):  # ArithmeticError: int beyond float range
         return False
+
+
+def _flag_true(flag: Any) -> bool:
+    """A ``{group}_valid`` flag says valid: True, 1 or 1.0 (never an error, whatever its type)."""
+    if flag is True:
+        return True
+    if isinstance(flag, (int, float, np.number, np.bool_)):
+        return bool(flag == 1)
+    return False
+
+
+def _label(v: Any) -> Any:
+    """``run_id`` / ``gt_*``: a string or a finite number passes, anything else becomes NaN."""
+    return v if isinstance(v, str) or _is_finite_number(v) else _NAN
 
 
 @dataclass
@@ -39,42 +59,22 @@ class InputCounters:
     accepted: int = 0
     duplicate: int = 0
     out_of_order: int = 0
-    bad_time: int = 0
+    bad_time: int = 0       # InvalidSample: no t_s, t_s not a number or not finite
+    not_a_sample: int = 0   # InvalidSample: not a mapping, or a key that is not a str
+    clock_jump: int = 0     # served as clock_jump fallback (off the timeline)
+    reanchors: int = 0      # times the stream re-anchored on a new timeline
     invalid_group_ticks: dict[str, int] = field(default_factory=dict)
 
     @property
     def dropped(self) -> int:
-        return self.duplicate + self.out_of_order + self.bad_time
+        return self.duplicate + self.out_of_order + self.bad_time + self.not_a_sample
 
     def as_dict(self) -> dict[str, Any]:
         return {"accepted": self.accepted, "duplicate": self.duplicate,
                 "out_of_order": self.out_of_order, "bad_time": self.bad_time,
+                "not_a_sample": self.not_a_sample, "clock_jump": self.clock_jump,
+                "reanchors": self.reanchors,
                 "invalid_group_ticks": dict(self.invalid_group_ticks)}
-
-
-class OrderGate:
-    """Drop samples with non-finite, duplicate or decreasing ``t_s`` (counted in ``counters``)."""
-
-    def __init__(self, counters: InputCounters | None = None):
-        self.counters = counters or InputCounters()
-        self.last_t_s: float | None = None
-
-    def accept(self, sample: dict) -> bool:
-        t = sample.get("t_s")
-        if not _is_finite_number(t):
-            self.counters.bad_time += 1
-            return False
-        t = float(t)
-        if self.last_t_s is not None:
-            if t == self.last_t_s:
-                self.counters.duplicate += 1
-                return False
-            if t < self.last_t_s:
-                self.counters.out_of_order += 1
-                return False
-        self.last_t_s = t
-        self.counters.accepted += 1
-        return True
 
 
 class HealthMonitor:
@@ -120,8 +120,8 @@ class HealthMonitor:
         nan = float("nan")
         for g, cols in self.group_cols.items():
             present = [c for c in cols if c in sample]
-            flag = sample.get(f"{g}_valid", True)
-            ok = bool(present) and len(present) == len(cols) and (flag is True or flag == 1)
+            key = f"{g}_valid"
+            ok = bool(present) and len(present) == len(cols) and _flag_true(sample.get(key, True))
             if ok:
                 for c in cols:
                     if not _is_finite_number(sample[c]):
@@ -136,15 +136,17 @@ class HealthMonitor:
                 if (present or g in self.monitored) and self.counters is not None:
                     d = self.counters.invalid_group_ticks
                     d[g] = d.get(g, 0) + 1
-            if present or g in self.monitored:
-                out[f"{g}_valid"] = ok
+            if present or g in self.monitored or key in sample:
+                out[key] = ok
             fresh[g] = ok
         # optional extras (imu_yaw_rad, cam_confidence, commands, ...): finite numbers or NaN;
         # only run_id and simulator truth may carry strings
         for k, v in sample.items():
-            if k.endswith("_valid") or k in ("t_s", "run_id") or k.startswith("gt_"):
+            if k.endswith("_valid") or k == "t_s":
                 continue
-            if k not in self._all_group_cols:
+            if k == "run_id" or k.startswith("gt_"):
+                out[k] = _label(v)
+            elif k not in self._all_group_cols:
                 out[k] = float(v) if _is_finite_number(v) else nan
         return out, fresh
 

@@ -12,9 +12,11 @@ terrain_name         str             name of that class
 confidence           float, 0..1     probability of the served class (0 in fallback)
 class_probabilities  float[K]        probabilities of the last classification (all 0 if none)
 classification_age_s float, s        age of the last classification; -1 when none exists yet
+                                     (and on a ``clock_jump`` tick, whose time is off the timeline)
 fallback             bool            True when the least aggressive row is served (SYSTEM §10)
 fallback_reason      str             "" or one of :data:`FALLBACK_REASONS`
-estimator_ok         bool            estimator healthy (no silent sensor group, finite state)
+estimator_ok         bool            estimator healthy (no silent sensor group, finite state);
+                                     false on a ``clock_jump`` tick (the estimator did not run)
 processing_ms        float, ms       wall time spent on this tick inside the predictor
 
 JSON never contains NaN or infinity. :meth:`DesiredSlip.to_dict` replaces any non-finite
@@ -32,12 +34,14 @@ from typing import Any
 
 from terrainml.schema import WHEEL_STATES
 
-#: fallback reasons, in priority order (the first that applies is reported)
+#: fallback reasons; their order is the CAN reason code (1, 2, ...) and never changes. Priority
+#: (the first that applies is reported): clock_jump, then the others in this order.
 FALLBACK_REASONS: tuple[str, ...] = (
     "estimator_unhealthy",   # a sensor group silent > 0.2 s, or the estimator state is not finite
     "classifier_error",      # the last classification attempt raised; no usable classification
     "no_classification",     # start-up: no steady window has been classified yet
     "stale_classification",  # the last classification is older than max_age_s (default 1.0 s)
+    "clock_jump",            # t_s off the stream's timeline, re-anchoring (stream/clock.py)
 )
 
 #: value substituted for a non-finite number, per field

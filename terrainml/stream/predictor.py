@@ -2,8 +2,12 @@
 
 Chain per tick (SYSTEM §11)::
 
-    sample ─ OrderGate ─ HealthMonitor ─ OnlineEstimator.step ─ RingBuffer ─┬─ policy ─ DesiredSlip
-                                                       every hop (0.5 s):    └─ classify latest window
+    sample ─ check_sample ─ ClockGate ─ HealthMonitor ─ OnlineEstimator.step ─ RingBuffer ─┬─ policy ─ DesiredSlip
+                                                                      every hop (0.5 s):    └─ classify latest window
+
+* :func:`terrainml.stream.sample.check_sample` rejects anything that is not a sample with
+  :class:`~terrainml.stream.sample.InvalidSample` (the one exception :meth:`Predictor.step`
+  raises); the clock policy (:mod:`terrainml.stream.clock`) decides which stamps are ticks.
 
 * Estimation is :class:`terrainml.estimation.online.OnlineEstimator` (the same step code the
   offline ``estimate_run`` loops over); windows and features are the offline window and feature
@@ -14,36 +18,46 @@ Chain per tick (SYSTEM §11)::
 * Nothing non-finite reaches the output: non-finite inputs invalidate their sensor group
   (:mod:`terrainml.stream.health`), non-finite estimator outputs make ``estimator_ok`` false and
   are replaced (slip 0, state ``idle``), and the message layer checks again.
-* Samples with duplicate or decreasing ``t_s`` are dropped and counted: :meth:`Predictor.step`
-  returns ``None`` for them (the only departure from "one output per input").
+* Samples with a duplicate or late ``t_s`` are dropped and counted: :meth:`Predictor.step`
+  returns ``None`` for them (the only departure from "one output per input"). A ``t_s`` off the
+  timeline (a clock jump) is served as a ``clock_jump`` fallback tick; K consistent ones re-anchor
+  the stream, restarting the estimator, health, window buffer and classification.
+* The classification thread runs under the interpreter's own GIL switch interval: the predictor
+  changes nothing process-wide (lowering it measured no better, often worse, for the paced
+  per-tick p99; figures in ``docs/stream.md``, Performance).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import sys
 import time
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from pathlib import Path
-from typing import Any, Protocol, Sequence
+from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
 import pandas as pd
 
 from terrainml.classes import TERRAIN_CLASSES
+from terrainml.estimation.online import OnlineEstimator
+from terrainml.lookup.policy import PolicyDecision, TargetTable
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import WHEEL_STATES
-from terrainml.stream.health import HealthMonitor, InputCounters, OrderGate
+from terrainml.stream.classify import load_serving_model
+from terrainml.stream.clock import ACCEPT, JUMP, MAX_GAP_S, REANCHOR, REANCHOR_AFTER, ClockGate
+from terrainml.stream.health import HealthMonitor, InputCounters
 from terrainml.stream.message import DesiredSlip
-from terrainml.lookup.policy import PolicyDecision, TargetTable
 from terrainml.stream.policy import decide
+from terrainml.stream.sample import InvalidSample, check_sample
+
+__all__ = ["InvalidSample", "Predictor", "RingBuffer", "make_predictor"]
 
 log = logging.getLogger("terrainml.stream")
 
-#: GIL switch interval while a background classification thread exists (Python's default 5 ms
-#: would let the worker hold the GIL for up to 5 ms of a 10 ms tick)
-GIL_SWITCH_INTERVAL_S = 2e-4
+_TIME_REASONS = ("no_t_s", "bad_t_s", "t_s_not_finite")
 
 
 class Estimator(Protocol):
@@ -101,12 +115,17 @@ class RingBuffer:
             v = row.get(k, math.nan)
             try:
                 num[i, j] = v  # type: ignore[index]
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):  # e.g. a str, or an int beyond float
                 num[i, j] = math.nan  # type: ignore[index]
         for j, k in enumerate(self._obj_keys):
             self._obj[i, j] = row.get(k)  # type: ignore[index]
         self._i = (i + 1) % self.capacity
         self.count = min(self.count + 1, self.capacity)
+
+    def clear(self) -> None:
+        """Forget every row (a new timeline); the field layout of the first row is kept."""
+        self._i = 0
+        self.count = 0
 
     @property
     def full(self) -> bool:
@@ -163,10 +182,14 @@ class Predictor:
         classification in a background thread and applies its result exactly L ticks later
         (deterministic: the tick waits for it if needed); the tick path then only snapshots
         the ring buffer, which keeps per-tick latency low when samples arrive in real time.
-        While the thread exists the interpreter's GIL switch interval is lowered to
-        :data:`GIL_SWITCH_INTERVAL_S` (restored by :meth:`close`).
         The classification age still counts from the window's last tick.
     class_names : names of all class ids (default the eight of SYSTEM §6.1).
+    max_clock_gap_s : s, > 0 (default 1.0). Largest step between consecutive ticks of one
+        timeline; a larger step either way is a clock jump (:mod:`terrainml.stream.clock`).
+    reanchor_after : int >= 1 (default 5). Consecutive consistent off-timeline samples (K) that
+        re-anchor the stream on a new timeline. Re-anchoring restarts the estimator (a fresh
+        ``OnlineEstimator`` when the predictor built it; an injected estimator's ``reset()`` if it
+        has one, else it is kept), the health monitor, the window buffer and classification.
     """
 
     def __init__(self, robot: RobotSpec, table: TargetTable,
@@ -174,15 +197,17 @@ class Predictor:
                  estimator: Estimator | None = None, *, preset: str = "robust",
                  rate_hz: float = 100.0, window_s: float = 2.0, hop_s: float = 0.5,
                  max_age_s: float = 1.0, silent_s: float = 0.2, classify_lag_ticks: int = 0,
-                 class_names: Sequence[str] = TERRAIN_CLASSES):
+                 class_names: Sequence[str] = TERRAIN_CLASSES, max_clock_gap_s: float = MAX_GAP_S,
+                 reanchor_after: int = REANCHOR_AFTER):
         self.robot = robot
         self.table = table
         self.classifier = classifier
         warm = estimator is None
+        # a re-anchored stream needs a fresh estimator: build one the same way
+        self._estimator_factory: Callable[[], Estimator] | None = None
         if estimator is None:
-            from terrainml.estimation.online import OnlineEstimator
-
-            estimator = OnlineEstimator(robot, preset)
+            self._estimator_factory = partial(OnlineEstimator, robot, preset)
+            estimator = self._estimator_factory()
         self.estimator = estimator
         self.rate_hz = float(rate_hz)
         self.window_s = float(window_s)
@@ -190,7 +215,7 @@ class Predictor:
         self.max_age_s = float(max_age_s)
         self.class_names = list(class_names)
         self.counters = InputCounters()
-        self.gate = OrderGate(self.counters)
+        self.clock = ClockGate(self.counters, max_gap_s=max_clock_gap_s, reanchor_after=reanchor_after)
         self.health = HealthMonitor(robot, silent_s=silent_s)
         self.health.counters = self.counters
         self.ring = RingBuffer(int(round(self.window_s * self.rate_hz)))
@@ -214,6 +239,9 @@ class Predictor:
         self._state_keys = [f"state{i}" for i in range(1, self.n + 1)]
         self._vlong_keys = [f"v_long{i}_mps" for i in range(1, self.n + 1)]
         self._state_vars = ("ekf_vx_mps", "ekf_vy_mps", "ekf_yaw_rate_radps")
+        # wheel states and speeds of the last estimated tick (what a clock_jump tick serves with)
+        self._last_states: list[str] = ["idle"] * self.n
+        self._last_v_long: list[float] = [0.0] * self.n
         if warm:
             self.warm_up(preset)
 
@@ -232,8 +260,6 @@ class Predictor:
             sample.update({f"wheel{i}_omega_radps": 0.0, f"wheel{i}_steer_rad": 0.0,
                            f"wheel{i}_current_a": 0.0})
         try:
-            from terrainml.estimation.online import OnlineEstimator
-
             est = OnlineEstimator(self.robot, preset)
             est.step(sample)
             est.step({**sample, "t_s": 0.01})
@@ -245,8 +271,6 @@ class Predictor:
     def from_model_dir(cls, model_dir: str | Path, *, robot: RobotSpec | str | None = None,
                        preset: str | None = None, **kwargs: Any) -> "Predictor":
         """Predictor for a verified model artifact ``runs/NAME`` (model, manifest, slip table)."""
-        from terrainml.stream.classify import load_serving_model
-
         served = load_serving_model(model_dir, robot=robot)
         return cls(served.robot, served.table, served.classifier,
                    preset=preset or served.preset, class_names=served.class_names,
@@ -254,17 +278,50 @@ class Predictor:
                    **kwargs)
 
     # ------------------------------------------------------------------ tick
-    def step(self, sample: dict) -> DesiredSlip | None:
+    def step(self, sample: Mapping[str, Any]) -> DesiredSlip | None:
         """Process one base-rate sample (canonical column names + ``t_s``).
 
-        Returns the tick's message, or None when the sample was dropped (non-finite,
-        duplicate or out-of-order ``t_s``; see ``self.counters``).
+        Parameters
+        ----------
+        sample : mapping of str keys to values, with ``t_s`` (s) a finite real number (``int``,
+            ``float`` or a numpy scalar; not a bool, not a string). Values of the wrong type or
+            non-finite only invalidate their sensor group (:mod:`terrainml.stream.health`).
+
+        Returns
+        -------
+        DesiredSlip, one per tick, every number finite; or None when the sample is dropped: a
+        duplicate or late ``t_s`` (clock policy, :mod:`terrainml.stream.clock`; counted in
+        ``self.counters``). A ``t_s`` off the timeline is served as a fallback tick with
+        ``fallback_reason="clock_jump"``; the K-th consistent one re-anchors the stream.
+
+        Raises
+        ------
+        InvalidSample
+            A ``ValueError`` (:mod:`terrainml.stream.sample`), when ``sample`` is not a sample:
+            not a mapping (None, a string, a list, ...), a key that is not a str, no ``t_s``, or a
+            ``t_s`` that is not a real number (a string, a bool, None) or not finite (NaN, inf,
+            an int beyond float range). It is counted first (``bad_time`` for the ``t_s`` cases,
+            ``not_a_sample`` otherwise) and the predictor's state is otherwise unchanged. It is
+            the only exception ``step`` raises: estimator, classifier and policy failures are
+            served as fallback ticks.
         """
         t_start = time.perf_counter()
-        if not self.gate.accept(sample):
+        try:
+            t = check_sample(sample)
+        except InvalidSample as exc:
+            if exc.reason in _TIME_REASONS:
+                self.counters.bad_time += 1
+            else:
+                self.counters.not_a_sample += 1
+            raise
+        verdict = self.clock.check(t)
+        if verdict == JUMP:
+            return self._clock_jump_tick(t, t_start)
+        if verdict == REANCHOR:
+            self._restart()
+        elif verdict != ACCEPT:
             return None
-        clean, fresh = self.health.sanitise(sample)
-        t = clean["t_s"]
+        clean, fresh = self.health.sanitise(sample)  # type: ignore[arg-type]
         healthy, _silent = self.health.update(t, fresh)
 
         row = self._estimate(clean)
@@ -279,19 +336,37 @@ class Predictor:
                 slips, states, v_long = [0.0] * self.n, ["idle"] * self.n, [0.0] * self.n
                 est_ok = False
             self.ring.append(row)
+        self._last_states, self._last_v_long = states, v_long
 
         self._maybe_classify(t)
 
         age = None if self._class_t is None else t - self._class_t
+        dec = self._decide(age, est_ok, states, v_long, t)
+        return self._message(t, dec, slips, states, age, est_ok, t_start)
+
+    def _clock_jump_tick(self, t: float, t_start: float) -> DesiredSlip:
+        """A stamp off the timeline: the fallback row for the last estimated wheel states.
+
+        The estimator, health monitor, ring buffer and classifier do not see the sample (its
+        time would corrupt them); measured slip is served as 0 (not measured on this tick).
+        """
+        dec = self._decide(None, False, self._last_states, self._last_v_long, t, clock_jump=True)
+        return self._message(t, dec, [0.0] * self.n, self._last_states, None, False, t_start)
+
+    def _decide(self, age: float | None, est_ok: bool, states: list[str], v_long: list[float],
+                t: float, clock_jump: bool = False) -> PolicyDecision:
         try:
-            dec = decide(self._probs, self._class_ids(), age, est_ok, self.table, states=states,
-                         v_long=v_long, classifier_error=self._classifier_error,
-                         max_age_s=self.max_age_s)
+            return decide(self._probs, self._class_ids(), age, est_ok, self.table, states=states,
+                          v_long=v_long, classifier_error=self._classifier_error,
+                          clock_jump=clock_jump, max_age_s=self.max_age_s)
         except Exception as exc:  # noqa: BLE001 - a broken table/policy must not stop serving
             log.warning("policy failed at t=%.3f s (serving zero slip): %s", t, exc)
-            dec = PolicyDecision(class_id=0, class_name=self._name(0), confidence=0.0,
-                                 slip_desired=(0.0,) * self.n, fallback=True,
-                                 reason="classifier_error")
+            return PolicyDecision(class_id=0, class_name=self._name(0), confidence=0.0,
+                                  slip_desired=(0.0,) * self.n, fallback=True,
+                                  reason="clock_jump" if clock_jump else "classifier_error")
+
+    def _message(self, t: float, dec: PolicyDecision, slips: list[float], states: list[str],
+                 age: float | None, est_ok: bool, t_start: float) -> DesiredSlip:
         slip_des = [v if math.isfinite(v) else 0.0 for v in dec.slip_desired]
         msg = DesiredSlip(
             t_s=t, seq=self.seq, slip_desired=slip_des, slip_measured=slips, wheel_state=states,
@@ -303,6 +378,22 @@ class Predictor:
         self.seq += 1
         msg.processing_ms = (time.perf_counter() - t_start) * 1e3
         return msg
+
+    def _restart(self) -> None:
+        """A new timeline (clock policy): estimation, health, windows and classification start over."""
+        if self._estimator_factory is not None:
+            self.estimator = self._estimator_factory()
+        else:
+            reset = getattr(self.estimator, "reset", None)
+            if callable(reset):
+                reset()
+        self.health.reset()
+        self.ring.clear()
+        self._pending = None  # a window of the old timeline: its result is never applied
+        self._probs = None
+        self._class_t = None
+        self._last_attempt_t = None
+        self._classifier_error = False
 
     # ------------------------------------------------------------------ parts
     def _read_row(self, row: dict, slips: list, states: list, v_long: list) -> bool:
@@ -377,12 +468,7 @@ class Predictor:
         snap = self.ring.snapshot()
         if self.classify_lag_ticks > 0:
             if self._executor is None:
-                from concurrent.futures import ThreadPoolExecutor
-
                 self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="classify")
-                # a short GIL switch interval lets the tick path preempt the worker quickly
-                self._old_switch_s = sys.getswitchinterval()
-                sys.setswitchinterval(min(self._old_switch_s, GIL_SWITCH_INTERVAL_S))
             self._pending = (self._executor.submit(self._timed_classify, snap), t,
                              self.classify_lag_ticks)
             self._pending_age = 0
@@ -425,7 +511,6 @@ class Predictor:
         if self._executor is not None:
             self._executor.shutdown(wait=True)
             self._executor = None
-            sys.setswitchinterval(self._old_switch_s)
 
     def stats(self) -> dict[str, Any]:
         """Counters for the end-of-stream summary (stderr) and tests."""

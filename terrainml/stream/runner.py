@@ -11,12 +11,19 @@ import logging
 import signal
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
+import numpy as np
 from rich.console import Console
+from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+from rich.table import Table
 
+from terrainml.stream.classify import ModelLoadError
+from terrainml.stream.clock import MAX_GAP_S, REANCHOR_AFTER
 from terrainml.stream.predictor import Predictor
+from terrainml.stream.sample import InvalidSample
 from terrainml.stream.sinks import GuardedSink, SinkError, open_sink
 from terrainml.stream.sources import SourceCounters, SourceError, open_source
 
@@ -28,10 +35,20 @@ CLASSIFY_LAG_TICKS = 10
 
 def serve(predictor: Predictor, samples: Iterable[dict], sinks: Sequence[Any],
           on_message: Any = None) -> int:
-    """Feed every sample to the predictor and every message to every sink; return #messages."""
+    """Feed every sample to the predictor and every message to every sink; return #messages.
+
+    A sample the predictor refuses (:class:`~terrainml.stream.sample.InvalidSample`, already
+    counted in ``predictor.counters``) is skipped; serving goes on.
+    """
     n = 0
     for sample in samples:
-        msg = predictor.step(sample)
+        try:
+            msg = predictor.step(sample)
+        except InvalidSample as exc:
+            n_bad = predictor.counters.bad_time + predictor.counters.not_a_sample
+            if n_bad <= 3 or n_bad % 1000 == 0:
+                log.warning("sample skipped (%d so far): %s", n_bad, exc)
+            continue
         if msg is None:
             continue
         for s in sinks:
@@ -54,15 +71,16 @@ def _setup_logging(verbose: bool) -> None:
 
 def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = False,
                 robot: str | None = None, preset: str | None = None,
-                idle_timeout_s: float | None = None, verbose: bool = False) -> int:
+                idle_timeout_s: float | None = None, verbose: bool = False,
+                max_clock_gap_s: float = MAX_GAP_S, reanchor_after: int = REANCHOR_AFTER) -> int:
     """Run ``terrainml predict``; return the process exit code (0 ok, 2 unusable input)."""
     console = Console(stderr=True, soft_wrap=True)
     _setup_logging(verbose)
-    from terrainml.stream.classify import ModelLoadError
-
     try:
         predictor = Predictor.from_model_dir(model, robot=robot, preset=preset,
-                                               classify_lag_ticks=CLASSIFY_LAG_TICKS)
+                                               classify_lag_ticks=CLASSIFY_LAG_TICKS,
+                                               max_clock_gap_s=max_clock_gap_s,
+                                               reanchor_after=reanchor_after)
     except (ModelLoadError, FileNotFoundError, ValueError) as exc:
         console.print(f"[red]error:[/] model {model}: {exc}")
         return 2
@@ -102,21 +120,18 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
 
     old = signal.signal(signal.SIGTERM, _term)
     t0 = time.perf_counter()
-    n = 0
     code = 0
     is_log = not (source.strip() == "-" or source.strip().startswith("udp"))
     try:
         if is_log and not realtime:
-            from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
             with Progress(SpinnerColumn(), TextColumn("replaying {task.description}: "
                                                       "{task.completed:,.0f} ticks"),
                           TimeElapsedColumn(), console=console, transient=True) as bar:
                 task = bar.add_task(Path(source).name, total=None)
-                n = serve(predictor, samples, opened,
-                          on_message=lambda m: bar.advance(task, 100) if m.seq % 100 == 99 else None)
+                serve(predictor, samples, opened,
+                      on_message=lambda m: bar.advance(task, 100) if m.seq % 100 == 99 else None)
         else:
-            n = serve(predictor, samples, opened)
+            serve(predictor, samples, opened)
     except KeyboardInterrupt:
         log.info("interrupted")
     except SourceError as exc:
@@ -130,10 +145,13 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
     dt = time.perf_counter() - t0
     st = predictor.stats()
     sink_err = {s.name: s.errors for s in opened if s.errors}
+    reasons = ", ".join(f"{k} {v}" for k, v in sorted(counters.malformed_by_reason.items()))
     console.print(
         f"terrainml predict: {st['emitted']} messages in {dt:.1f} s; dropped: "
-        f"{st['duplicate']} duplicate, {st['out_of_order']} out-of-order, {st['bad_time']} bad t_s; "
-        f"malformed input: {counters.malformed}; classifications: {st['classifications']} "
+        f"{st['duplicate']} duplicate, {st['out_of_order']} out-of-order, {st['bad_time']} bad t_s, "
+        f"{st['not_a_sample']} not a sample; clock: {st['clock_jump']} clock-jump ticks, "
+        f"{st['reanchors']} re-anchors; malformed input: {counters.malformed}"
+        f"{f' ({reasons})' if reasons else ''}; classifications: {st['classifications']} "
         f"({st['classifier_errors']} errors); sink errors: {sink_err or 0}",
         highlight=False)
     return code
@@ -148,16 +166,16 @@ def replay_summary(model: str | Path, log_path: str | Path, *, console: Console 
     ``terrain_name``, ``fallback_reason``, ``ticks``, ``mean_slip_desired``, and ``true_class``,
     the most frequent logged ``terrain`` label of the segment when the log has labels).
     """
-    import numpy as np
-    from rich.table import Table
-
     console = console or Console(stderr=True, soft_wrap=True)
     predictor = Predictor.from_model_dir(model, robot=robot, classify_lag_ticks=CLASSIFY_LAG_TICKS)
     segments: list[dict[str, Any]] = []
     labels: list[int] = []
     try:
         for sample in open_source(str(log_path), robot=predictor.robot):
-            msg = predictor.step(sample)
+            try:
+                msg = predictor.step(sample)
+            except InvalidSample:  # counted by the predictor
+                continue
             if msg is None:
                 continue
             key = (msg.terrain_class, msg.fallback_reason)
@@ -193,8 +211,6 @@ def replay_summary(model: str | Path, log_path: str | Path, *, console: Console 
 
 
 def _close_segment(seg: dict[str, Any], labels: list[int]) -> None:
-    from collections import Counter
-
     seg["mean_slip_desired"] = [float(v) for v in seg.pop("_slip") / max(seg["ticks"], 1)]
     seg.pop("_key", None)
     seg["true_class"] = Counter(labels).most_common(1)[0][0] if labels else None

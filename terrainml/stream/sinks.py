@@ -31,7 +31,7 @@ Wheel frame i (1..N), id ``BASE + i``::
     byte  7    uint8   seq & 0xFF (pairs the wheel frames of one tick)
 
 Fallback reason codes: 0 none, 1 estimator_unhealthy, 2 classifier_error, 3 no_classification,
-4 stale_classification.
+4 stale_classification, 5 clock_jump.
 """
 
 from __future__ import annotations
@@ -43,6 +43,9 @@ import struct
 import sys
 from pathlib import Path
 from typing import IO, Any, Protocol
+
+import can
+from mcap.writer import Writer
 
 from terrainml.io.topics import WHEEL_STATE_CODES
 from terrainml.stream.message import FALLBACK_REASONS, TOPIC, DesiredSlip, json_schema
@@ -147,9 +150,6 @@ class CanSink:
     """DesiredSlip as CAN frames through python-can (``interface`` e.g. virtual, socketcan)."""
 
     def __init__(self, interface: str, channel: str, base_id: int = CAN_BASE_ID, **bus_kwargs: Any):
-        import can
-
-        self._can = can
         try:
             self.bus = can.Bus(interface=interface, channel=channel, **bus_kwargs)
         except Exception as exc:  # noqa: BLE001 - python-can raises many types
@@ -159,7 +159,7 @@ class CanSink:
 
     def send(self, msg: DesiredSlip) -> None:
         for fid, data in encode_can_frames(msg, self.base_id):
-            self.bus.send(self._can.Message(arbitration_id=fid, data=data, is_extended_id=False))
+            self.bus.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
 
     def close(self) -> None:
         self.bus.shutdown()
@@ -173,8 +173,6 @@ class McapSink:
     """
 
     def __init__(self, path: str | Path, n_wheels: int | None = None, n_classes: int | None = None):
-        from mcap.writer import Writer
-
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = open(self.path, "wb")

@@ -12,8 +12,18 @@ Source specs (``terrainml predict --source``)::
 
 Log files are read through the io owner's ingest (:func:`terrainml.io.ingest.load_run`), i.e. the
 very same topic decoding, frame mapping and resampling to the base rate as training used.
-Malformed datagrams / lines (not JSON, not an object, no finite ``t_s``) are counted in
-:class:`SourceCounters` and skipped. A datagram or line ``{"eos": true}`` ends the stream.
+A datagram or line ``{"eos": true}`` ends the stream.
+
+Parsing cannot be crashed (:func:`parse_sample`): every datagram or line is one UTF-8 JSON
+object of at most :data:`MAX_SAMPLE_BYTES`, nested at most :data:`MAX_DEPTH` deep, whose numbers
+all fit a finite float and whose ``t_s`` passes :func:`terrainml.stream.sample.check_sample`.
+Anything else is counted in :class:`SourceCounters` under one of :data:`MALFORMED_REASONS` and
+skipped; nothing raises out of the source. The size cap is checked before parsing, nesting is
+checked before ``json.loads`` (which also never sees more than the cap), and the number hooks of
+``json.loads`` refuse an integer or float beyond float range and the non-JSON ``NaN`` /
+``Infinity`` tokens (send ``null`` for a missing value). A ``RecursionError`` is caught as a
+last resort. Values of the wrong type inside a well-formed sample (a string where a number
+belongs) are not malformed: they invalidate their sensor group (:mod:`terrainml.stream.health`).
 """
 
 from __future__ import annotations
@@ -21,16 +31,41 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 import socket
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Iterator
+
+from terrainml.io.ingest import load_run
+from terrainml.stream.sample import InvalidSample, check_sample
 
 log = logging.getLogger("terrainml.stream")
 
 DEFAULT_UDP_SOURCE = ("127.0.0.1", 9870)
+#: largest datagram or line parsed, bytes (characters for str input); a sample of a six-wheel
+#: robot with simulator truth is about 3 KiB
+MAX_SAMPLE_BYTES = 16 * 1024
+#: deepest JSON nesting accepted (a sample is one flat object: depth 1)
+MAX_DEPTH = 16
+#: more digits than this cannot fit a float (1.8e308 has 309): refused before ``int()`` runs
+_MAX_INT_DIGITS = 310
+#: why a datagram or line was skipped (keys of ``SourceCounters.malformed_by_reason``)
+MALFORMED_REASONS: tuple[str, ...] = (
+    "too_large",            # over MAX_SAMPLE_BYTES
+    "not_utf8",             # binary data
+    "not_json",             # a syntax error
+    "too_deep",             # nested deeper than MAX_DEPTH
+    "number_out_of_range",  # an integer or float beyond float range (1e400, 10**400)
+    "non_finite",           # NaN / Infinity / -Infinity tokens (not JSON)
+    "not_an_object",        # a list, a number, a string, null
+    "no_t_s",               # an object without "t_s"
+    "bad_t_s",              # t_s not a number (a string, a bool, null, ...)
+)
+# a JSON string (possibly unterminated) or one bracket: consumed left to right in linear time
+_TOKENS = re.compile(r'"(?:[^"\\]|\\.)*"?|[\[\]{}]', re.S)
 
 
 class SourceError(ValueError):
@@ -39,37 +74,121 @@ class SourceError(ValueError):
 
 @dataclass
 class SourceCounters:
+    """Datagrams / lines received and skipped as malformed (in total and by reason)."""
+
     received: int = 0
     malformed: int = 0
+    malformed_by_reason: dict[str, int] = field(default_factory=dict)
 
-    def as_dict(self) -> dict[str, int]:
-        return {"received": self.received, "malformed": self.malformed}
+    def count_malformed(self, reason: str, data: Any) -> None:
+        """Count one skipped input; warn for the first 3, then every 1000th."""
+        self.malformed += 1
+        self.malformed_by_reason[reason] = self.malformed_by_reason.get(reason, 0) + 1
+        if self.malformed <= 3 or self.malformed % 1000 == 0:
+            log.warning("malformed sample skipped (%s; %d so far): %.80r", reason, self.malformed,
+                        data[:80])
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"received": self.received, "malformed": self.malformed,
+                "malformed_by_reason": dict(self.malformed_by_reason)}
 
 
 _EOS = object()
 
 
-def parse_sample(data: bytes | str, counters: SourceCounters | None = None) -> Any:
-    """Parse one datagram or line into a sample dict; None if malformed (counted); _EOS at end."""
+class _Malformed(Exception):
+    """Raised inside the parser (also from json.loads' hooks) with one of MALFORMED_REASONS."""
+
+    def __init__(self, reason: str):
+        super().__init__(reason)
+        self.reason = reason
+
+
+def _parse_int(text: str) -> int:
+    if len(text) > _MAX_INT_DIGITS:
+        raise _Malformed("number_out_of_range")
+    value = int(text)
+    try:
+        float(value)
+    except OverflowError:
+        raise _Malformed("number_out_of_range") from None
+    return value
+
+
+def _parse_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):  # 1e400 parses as inf
+        raise _Malformed("number_out_of_range")
+    return value
+
+
+def _parse_constant(text: str) -> float:
+    raise _Malformed("non_finite")
+
+
+def _nesting_ok(text: str) -> bool:
+    """True if no bracket outside a string is nested deeper than MAX_DEPTH."""
+    if text.count("[") + text.count("{") <= MAX_DEPTH:  # the common case, in C
+        return True
+    depth = 0
+    for m in _TOKENS.finditer(text):
+        tok = m.group()
+        if tok[0] == '"':
+            continue
+        depth += 1 if tok in "[{" else -1
+        if depth > MAX_DEPTH:
+            return False
+    return True
+
+
+def _decode(data: Any, max_bytes: int) -> str:
+    if len(data) > max_bytes:
+        raise _Malformed("too_large")
+    if isinstance(data, str):
+        return data
+    try:
+        return bytes(data).decode("utf-8-sig")
+    except (UnicodeDecodeError, TypeError):
+        raise _Malformed("not_utf8") from None
+
+
+def _parse(data: Any, max_bytes: int) -> Any:
+    text = _decode(data, max_bytes)
+    if not _nesting_ok(text):
+        raise _Malformed("too_deep")
+    try:
+        obj = json.loads(text, parse_int=_parse_int, parse_float=_parse_float,
+                         parse_constant=_parse_constant)
+    except RecursionError:  # last resort: _nesting_ok should have refused it
+        raise _Malformed("too_deep") from None
+    except ValueError:  # JSONDecodeError, and int()'s digit limit
+        raise _Malformed("not_json") from None
+    if not isinstance(obj, dict):
+        raise _Malformed("not_an_object")
+    if obj.get("eos") is True:
+        return _EOS
+    try:
+        check_sample(obj)
+    except InvalidSample as exc:
+        raise _Malformed(exc.reason) from None
+    return obj
+
+
+def parse_sample(data: bytes | str, counters: SourceCounters | None = None, *,
+                 max_bytes: int = MAX_SAMPLE_BYTES) -> Any:
+    """Parse one datagram or line into a sample dict; None if malformed (counted); _EOS at end.
+
+    Never raises (module docstring): a malformed input is counted in ``counters`` under its
+    reason (:data:`MALFORMED_REASONS`) and skipped.
+    """
     if counters is not None:
         counters.received += 1
     try:
-        obj = json.loads(data)
-    except (ValueError, UnicodeDecodeError):
-        obj = None
-    if isinstance(obj, dict) and obj.get("eos") is True:
-        return _EOS
-    ok = isinstance(obj, dict) and "t_s" in obj
-    if ok:
-        t = obj["t_s"]
-        ok = isinstance(t, (int, float)) and not isinstance(t, bool) and math.isfinite(t)
-    if not ok:
+        return _parse(data, max_bytes)
+    except _Malformed as exc:
         if counters is not None:
-            counters.malformed += 1
-            if counters.malformed <= 3:
-                log.warning("malformed sample skipped (%d so far): %.80r", counters.malformed, data)
+            counters.count_malformed(exc.reason, data)
         return None
-    return obj
 
 
 # --------------------------------------------------------------------------- log files
@@ -82,8 +201,6 @@ def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = 10
     path = Path(path)
     if not path.is_file():
         raise SourceError(f"{path}: file not found")
-    from terrainml.io.ingest import load_run
-
     try:
         res = load_run(path, robot=robot, topic_map=topic_map, rate_hz=rate_hz)
     except Exception as exc:  # noqa: BLE001 - ingest raises named errors; report them cleanly
@@ -157,15 +274,33 @@ def iter_udp_samples(host: str = DEFAULT_UDP_SOURCE[0], port: int = DEFAULT_UDP_
         sock.close()
 
 
-def iter_line_samples(stream: IO[str] | None = None, *,
-                      counters: SourceCounters | None = None) -> Iterator[dict]:
-    """Samples from JSON lines (default stdin); blank lines are ignored."""
+def _bounded_lines(stream: IO[Any], max_bytes: int) -> Iterator[Any]:
+    """Lines of ``stream`` (text or binary), none read whole if longer than ``max_bytes``.
+
+    An over-long line yields its first ``max_bytes + 1`` characters (so the parser counts it as
+    ``too_large``) and the rest of it is read and discarded in bounded pieces.
+    """
+    while True:
+        line = stream.readline(max_bytes + 1)
+        if not line:
+            return
+        if len(line) > max_bytes:
+            tail = line
+            while tail and tail[-1:] not in ("\n", b"\n"):
+                tail = stream.readline(max_bytes + 1)
+        yield line
+
+
+def iter_line_samples(stream: IO[Any] | None = None, *, counters: SourceCounters | None = None,
+                      max_bytes: int = MAX_SAMPLE_BYTES) -> Iterator[dict]:
+    """Samples from JSON lines (default stdin, read as bytes); blank lines are ignored."""
     counters = counters if counters is not None else SourceCounters()
-    stream = stream or sys.stdin
-    for line in stream:
+    if stream is None:  # bytes: undecodable input is a malformed line, not a decoding error
+        stream = getattr(sys.stdin, "buffer", sys.stdin)
+    for line in _bounded_lines(stream, max_bytes):
         if not line.strip():
             continue
-        s = parse_sample(line, counters)
+        s = parse_sample(line, counters, max_bytes=max_bytes)
         if s is _EOS:
             return
         if s is not None:

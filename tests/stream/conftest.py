@@ -42,6 +42,6 @@ def model_dir(tmp_path_factory):
     save_artifact(out, {"svm": clf}, classes=list(CLASS_IDS),
                   class_names=[TERRAIN[c] for c in CLASS_IDS], channels=list(wins.channels),
                   window_spec=WindowSpec(), robot=robot, training_fingerprint="test",
-                  table=DesiredSlipTable.build(robot))
+                  attachments={"desired_slip_table.json": DesiredSlipTable.build(robot).to_json()})
     return out
 

@@ -134,3 +134,42 @@ def test_tampered_model_is_refused(tmp_path, model_dir, capsys):
 
     assert run_predict(model=bad, source="-", sinks=["stdout"]) == 2
     assert "desired_slip_table.json" in capsys.readouterr().err
+
+
+def test_hostile_stdin_never_stops_predict(model_dir):
+    """Issue 21: deep nesting, huge numbers, binary, NaN, an over-long line, a wild and an absurd
+    first stamp: no traceback, exit 0, one finite message per tick, live warnings, counts."""
+    samples = _drive(2, 8.0)
+    good = [json.dumps(s).encode() for s in samples]
+    hostile = [b"[" * 1100, b'{"t_s": 1%s}' % (b"0" * 400), b'{"t_s": 1.0, "imu_ax_mps2": 1%s}' % (b"0" * 400),
+               b'{"t_s": 1.0, "unknown": -1%s}' % (b"0" * 400), b"\xff\xfe\x00\x80 binary",
+               b'{"t_s": NaN}', b"{" * 100_000, b'{"t_s": "1.0"}', b"[1, 2]"]
+    lines = [json.dumps({**samples[0], "t_s": -1e12}).encode()]  # an absurd first stamp
+    n_hostile = 0
+    for k, g in enumerate(good):
+        lines.append(g)
+        if k % 20 == 10:
+            lines.append(hostile[(k // 20) % len(hostile)])
+            n_hostile += 1
+        if k == 200:
+            lines.append(json.dumps({**samples[k], "t_s": 1e12}).encode())  # one wild stamp
+    proc = subprocess.run(CMD + ["--model", str(model_dir), "--source", "-", "--sink", "stdout"],
+                          input=b"\n".join(lines) + b"\n", capture_output=True, timeout=180)
+    err = proc.stderr.decode()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+    out = [json.loads(x, parse_constant=lambda tok: pytest.fail(f"non-finite {tok}"))
+           for x in proc.stdout.splitlines()]
+    # every tick served: the absurd first one, the good ones and the wild one
+    assert len(out) == 1 + len(samples) + 1
+    assert [m["seq"] for m in out] == list(range(len(out)))
+    reasons = [m["fallback_reason"] for m in out]
+    assert reasons[1:5] == ["clock_jump"] * 4 and reasons.count("clock_jump") == 5
+    assert all(math.isfinite(v) for m in out for v in m["slip_desired"] + m["slip_measured"])
+    assert "malformed sample skipped (too_deep" in err and "clock jump" in err and "re-anchored" in err
+    assert f"malformed input: {n_hostile} (" in err and "5 clock-jump ticks, 1 re-anchors" in err
+    assert all(f"{reason} " in err for reason in ("too_deep", "number_out_of_range", "not_utf8",
+                                                  "non_finite", "too_large", "bad_t_s", "not_an_object"))
+    cruise = [m for m in out if 6.5 <= m["t_s"] <= 7.5]  # healthy and classified again
+    assert cruise and all(m["estimator_ok"] and not m["fallback"] and m["terrain_class"] == 2
+                          for m in cruise)

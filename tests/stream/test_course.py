@@ -48,7 +48,8 @@ def sim_model_dir(tmp_path_factory):
     save_artifact(out, {"svm": clf}, classes=TRAIN_CLASSES,
                   class_names=[TERRAIN_CLASSES[c] for c in TRAIN_CLASSES],
                   channels=list(wins.channels), window_spec=WindowSpec(), robot=robot,
-                  training_fingerprint="test-course", table=DesiredSlipTable.build(robot))
+                  training_fingerprint="test-course",
+                  attachments={"desired_slip_table.json": DesiredSlipTable.build(robot).to_json()})
     return out
 
 

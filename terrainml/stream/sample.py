@@ -1,0 +1,59 @@
+"""What a sample is, and the one error raised for anything that is not one (design §11).
+
+A *sample* is a mapping of ``str`` keys to values with a ``t_s`` (s) that is a real number
+(``int``, ``float`` or a numpy scalar, not ``bool``) with a finite float value; any other key is a
+canonical run-table column or an extra (values of the wrong type or non-finite only invalidate
+their sensor group, :mod:`terrainml.stream.health`). :func:`check_sample` is the single
+definition: :meth:`terrainml.stream.predictor.Predictor.step` raises its :class:`InvalidSample`,
+and the JSON parser of :mod:`terrainml.stream.sources` counts it as a malformed line.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Mapping
+from typing import Any
+
+#: reasons an :class:`InvalidSample` carries (``InvalidSample.reason``)
+INVALID_REASONS: tuple[str, ...] = (
+    "not_a_mapping",  # None, a string, a list, a number, ...
+    "bad_key",        # a key that is not a str
+    "no_t_s",         # no "t_s" key
+    "bad_t_s",        # t_s is not a real number (a string, a bool, None, a list, ...)
+    "t_s_not_finite",  # t_s is NaN, +-inf, or an integer too large for a float
+)
+
+
+class InvalidSample(ValueError):
+    """The argument of ``Predictor.step`` is not a sample; ``reason`` is one of :data:`INVALID_REASONS`."""
+
+    def __init__(self, reason: str, detail: str):
+        super().__init__(f"invalid sample ({reason}): {detail}")
+        self.reason = reason
+
+
+def _short(v: Any) -> str:
+    text = repr(v) if not isinstance(v, int) or abs(v) < 10**30 else f"<int of {v.bit_length()} bits>"
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def check_sample(sample: Any) -> float:
+    """Validate ``sample``; return its ``t_s`` as a finite float, or raise :class:`InvalidSample`."""
+    if not isinstance(sample, Mapping):
+        raise InvalidSample("not_a_mapping", f"expected a mapping, got {type(sample).__name__}")
+    for k in sample:
+        if not isinstance(k, str):
+            raise InvalidSample("bad_key", f"key {_short(k)} is not a str")
+    if "t_s" not in sample:
+        raise InvalidSample("no_t_s", "no 't_s' key")
+    t = sample["t_s"]
+    if isinstance(t, bool) or not isinstance(t, numbers.Real):
+        raise InvalidSample("bad_t_s", f"t_s {_short(t)} is not a number")
+    try:
+        t_s = float(t)
+    except (OverflowError, ValueError, TypeError):  # int beyond float range, exotic Real
+        raise InvalidSample("t_s_not_finite", f"t_s {_short(t)} does not fit a float") from None
+    if not math.isfinite(t_s):
+        raise InvalidSample("t_s_not_finite", f"t_s is {t_s}")
+    return t_s
