@@ -17,6 +17,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 
@@ -109,8 +110,6 @@ class RobotSpec:
         Least-norm solution of the moment balance (sum F = W, sum F x = W x_c, sum F y = W y_c);
         exact for three non-collinear wheels, the symmetric split for four.
         """
-        import numpy as np
-
         xs = np.array([w.x_m for w in self.wheels])
         ys = np.array([w.y_m for w in self.wheels])
         a = np.vstack([np.ones_like(xs), xs, ys])
@@ -224,6 +223,7 @@ def _parse_spec(data: Any, source: str) -> RobotSpec:
         if not isinstance(steer, bool):
             raise RobotSpecError(f"{where}: field 'steerable' must be true or false")
         wheels.append(WheelSpec(name=str(w.get("name", f"wheel{i + 1}")), x_m=x, y_m=y, steerable=steer))
+    _check_unique_names(wheels, source)
 
     if "com_xy_m" in data:
         com_x, com_y = _pair(data, "com_xy_m", source)
@@ -282,6 +282,37 @@ def _parse_spec(data: Any, source: str) -> RobotSpec:
     if drive != "swerve" and spec.has_steering:
         raise RobotSpecError(f"{source}: field 'wheels': a {drive}-drive robot cannot have steerable wheels")
     return spec
+
+
+def _check_unique_names(wheels: list[WheelSpec], source: str) -> None:
+    # Wheels are addressed by name in messages, plots and the served slip: two of one name
+    # would make those ambiguous (an unnamed wheel defaults to wheel{i}, which can collide too).
+    seen: dict[str, int] = {}
+    for i, w in enumerate(wheels):
+        if w.name in seen:
+            raise RobotSpecError(f"{source}: field 'wheels': wheels[{seen[w.name]}] and wheels[{i}] "
+                                 f"are both named {w.name!r}; wheel names must be unique")
+        seen[w.name] = i
+
+
+def check_wheel_count(spec: RobotSpec, n_wheels_in_log: int, source: str | Path) -> None:
+    """Refuse a log or run table whose wheel count differs from the robot spec's.
+
+    Parameters
+    ----------
+    spec : the robot spec the data is read or estimated with.
+    n_wheels_in_log : wheels found in the data (e.g. ``wheel{i}_omega_radps`` columns or
+        joint-state names).
+    source : the log or table, named in the message.
+
+    Raises
+    ------
+    RobotSpecError naming ``source``, both counts and the spec.
+    """
+    if int(n_wheels_in_log) != spec.n_wheels:
+        raise RobotSpecError(
+            f"{source}: the data has {int(n_wheels_in_log)} wheel(s) but robot spec {spec.name!r} has "
+            f"{spec.n_wheels}; pass the robot it was recorded with (--robot NAME or a spec YAML)")
 
 
 # --------------------------------------------------------------------- loading

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from terrainml.robot import RobotSpecError, load_robot
+from terrainml.robot import RobotSpecError, check_wheel_count, load_robot
 from terrainml.schema import SchemaError, read_run_parquet, validate_run_table, write_run_parquet
 
 
@@ -51,6 +51,46 @@ def test_missing_field_named(tmp_path: Path):
     p.write_text(yaml.safe_dump(data))
     with pytest.raises(RobotSpecError, match="missing field 'wheel_width_m'"):
         load_robot(p)
+
+
+def test_duplicate_wheel_names_refused_naming_file_and_name(tmp_path: Path):
+    data = yaml.safe_load(load_robot().to_yaml())
+    data["wheels"][2]["name"] = data["wheels"][0]["name"]
+    p = tmp_path / "twins.yaml"
+    p.write_text(yaml.safe_dump(data))
+    with pytest.raises(RobotSpecError) as exc:
+        load_robot(p)
+    msg = str(exc.value)
+    assert "twins.yaml" in msg and repr(data["wheels"][0]["name"]) in msg
+    assert "wheels[0]" in msg and "wheels[2]" in msg
+
+
+def test_unnamed_wheel_colliding_with_a_default_name_refused(tmp_path: Path):
+    # wheels[1] has no name, so it defaults to "wheel2", which wheels[0] already uses
+    data = yaml.safe_load(load_robot().to_yaml())
+    data["wheels"][0]["name"] = "wheel2"
+    del data["wheels"][1]["name"]
+    p = tmp_path / "defaults.yaml"
+    p.write_text(yaml.safe_dump(data))
+    with pytest.raises(RobotSpecError, match="'wheel2'") as exc:
+        load_robot(p)
+    assert "defaults.yaml" in str(exc.value)
+
+
+def test_builtin_specs_have_unique_wheel_names():
+    for name in ("agrimaro", "husky", "skidsteer_tracked"):
+        wheels = [w.name for w in load_robot(name).wheels]
+        assert len(set(wheels)) == len(wheels)
+
+
+def test_check_wheel_count_names_source_and_both_counts():
+    ag = load_robot("agrimaro")  # 3 wheels
+    check_wheel_count(ag, 3, "run.mcap")  # equal: no error
+    with pytest.raises(RobotSpecError) as exc:
+        check_wheel_count(ag, 4, Path("logs/run.mcap"))
+    msg = str(exc.value)
+    assert msg.startswith(str(Path("logs/run.mcap"))) and "4 wheel" in msg and "has 3" in msg
+    assert "'agrimaro'" in msg
 
 
 def test_spec_roundtrip_hash_stable(tmp_path: Path):

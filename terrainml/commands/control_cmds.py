@@ -11,10 +11,10 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
 from rich.progress import Progress
 
 from terrainml.classes import class_id
+from terrainml.commands._common import check_output_writable, console, fail
 from terrainml.robot import load_robot
 
 control_app = typer.Typer(help="Traction control in the simulator.", no_args_is_help=True)
@@ -50,27 +50,23 @@ def closed_loop(
     from terrainml.control.traction import POLICIES, tuned_config
     from terrainml.experiments.closed_loop import SCENARIOS, run_closed_loop
 
-    console = Console(stderr=True, soft_wrap=True)
     if policy not in POLICIES:
-        console.print(f"[red]error:[/] --policy {policy!r}: expected one of {', '.join(POLICIES)}")
-        raise typer.Exit(2)
+        fail(f"--policy {policy!r}: expected one of {', '.join(POLICIES)}")
     if scenario not in SCENARIOS:
-        console.print(f"[red]error:[/] --scenario {scenario!r}: expected one of {', '.join(SCENARIOS)}")
-        raise typer.Exit(2)
+        fail(f"--scenario {scenario!r}: expected one of {', '.join(SCENARIOS)}")
     try:
         class_id(terrain)
     except ValueError as exc:
-        console.print(f"[red]error:[/] --terrain: {exc}")
-        raise typer.Exit(2)
+        fail(f"--terrain: {exc}")
     if model is not None and not model.is_dir():
-        console.print(f"[red]error:[/] --model {model}: no such model folder")
-        raise typer.Exit(2)
+        fail(f"--model {model}: no such model folder")
+    if out is not None:
+        check_output_writable(out)  # before the simulation, not after it
     try:
         over = {k: v for k, v in (("kp", kp), ("ki", ki)) if v is not None}
         pid = (SlipPIDConfig(**over) if thesis_pid else tuned_config(load_robot(), **over))
     except ValueError as exc:
-        console.print(f"[red]error:[/] {exc}")
-        raise typer.Exit(2)
+        fail(str(exc))
     with Progress(console=console, transient=True) as bar:
         task = bar.add_task(f"closed loop {terrain} / {policy}", total=1.0)
         try:
@@ -78,8 +74,7 @@ def closed_loop(
                                      speed_mps=speed_mps, pid=pid, scenario=scenario,
                                      progress=lambda f: bar.update(task, completed=f))
         except ValueError as exc:  # model refused, bad parameters
-            console.print(f"[red]error:[/] {exc}")
-            raise typer.Exit(2)
+            fail(str(exc))
     text = json.dumps(report, indent=2)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)

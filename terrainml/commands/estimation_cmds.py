@@ -7,6 +7,11 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+from terrainml.commands._common import check_output_writable, console, fail, open_run
+from terrainml.robot import check_wheel_count
 
 
 def register(app: typer.Typer) -> None:
@@ -32,32 +37,29 @@ def register(app: typer.Typer) -> None:
 
         Example: ``terrainml estimate runs/sim/run_000.mcap --out runs/est/run_000.parquet --plot runs/est/plots``
 
-        Real Husky log: ``terrainml estimate test1.bag --robot husky --topics husky_robot_localization --out est.parquet``
+        Real Husky log:
+        ``terrainml estimate test1.bag --robot husky --topics husky_robot_localization --out est.parquet``
         """
-        from rich.console import Console
-        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-        from rich.table import Table
-
-        console = Console(stderr=True, soft_wrap=True)
         from terrainml.estimation.ekf import PRESETS
 
         if preset not in PRESETS:
-            _fail(console, f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
-            raise typer.Exit(2)
-        try:
-            table = _load(run, robot, topics)
-        except Exception as exc:  # noqa: BLE001 - any reader error becomes a clear message
-            _fail(console, f"{run}: cannot read run: {exc}")
-            raise typer.Exit(2) from None
+            fail(f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+        # every output is checked before the (long) estimation, not when it is written
+        rep_path = out.with_suffix(".report.json")
+        for target in (out, rep_path):
+            check_output_writable(target)
+        if plot is not None:
+            check_output_writable(plot, folder=True)
+        table = open_run(run, robot=robot, topics=topics)
         from terrainml.estimation.consistency import consistency_report, truth_metrics
         from terrainml.estimation.run import _robot_for, estimate_run_detailed
-        from terrainml.robot import RobotSpecError
+        from terrainml.schema import infer_n_wheels, write_run_parquet
 
         try:
             spec = _robot_for(table, robot)
-        except (RobotSpecError, ValueError) as exc:
-            _fail(console, f"{exc}")
-            raise typer.Exit(2) from None
+            check_wheel_count(spec, infer_n_wheels(table), run)
+        except ValueError as exc:  # RobotSpecError is a ValueError
+            fail(str(exc))
         with Progress(TextColumn("[bold]estimate[/bold] {task.description}"), BarColumn(),
                       TextColumn("{task.percentage:>3.0f}%"), TimeRemainingColumn(),
                       console=console, transient=True) as prog:
@@ -66,18 +68,17 @@ def register(app: typer.Typer) -> None:
                 est, diag = estimate_run_detailed(
                     table, spec, preset, progress=lambda k, n: prog.update(task, completed=k))
             except ValueError as exc:
-                _fail(console, f"{run}: {exc}")
-                raise typer.Exit(2) from None
-        from terrainml.schema import write_run_parquet
-
-        write_run_parquet(est, out)
+                fail(f"{run}: {exc}")
         report = {"run": str(run), "preset": preset, "robot": spec.name, "n_ticks": len(est),
                   "consistency": consistency_report(est, diag)}
         if any(c.startswith("gt_") for c in est.columns):
             report["truth"] = truth_metrics(est, spec.n_wheels)
-        rep_path = out.with_suffix(".report.json")
-        rep_path.write_text(json.dumps(report, indent=2, default=float))
-        _print_report(console, report, Table)
+        try:
+            write_run_parquet(est, out)
+            rep_path.write_text(json.dumps(report, indent=2, default=float))
+        except OSError as exc:  # checked above; a full disk or a race can still fail here
+            fail(f"{exc.filename or out}: cannot write ({exc.strerror or exc})")
+        _print_report(report)
         if plot is not None:
             from terrainml.estimation.plots import save_plots
 
@@ -86,30 +87,7 @@ def register(app: typer.Typer) -> None:
         console.print(f"wrote {out} ({len(est)} ticks) and {rep_path}")
 
 
-def _fail(console, message: str) -> None:
-    """Print one clear error line (no wrapping inside paths)."""
-    console.print(f"[red]error:[/red] {message}", soft_wrap=True)
-
-
-def _load(run: Path, robot: Optional[str], topics: Optional[str] = None):
-    if not run.exists():
-        raise FileNotFoundError("file not found")
-    if run.suffix == ".parquet":
-        from terrainml.schema import read_run_parquet
-
-        return read_run_parquet(run)
-    try:
-        from terrainml.io.ingest import load_run
-    except ImportError as exc:  # pragma: no cover - until the io area lands
-        raise RuntimeError(f"reading {run.suffix} needs terrainml.io.ingest ({exc})") from None
-    res = load_run(run, robot=robot, topic_map=topics)
-    if not getattr(res.report, "usable", True):
-        why = "; ".join(getattr(res.report, "errors", []) or []) or "no usable sensor data"
-        raise RuntimeError(f"ingest found no usable data: {why}")
-    return res.table
-
-
-def _print_report(console, report: dict, Table) -> None:
+def _print_report(report: dict) -> None:
     c = report["consistency"]
     t = Table(title=f"EKF consistency ({report['preset']})")
     t.add_column("metric")

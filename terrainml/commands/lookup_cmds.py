@@ -7,6 +7,11 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.console import Console
+from rich.table import Table
+
+from terrainml.commands._common import check_output_writable, console, fail
+from terrainml.robot import RobotSpec, RobotSpecError
 
 lookup_app = typer.Typer(
     name="lookup",
@@ -19,30 +24,19 @@ lookup_app = typer.Typer(
 _ROBOT_HELP = "Robot spec: a YAML path or a built-in name (agrimaro, husky); default agrimaro."
 
 
-def _err(msg: str) -> None:
-    from rich.console import Console
-
-    Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {msg}", highlight=False)
-
-
 def _load_table(robot: Optional[str], table_path: Optional[Path]):
     """Build a table for ``robot`` or read ``table_path``; exit 2 with a clear message on error."""
     from terrainml.lookup.table import DesiredSlipTable, LookupTableError
-    from terrainml.robot import RobotSpecError
 
     try:
         if table_path is not None:
             return DesiredSlipTable.load(table_path, robot=robot)
         return DesiredSlipTable.build(robot)
-    except (LookupTableError, RobotSpecError) as exc:
-        _err(str(exc))
-        raise typer.Exit(2) from None
+    except (LookupTableError, RobotSpecError) as exc:  # the message names the file
+        fail(str(exc))
 
 
 def _rich_table(table) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
     t = Table(title=f"Desired slip, robot '{table.robot_spec.get('name')}' "
                     f"(spec sha256 {table.robot_sha256[:12]})")
     for col, just in (("id", "right"), ("class", "left"), ("traction", "right"),
@@ -53,7 +47,7 @@ def _rich_table(table) -> None:
         t.add_row(str(r.id), r.name, f"{r.traction:+.3f}", f"{r.braking:+.3f}",
                   f"{r.steady:+.3f}", f"{r.traction_kind}/{r.braking_kind}",
                   "; ".join(r.notes))
-    Console().print(t)
+    Console().print(t)  # stdout: the table is the command's output
 
 
 @lookup_app.command("build")
@@ -63,21 +57,20 @@ def build(
 ) -> None:
     """Compute the desired-slip table for a robot and write it as JSON.
 
-    The JSON holds the targets, the class parameters they came from, the robot spec and its sha256, and a checksum (verified on load).
+    The JSON holds the targets, the class parameters they came from, the robot spec and its
+    sha256, and a checksum (verified on load).
 
     Example: ``terrainml lookup build --robot husky --out table.json``
     """
+    check_output_writable(out)
     table = _load_table(robot, None)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         table.save(out)
-    except OSError as exc:
-        _err(f"{out}: cannot write the table ({exc.strerror or exc})")
-        raise typer.Exit(2) from None
+    except OSError as exc:  # checked above; a full disk or a race can still fail here
+        fail(f"{out}: cannot write the table ({exc.strerror or exc})")
     _rich_table(table)
-    from rich.console import Console
-
-    Console(stderr=True, soft_wrap=True).print(f"wrote {out}")
+    console.print(f"wrote {out}")
 
 
 @lookup_app.command("show")
@@ -116,21 +109,17 @@ def plot(
     """
     from terrainml.lookup.plot import plot_table
 
+    check_output_writable(out)
     table = _load_table(robot, table_path)
     try:
         path = plot_table(out, robot=robot if robot is not None else
                           _robot_of(table), table=table)
-    except OSError as exc:
-        _err(f"{out}: cannot write the figure ({exc.strerror or exc})")
-        raise typer.Exit(2) from None
-    from rich.console import Console
-
-    Console(stderr=True, soft_wrap=True).print(f"wrote {path}")
+    except OSError as exc:  # checked above; a full disk or a race can still fail here
+        fail(f"{out}: cannot write the figure ({exc.strerror or exc})")
+    console.print(f"wrote {path}")
 
 
 def _robot_of(table):
-    from terrainml.robot import RobotSpec
-
     return RobotSpec.from_dict(table.robot_spec, source="table")
 
 

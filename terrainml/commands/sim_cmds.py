@@ -10,20 +10,13 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from terrainml.classes import class_id
-from terrainml.robot import RobotSpecError, load_robot
+from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail, open_robot
 
-console = Console(stderr=True, soft_wrap=True)
 sim_app = typer.Typer(name="sim", help="Simulate the reference robot on the eight terrain classes "
                       "(labelled ROS 2 MCAP logs with ground truth).", no_args_is_help=True)
-
-
-def _fail(msg: str) -> None:
-    console.print(f"[red]error:[/] {msg}", highlight=False)
-    raise typer.Exit(2)
 
 
 @sim_app.command("generate")
@@ -39,7 +32,7 @@ def generate(
     seed: int = typer.Option(0, "--seed", help="Seed; per-run seeds are SeedSequence(seed).spawn(n)."),
     runs_per_class: Optional[int] = typer.Option(None, "--runs-per-class", help="Write a labelled "
                                                  "dataset: this many runs of every class."),
-    n_jobs: int = typer.Option(1, "--n-jobs", help="Parallel jobs for a dataset (joblib)."),
+    n_jobs: int = typer.Option(1, "--n-jobs", help="Parallel jobs for a dataset (joblib; -1: all cores)."),
     fmt: str = typer.Option("mcap", "--format", help="Dataset file format: mcap or parquet."),
     brake: bool = typer.Option(True, "--brake/--no-brake", help="Straight scenario: stop at the end."),
     robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec YAML or built-in name "
@@ -54,23 +47,20 @@ def generate(
     """
     from terrainml.sim.scenarios import SCENARIOS
 
-    try:
-        spec = load_robot(robot)
-    except RobotSpecError as exc:
-        _fail(str(exc))
+    spec = open_robot(robot)
+    check_n_jobs(n_jobs)
     if duration_s is not None and not (1.0 <= duration_s <= 3600.0):
-        _fail(f"--duration-s must be in [1, 3600] s, got {duration_s}")
+        fail(f"--duration-s must be in [1, 3600] s, got {duration_s}")
     if not (0.05 <= abs(speed_mps) <= 3.0):
-        _fail(f"--speed-mps must be 0.05..3 m/s in magnitude, got {speed_mps}")
+        fail(f"--speed-mps must be 0.05..3 m/s in magnitude, got {speed_mps}")
     if runs_per_class is not None:
+        if runs_per_class < 1:
+            fail(f"--runs-per-class must be >= 1, got {runs_per_class}")
+        if fmt not in ("mcap", "parquet"):
+            fail(f"--format must be mcap or parquet, got {fmt!r}")
+        check_output_writable(out, folder=True)  # a dataset needs an output folder
         from terrainml.sim.generate import generate_dataset
 
-        if runs_per_class < 1:
-            _fail(f"--runs-per-class must be >= 1, got {runs_per_class}")
-        if fmt not in ("mcap", "parquet"):
-            _fail(f"--format must be mcap or parquet, got {fmt!r}")
-        if out.exists() and not out.is_dir():
-            _fail(f"{out}: exists and is not a folder (a dataset needs an output folder)")
         with Progress(TextColumn("[bold]sim[/] runs"), BarColumn(), MofNCompleteColumn(),
                       TimeRemainingColumn(), console=console) as progress:
             task = progress.add_task("runs", total=runs_per_class * 8)
@@ -80,18 +70,19 @@ def generate(
         console.print(f"[green]wrote[/] {runs_per_class * 8} runs and {index}")
         return
     if scenario not in SCENARIOS:
-        _fail(f"--scenario: unknown scenario {scenario!r}; expected one of: {', '.join(SCENARIOS)}")
+        fail(f"--scenario: unknown scenario {scenario!r}; expected one of: {', '.join(SCENARIOS)}")
     if scenario not in ("mixed", "patch_map"):
         if terrain is None:
-            _fail("--terrain is required for one run (or give --runs-per-class for a dataset)")
+            fail("--terrain is required for one run (or give --runs-per-class for a dataset)")
         try:
             terrain_id = class_id(terrain)
         except ValueError as exc:
-            _fail(f"--terrain: {exc}")
+            fail(f"--terrain: {exc}")
     else:
         terrain_id = 0
     if out.suffix not in (".mcap", ".parquet"):
-        _fail(f"{out}: output must end in .mcap or .parquet")
+        fail(f"{out}: output must end in .mcap or .parquet")
+    check_output_writable(out)
     from terrainml.sim.generate import simulate, write_run
 
     kw = {"brake": brake} if scenario == "straight" else {}
@@ -121,11 +112,12 @@ def plot(
     from terrainml.sim.plot import plot_run
 
     if not run.is_file():
-        _fail(f"{run}: file not found")
+        fail(f"{run}: file not found")
+    check_output_writable(out, folder=True)
     try:
         paths = plot_run(run, out, robot)
     except (ValueError, KeyError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     for p in paths:
         console.print(f"[green]wrote[/] {p}")
 

@@ -11,43 +11,24 @@ from pathlib import Path
 from typing import List, Optional
 
 import typer
-from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from terrainml.commands._common import check_output_writable, console, fail, open_run
 from terrainml.robot import RobotSpec, RobotSpecError, load_robot
 
-console = Console(stderr=True, soft_wrap=True)
 slipmap_app = typer.Typer(help="Slip maps (IRLS paper): per-terrain robust slippage estimators, "
                                "merged across robots.\n\nExample: `terrainml slipmap experiment --robots 5 "
                                "--laps 5 --seed 0 --out runs/slipmap/report.json`",
                           no_args_is_help=True)
 
 
-def _fail(msg: str) -> None:
-    console.print(f"[red]error:[/red] {msg}")
-    raise typer.Exit(code=2)
-
-
 def _load_tables(directory: Path):
-    from terrainml.schema import SchemaError, read_run_parquet
-
     files = sorted(p for p in directory.iterdir() if p.suffix.lower() in (".parquet", ".mcap", ".bag", ".csv"))
     if not files:
-        _fail(f"{directory}: no run tables (.parquet) or logs (.mcap, .bag, .csv) found")
+        fail(f"{directory}: no run tables (.parquet) or logs (.mcap, .bag, .csv) found")
     for f in files:
-        if f.suffix.lower() == ".parquet":
-            try:
-                yield f, read_run_parquet(f)
-            except SchemaError as exc:
-                _fail(str(exc))
-        else:
-            from terrainml.io.ingest import load_run
-
-            res = load_run(f)
-            if not res.report.usable:
-                _fail(f"{f}: log not usable ({res.report})")
-            yield f, res.table
+        yield f, open_run(f)
 
 
 @slipmap_app.command("fit")
@@ -69,11 +50,12 @@ def fit_cmd(directory: Path = typer.Argument(..., help="Folder of run tables (.p
     from terrainml.slipmap.slipmap import SlipMapConfig
 
     if not directory.is_dir():
-        _fail(f"{directory}: not a folder")
+        fail(f"{directory}: not a folder")
     if by not in ("terrain", "all"):
-        _fail(f"--by must be terrain or all, got {by!r}")
+        fail(f"--by must be terrain or all, got {by!r}")
     if norm not in ("huber", "bisquare"):
-        _fail(f"--norm must be huber or bisquare, got {norm!r}")
+        fail(f"--norm must be huber or bisquare, got {norm!r}")
+    check_output_writable(out)
     tables = list(_load_tables(directory))
     try:
         if robot is not None:
@@ -86,9 +68,9 @@ def fit_cmd(directory: Path = typer.Argument(..., help="Folder of run tables (.p
                             wheel_radius_m=spec.wheel_radius_m, track_width_m=track)
         smap, info = fit_slip_map(((str(f), t) for f, t in tables), spec, by=by, config=cfg, robot_id=robot_id)
     except (RobotSpecError, SlipFitError, ValueError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     if not smap.patches:
-        _fail(f"{directory}: too few usable samples for any entry ({info['samples_per_entry']})")
+        fail(f"{directory}: too few usable samples for any entry ({info['samples_per_entry']})")
     smap.save(out)
     console.print(f"wrote {out}: entries {', '.join(info['fitted_entries'])}; samples "
                   f"{info['samples_per_entry']}")
@@ -103,10 +85,11 @@ def merge_cmd(maps: List[Path] = typer.Argument(..., help="Slip map messages (JS
     """
     from terrainml.slipmap.slipmap import SlipMap, SlipMapError, merge_maps
 
+    check_output_writable(out)
     try:
         merged = merge_maps([SlipMap.load(p) for p in maps], robot_id="merged")
     except SlipMapError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     merged.save(out)
     console.print(f"wrote {out}: {len(maps)} maps, entries {', '.join(sorted(merged.patches))}")
 
@@ -125,9 +108,11 @@ def experiment_cmd(robots: int = typer.Option(5, help="Robots on the path (paper
     from terrainml.experiments.slipmap_laps import ExperimentConfig, run_experiment, write_report
 
     if robots < 1 or laps < 2:
-        _fail("--robots must be >= 1 and --laps >= 2")
+        fail("--robots must be >= 1 and --laps >= 2")
     if norm not in ("huber", "bisquare"):
-        _fail(f"--norm must be huber or bisquare, got {norm!r}")
+        fail(f"--norm must be huber or bisquare, got {norm!r}")
+    check_output_writable(out)
+    check_output_writable(out.with_suffix(".png"))
     cfg = ExperimentConfig(n_robots=robots, n_laps=laps, seed=seed, norm=norm)
     with Progress(console=console, transient=True) as bar:
         task = bar.add_task("simulating", total=1.0)

@@ -4,10 +4,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
+import matplotlib
 
-from terrainml.lookup.table import DesiredSlipTable, mu_net_curve, slip_grid
-from terrainml.robot import RobotSpec, load_robot
+matplotlib.use("Agg")  # files only, no display
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from terrainml.lookup import terramechanics as tm  # noqa: E402
+from terrainml.lookup.table import DesiredSlipTable, mu_net_curve, slip_grid  # noqa: E402
+from terrainml.robot import RobotSpec, load_robot  # noqa: E402
 
 __all__ = ["plot_table"]
 
@@ -27,13 +32,6 @@ def plot_table(out: str | Path, robot: RobotSpec | str | None = None,
     -------
     Path of the written figure.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from terrainml.lookup import terramechanics as tm
-
     robot = load_robot(robot)
     table = table if table is not None else DesiredSlipTable.build(robot)
     s = slip_grid()

@@ -40,11 +40,15 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
+from scipy.optimize import brentq
 
+from terrainml import __version__
 from terrainml.classes import TERRAIN_CLASSES
+from terrainml.lookup import terramechanics as tm
 from terrainml.robot import RobotSpec, load_robot
 
 __all__ = ["ClassTargets", "DesiredSlipTable", "LookupTableError", "RIGID_CLASSES",
@@ -89,13 +93,6 @@ class ClassTargets:
         return d
 
 
-def _tm():
-    """The terramechanics module (imported lazily so policy-only users do not need it)."""
-    from terrainml.lookup import terramechanics
-
-    return terramechanics
-
-
 def slip_grid() -> np.ndarray:
     """The table's slip grid, shape (1601,), -0.8 .. 0.8 in steps of 0.001."""
     return np.linspace(S_MIN, S_MAX, N_GRID)
@@ -116,7 +113,6 @@ def mu_net_curve(params: Any, robot: RobotSpec, slip: np.ndarray,
     -------
     ndarray, shape (M,), dimensionless.
     """
-    tm = _tm()
     loads = list(robot.static_wheel_loads_n() if loads_n is None else loads_n)
     s = np.asarray(slip, dtype=float)
     total = np.zeros_like(s)
@@ -170,8 +166,6 @@ def _steady_root(params: Any, robot: RobotSpec, loads: Sequence[float],
         return None
     j = int(above[0])
     a, b = float(s_pos[j - 1]), float(s_pos[j])
-    from scipy.optimize import brentq
-
     def f(x: float) -> float:
         return float(mu_net_curve(params, robot, np.array([x]), loads)[0])
 
@@ -294,7 +288,6 @@ class DesiredSlipTable:
         params : optional {class_id: TerrainParams} overriding the nominal parameters.
         """
         robot = load_robot(robot)
-        tm = _tm()
         loads = robot.static_wheel_loads_n()
         if any(not math.isfinite(w) for w in loads) or sum(loads) <= 0:
             raise LookupTableError(f"robot {robot.name!r}: invalid static wheel loads {loads}")
@@ -307,8 +300,6 @@ class DesiredSlipTable:
         for cid in ids:
             p = (params or {}).get(cid) or tm.nominal_params(cid)
             rows.append(_build_row(cid, p, robot, loads))
-        from terrainml import __version__
-
         meta = {"terrainml_version": __version__,
                 "slip_grid": {"min": S_MIN, "max": S_MAX, "n": N_GRID},
                 "rules": {"min_traction_margin": MIN_TRACTION_MARGIN,
@@ -388,27 +379,41 @@ class DesiredSlipTable:
         return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
 
     @classmethod
-    def from_json(cls, text: str, *, robot: RobotSpec | str | None = None,
+    def from_json(cls, text: str | bytes, *, robot: RobotSpec | str | None = None,
                   source: str = "<json>") -> "DesiredSlipTable":
         """Read and verify a table: schema, checksum, robot spec hash, rules.
 
         Parameters
         ----------
-        text : the JSON written by :meth:`to_json`.
+        text : the JSON written by :meth:`to_json` (str, or UTF-8 bytes).
         robot : optional robot the table must have been built for (sha256 compared).
         source : name used in error messages (a file path).
+
+        Raises
+        ------
+        LookupTableError naming ``source`` for anything that is not such a table: binary data,
+        invalid or deeply nested JSON, JSON of another shape, a wrong checksum or robot.
         """
         try:
             doc = json.loads(text)
-        except json.JSONDecodeError as exc:
+        except UnicodeDecodeError:
+            raise LookupTableError(f"{source}: not a desired-slip table (binary data, not "
+                                   "UTF-8 JSON)") from None
+        except (ValueError, RecursionError) as exc:  # JSONDecodeError is a ValueError
             raise LookupTableError(f"{source}: not valid JSON ({exc})") from None
         if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
-            raise LookupTableError(f"{source}: not a terrainml desired-slip table "
-                                   f"(schema {doc.get('schema') if isinstance(doc, dict) else None!r})")
+            got = (f"schema {doc.get('schema')!r}" if isinstance(doc, dict)
+                   else f"a JSON {type(doc).__name__}")
+            raise LookupTableError(f"{source}: not a terrainml desired-slip table (expected an "
+                                   f"object with schema {SCHEMA!r}, got {got})")
         if doc.get("schema_version") != SCHEMA_VERSION:
             raise LookupTableError(f"{source}: schema version {doc.get('schema_version')!r}, "
                                    f"this terrainml reads {SCHEMA_VERSION}")
-        if doc.get("checksum_sha256") != _checksum(doc):
+        try:
+            checksum = _checksum(doc)
+        except ValueError as exc:  # NaN/Infinity literals: never written by to_json
+            raise LookupTableError(f"{source}: malformed desired-slip table ({exc})") from None
+        if doc.get("checksum_sha256") != checksum:
             raise LookupTableError(f"{source}: checksum mismatch: the table was modified after "
                                    "it was written")
         try:
@@ -426,7 +431,7 @@ class DesiredSlipTable:
                                                           or float("nan")),
                                  notes=tuple(c.get("notes", ())), params=dict(c.get("params", {})))
                     for c in doc["classes"]]
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise LookupTableError(f"{source}: malformed desired-slip table ({exc})") from None
         if spec_sha != sha:
             raise LookupTableError(f"{source}: robot spec sha256 {spec_sha[:12]} does not match "
@@ -447,18 +452,20 @@ class DesiredSlipTable:
         return table
 
     def save(self, path) -> None:
-        from pathlib import Path
-
         Path(path).write_text(self.to_json() + "\n")
 
     @classmethod
     def load(cls, path, *, robot: RobotSpec | str | None = None) -> "DesiredSlipTable":
-        from pathlib import Path
-
+        """Read and verify a table file (see :meth:`from_json`); every refusal names the file."""
         p = Path(path)
         if not p.is_file():
             raise LookupTableError(f"{p}: desired-slip table file not found")
-        return cls.from_json(p.read_text(), robot=robot, source=str(p))
+        try:
+            data = p.read_bytes()  # bytes: binary junk is refused by from_json, not by a decoder
+        except OSError as exc:
+            raise LookupTableError(f"{p}: cannot read the desired-slip table "
+                                   f"({exc.strerror or exc})") from None
+        return cls.from_json(data, robot=robot, source=str(p))
 
     def __repr__(self) -> str:
         body = ", ".join(f"{r.name}: T{r.traction:+.3f} B{r.braking:+.3f} S{r.steady:+.3f}"

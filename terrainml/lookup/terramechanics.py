@@ -64,8 +64,10 @@ from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
+from scipy.optimize import brentq
 
 from terrainml.classes import TERRAIN_CLASSES, class_id as _class_id
+from terrainml.robot import load_robot
 
 __all__ = [
     "TerrainParams", "nominal_params", "all_nominal_params", "sample_params",
@@ -220,8 +222,6 @@ def sample_params(class_id: int | str, rng: np.random.Generator, spread: float =
 # ----------------------------------------------------------------------------- geometry
 def _robot_geom(robot) -> tuple[float, float, float]:
     if robot is None:
-        from terrainml.robot import load_robot
-
         robot = load_robot()
     return float(robot.wheel_radius_m), float(robot.wheel_width_m), float(robot.tyre_flat_m)
 
@@ -337,8 +337,6 @@ def net_traction_coefficient(p: TerrainParams, load_n, slip, robot=None) -> np.n
 
 def steady_slip(p: TerrainParams, load_n: float, robot=None) -> float:
     """Root of mu_net(s) = 0 on (0, 1): the slip that keeps constant speed (NaN if none)."""
-    from scipy.optimize import brentq
-
     def f(s: float) -> float:
         return float(net_traction_coefficient(p, load_n, s, robot))
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from terrainml.cli import app
@@ -54,3 +56,35 @@ def test_plot_writes_a_png(tmp_path):
     res = runner.invoke(app, ["lookup", "plot", "--out", str(out)])
     assert res.exit_code == 0, res.output
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 20_000
+
+
+def _refused(res, *needles):
+    assert res.exit_code == 2, res.output
+    assert isinstance(res.exception, SystemExit), res.exception  # not a crash
+    out = res.output.replace("\n", "")
+    assert "error:" in out and "Traceback" not in out
+    for n in needles:
+        assert str(n) in out, (n, out)
+
+
+@pytest.mark.parametrize("name,content", [
+    ("random.json", bytes(range(256))),
+    ("shape.json", b'{"classes": {"pavement": 0.16}}'),
+    ("table.csv", b"id,name,traction\n0,pavement,0.16\n"),
+])
+def test_foreign_table_file_is_refused_naming_it(tmp_path, name, content):
+    path = tmp_path / name
+    path.write_bytes(content)
+    for cmd in (["lookup", "show", "--table", str(path)],
+                ["lookup", "plot", "--table", str(path), "--out", str(tmp_path / "fig.png")]):
+        _refused(runner.invoke(app, cmd), path)
+    assert not (tmp_path / "fig.png").exists()
+
+
+def test_unwritable_output_is_refused_before_building(tmp_path):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file, not a folder")
+    _refused(runner.invoke(app, ["lookup", "build", "--out", str(blocker / "t.json")]), blocker / "t.json")
+    _refused(runner.invoke(app, ["lookup", "plot", "--out", str(blocker / "f.png")]), blocker / "f.png")
+    if Path("/proc/self").is_dir():  # fails for root too
+        _refused(runner.invoke(app, ["lookup", "build", "--out", "/proc/t.json"]), "/proc/t.json")

@@ -242,3 +242,33 @@ def test_from_json_refuses_tampered_wrong_robot_and_broken_tables(table, robot):
         DesiredSlipTable.from_json("{nope")
     with pytest.raises(LookupTableError, match="not a terrainml desired-slip table"):
         DesiredSlipTable.from_json("{}")
+
+
+FOREIGN_FILES = {
+    "random.json": bytes(range(256)) * 4,  # binary: not UTF-8
+    "list.json": b"[1, 2, 3]",
+    "other.json": b'{"name": "agrimaro", "wheels": []}',
+    "table.csv": b"id,name,traction\n0,pavement,0.16\n",
+    "nan.json": b'{"schema": "terrainml.desired_slip_table", "schema_version": 1, "x": NaN}',
+    "deep.json": b"[" * 100_000,
+    "empty.json": b"",
+}
+
+
+@pytest.mark.parametrize("name", sorted(FOREIGN_FILES))
+def test_foreign_file_in_place_of_the_table_is_refused_naming_it(tmp_path, name):
+    path = tmp_path / name
+    path.write_bytes(FOREIGN_FILES[name])
+    with pytest.raises(LookupTableError) as exc:
+        DesiredSlipTable.load(path)
+    assert str(exc.value).startswith(f"{path}: ")
+
+
+def test_rechecksummed_table_of_another_shape_is_refused(table):
+    from terrainml.lookup.table import _checksum
+
+    doc = json.loads(table.to_json())
+    doc["classes"] = [1, 2, 3]  # rows that are not objects
+    doc["checksum_sha256"] = _checksum(doc)
+    with pytest.raises(LookupTableError, match="t.json: malformed desired-slip table"):
+        DesiredSlipTable.from_json(json.dumps(doc), source="t.json")

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import csv
+from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
+import terrainml.sim.generate as sim_generate
 from terrainml.cli import app
 from terrainml.io.ingest import load_run
 from terrainml.schema import read_run_parquet
@@ -69,3 +72,44 @@ def test_plot_writes_pngs(tmp_path):
     r = runner.invoke(app, ["sim", "plot", str(out), "--out", str(tmp_path / "plots")])
     assert r.exit_code == 0, r.output
     assert (tmp_path / "plots" / "g_slip.png").stat().st_size > 10_000
+
+
+def _refused(res, *needles):
+    assert res.exit_code == 2, res.output
+    assert isinstance(res.exception, SystemExit), res.exception  # a message, not a crash
+    out = res.output.replace("\n", "")
+    assert "error:" in out and "Traceback" not in out
+    for n in needles:
+        assert str(n) in out, (n, out)
+
+
+@pytest.fixture
+def no_simulation(monkeypatch):
+    """Make any simulation fail the test: refusals must come before the long work."""
+    def boom(*args, **kwargs):
+        raise AssertionError("simulated although the command should have refused first")
+
+    for name in ("simulate", "generate_dataset", "write_run"):
+        monkeypatch.setattr(sim_generate, name, boom)
+
+
+@pytest.mark.parametrize("n_jobs", ["0", "-2"])
+def test_bad_n_jobs_refused_before_simulating(tmp_path, no_simulation, n_jobs):
+    out = tmp_path / "ds"
+    r = runner.invoke(app, ["sim", "generate", "--runs-per-class", "1", "--n-jobs", n_jobs, "--out", str(out)])
+    _refused(r, "--n-jobs", f"got {n_jobs}")
+    assert not out.exists()
+
+
+def test_unwritable_output_refused_before_simulating(tmp_path, no_simulation):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file, not a folder")  # root ignores permission bits, not this
+    one = blocker / "run.mcap"
+    _refused(runner.invoke(app, ["sim", "generate", "--terrain", "pavement", "--out", str(one)]), one)
+    ds = blocker / "ds"
+    _refused(runner.invoke(app, ["sim", "generate", "--runs-per-class", "1", "--out", str(ds)]), ds)
+    _refused(runner.invoke(app, ["sim", "generate", "--runs-per-class", "1", "--out", str(blocker)]),
+             blocker, "not a folder")
+    if Path("/proc/self").is_dir():
+        _refused(runner.invoke(app, ["sim", "generate", "--terrain", "pavement", "--out", "/proc/run.mcap"]),
+                 "/proc/run.mcap")
