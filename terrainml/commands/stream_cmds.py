@@ -15,6 +15,10 @@ Examples:
   terrainml predict --model runs/svm --source udp://127.0.0.1:9870 --sink udp://127.0.0.1:9871
 
   terrainml predict --model runs/svm --source - --sink can://virtual/vcan0 --sink mcap:served.mcap
+
+  terrainml predict --model runs/svm --source runs/demo/course.mcap --realtime --sink foxglove://127.0.0.1:8765
+
+  (live view: in Foxglove, open connection -> Foxglove WebSocket -> ws://127.0.0.1:8765)
 """
 
 
@@ -30,8 +34,9 @@ def register(app: typer.Typer) -> None:
         source: str = typer.Option(..., "--source",
                                    help="RUN.mcap|.bag|.parquet|.csv, udp://HOST:PORT, or - (stdin JSON lines)."),
         sink: List[str] = typer.Option(["stdout"], "--sink",
-                                       help="stdout, udp://HOST:PORT, can://IFACE/CHANNEL or "
-                                            "mcap:OUT.mcap; repeat for several."),
+                                       help="stdout, udp://HOST:PORT, can://IFACE/CHANNEL, "
+                                            "mcap:OUT.mcap or foxglove://HOST:PORT (live view "
+                                            "in Foxglove); repeat for several."),
         realtime: bool = typer.Option(False, "--realtime", help="Pace a log source at its own time stamps."),
         robot: Optional[str] = typer.Option(None, "--robot",
                                             help="Robot spec (name or YAML); default: the model's."),

@@ -88,7 +88,8 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
     opened: list[GuardedSink] = []
     try:
         for spec in sinks:
-            opened.append(open_sink(spec, n_wheels=predictor.n, n_classes=n_classes))
+            opened.append(open_sink(spec, n_wheels=predictor.n, n_classes=n_classes,
+                                    class_names=predictor.class_names))
     except SinkError as exc:
         console.print(f"[red]error:[/] {exc}")
         for s in opened:

@@ -1,4 +1,4 @@
-"""Where served :class:`DesiredSlip` messages go: stdout, UDP JSON, CAN, MCAP (SYSTEM §11).
+"""Where served :class:`DesiredSlip` messages go: stdout, UDP JSON, CAN, MCAP, Foxglove (SYSTEM §11).
 
 Sink specs (``terrainml predict --sink``; repeat the option for several sinks)::
 
@@ -6,8 +6,10 @@ Sink specs (``terrainml predict --sink``; repeat the option for several sinks)::
     udp://HOST:PORT                 one JSON datagram per tick (default 127.0.0.1:9871)
     can://INTERFACE/CHANNEL         python-can, e.g. can://virtual/vcan0, can://socketcan/can0
     mcap:OUT.mcap                   MCAP recording, topic /terrainml/desired_slip, JSON schema
+    foxglove://HOST:PORT            live view, Foxglove WebSocket server (default 127.0.0.1:8765;
+                                    port 0 picks a free one); stream/foxglove_sink.py
 
-A sink that fails (socket error, CAN bus down, disk full) is wrapped by :class:`GuardedSink`:
+A sink that fails (socket error, CAN bus down, disk full, Foxglove port in use) is wrapped by :class:`GuardedSink`:
 the error is logged (the first time and then every 1000th), counted, and the predictor goes on.
 
 CAN frame layout (classic CAN, 11-bit ids, 8 data bytes, little endian; ``BASE`` default 0x300)
@@ -48,6 +50,7 @@ import can
 from mcap.writer import Writer
 
 from terrainml.io.topics import WHEEL_STATE_CODES
+from terrainml.stream.foxglove_sink import DEFAULT_FOXGLOVE_SINK, FoxgloveSink, class_names_for
 from terrainml.stream.message import FALLBACK_REASONS, TOPIC, DesiredSlip, json_schema
 
 log = logging.getLogger("terrainml.stream")
@@ -226,25 +229,43 @@ class GuardedSink:
 
 
 # --------------------------------------------------------------------------- factory
-def _host_port(rest: str, default: tuple[str, int], spec: str) -> tuple[str, int]:
+def _host_port(rest: str, default: tuple[str, int], spec: str, scheme: str = "udp") -> tuple[str, int]:
     if not rest:
         return default
     host, _, port = rest.rpartition(":")
     try:
         return (host or default[0], int(port))
     except ValueError:
-        raise SinkError(f"sink {spec!r}: expected udp://HOST:PORT") from None
+        raise SinkError(f"sink {spec!r}: expected {scheme}://HOST:PORT") from None
+
+
+def _scheme_rest(s: str, scheme: str) -> str | None:
+    """What follows ``scheme://`` in ``s`` ("" for the bare scheme), or None for another scheme."""
+    if s == scheme:
+        return ""
+    return s[len(scheme) + 3:] if s.startswith(scheme + "://") else None
 
 
 def open_sink(spec: str, *, n_wheels: int | None = None, n_classes: int | None = None,
-              stdout: IO[str] | None = None) -> GuardedSink:
-    """Open one sink from its spec string (see the module docstring); raises SinkError."""
+              class_names: list[str] | None = None, stdout: IO[str] | None = None) -> GuardedSink:
+    """Open one sink from its spec string (see the module docstring); raises SinkError.
+
+    ``class_names`` names the class ids 0..K-1 where a sink shows names (Foxglove); default the
+    eight classes of design §6.1.
+    """
     s = spec.strip()
     if s in ("stdout", "-"):
         sink: Any = StdoutSink(stdout)
-    elif s.startswith("udp://") or s == "udp":
-        host, port = _host_port(s[len("udp://"):] if s != "udp" else "", DEFAULT_UDP_SINK, spec)
+    elif (rest := _scheme_rest(s, "udp")) is not None:
+        host, port = _host_port(rest, DEFAULT_UDP_SINK, spec)
         sink = UdpSink(host, port)
+    elif (rest := _scheme_rest(s, "foxglove")) is not None:
+        host, port = _host_port(rest, DEFAULT_FOXGLOVE_SINK, spec, scheme="foxglove")
+        if not 0 <= port <= 65535:
+            raise SinkError(f"sink {spec!r}: port {port} out of range 0..65535 (0 picks a free one)")
+        # a port that cannot be bound is not fatal: the sink retries and GuardedSink counts it
+        sink = FoxgloveSink(host, port, n_wheels=n_wheels,
+                            class_names=class_names_for(n_classes, class_names))
     elif s.startswith("can://"):
         iface, _, channel = s[len("can://"):].partition("/")
         if not iface or not channel:
@@ -260,5 +281,5 @@ def open_sink(spec: str, *, n_wheels: int | None = None, n_classes: int | None =
             raise SinkError(f"sink {spec!r}: cannot write {path} ({exc})") from None
     else:
         raise SinkError(f"unknown sink {spec!r}; expected stdout, udp://HOST:PORT, "
-                        "can://INTERFACE/CHANNEL or mcap:OUT.mcap")
+                        "can://INTERFACE/CHANNEL, mcap:OUT.mcap or foxglove://HOST:PORT")
     return GuardedSink(sink)
