@@ -47,6 +47,7 @@ def ingest(
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+    from terrainml.io.damage import damage_summary
     from terrainml.io.ingest import ingest_to_parquet
 
     try:
@@ -70,7 +71,11 @@ def ingest(
         raise typer.Exit(2)
     if not quiet:
         console.print(f"[green]wrote[/] {out}: {rep.rows} rows, {rep.span_s:.1f} s at {rep.rate_hz:g} Hz; valid "
-                      + ", ".join(f"{g} {f:.0%}" for g, f in rep.valid_fraction.items()), highlight=False, soft_wrap=True)
+                      + ", ".join(f"{g} {f:.0%}" for g, f in rep.valid_fraction.items()),
+                      highlight=False, soft_wrap=True)
+        damage = damage_summary(rep)
+        if damage.any:   # the same counts are in the table's metadata ("damage")
+            console.print(f"[yellow]{log}: {damage.text}[/]", highlight=False, soft_wrap=True)
 
 
 def inspect(
@@ -106,7 +111,10 @@ def inspect(
                           str(d["corrupt"]), str(d["undecoded"]))
         out.print(table)
         if info["truncated"]:
-            out.print("[yellow]truncated file (no footer): messages before the cut were read[/]")
+            tr = info.get("truncation") or {}
+            out.print(f"[yellow]truncated file: {tr.get('unread_bytes', 0):,} byte(s) at the end unread, "
+                      f"{tr.get('incomplete_records', 0)} incomplete record(s); every complete message "
+                      "before the cut was read[/]", highlight=False, soft_wrap=True)
         if info["corrupt_chunks"]:
             out.print(f"[yellow]{info['corrupt_chunks']} corrupt chunk(s) skipped[/]")
         for w in info["warnings"]:

@@ -8,8 +8,11 @@ per chunk, with peak memory that does not grow with the log. Both run the engine
 :mod:`terrainml.io.ingest_engine` into a sink (DataFrame or Parquet); CSV/Parquet inputs are
 tables already and are resampled in memory.
 
-Never raises on bad input: damage is counted per topic and reported; the report's ``errors`` say
-why a file gave no usable table. ``write_run_mcap`` writes a run table back to a ROS 2 MCAP with
+Never raises on bad input: damage is counted per topic (and, for tables, per column and cell
+kind: :mod:`terrainml.io.cells`) and reported; the report's ``errors`` say why a file gave no usable
+table. The counts travel with the table (metadata ``damage``; read them with
+:func:`terrainml.io.damage.damage_summary`). A robot spec whose wheel count differs from the log's
+is refused (:func:`terrainml.robot.check_wheel_count`). ``write_run_mcap`` writes a run table back to a ROS 2 MCAP with
 the default topic map's messages, so a hand-made table round-trips.
 """
 
@@ -18,6 +21,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -30,13 +34,15 @@ from scipy.spatial.transform import Rotation
 
 from terrainml.hashing import sha256_file
 from terrainml.io import t265, topics
+from terrainml.io.cells import Cells, arrow_cells, series_cells
+from terrainml.io.damage import damage_metadata
 from terrainml.io.ingest_engine import FileLog, IngestReport, MemoryLog, produce, scan_log
 from terrainml.io.ingest_signals import PREVIOUS_COLUMNS, Signal, assemble
 from terrainml.io.mcap_writer import RosMcapWriter
 from terrainml.io.readers import LogReadError, sniff_format
 from terrainml.io.resample import clean_times, gap_threshold_s
 from terrainml.io.topicmap import TopicMap, TopicMapError, load_topic_map
-from terrainml.robot import RobotSpec, RobotSpecError, load_robot
+from terrainml.robot import RobotSpec, RobotSpecError, check_wheel_count, load_robot
 from terrainml.schema import (DEFAULT_RATE_HZ, METADATA_KEY, VALID_GROUPS, SchemaError, column_map,
                               make_metadata, valid_column, validate_run_table, wheel_col,
                               write_run_parquet)
@@ -152,67 +158,151 @@ def _topic_map(topic_map, fmt: str) -> TopicMap | None:
 
 
 # ----------------------------------------------------------------------------- tables (CSV/Parquet)
+_WHEEL_COLUMN = re.compile(r"^wheel(\d+)_(omega_radps|steer_rad|current_a)$")
+
+
+class _TableColumns:
+    """The columns of a CSV (pandas, only empty cells as NA) or Parquet (Arrow) file under their
+    canonical names, read cell by cell (:mod:`terrainml.io.cells`)."""
+
+    def __init__(self, path: Path, fmt: str, renames: dict[str, str]):
+        if fmt == "csv":
+            self.df = pd.read_csv(path, keep_default_na=False, na_values=[""])
+            self.arrow = None
+            names = list(self.df.columns)
+        else:
+            self.arrow = pq.read_table(path)
+            self.df = None
+            names = self.arrow.column_names
+        self.source = {renames.get(n, n): n for n in names}   # canonical -> name in the file
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.source)
+
+    def cells(self, name: str, boolean: bool = False) -> Cells:
+        src = self.source[name]
+        if self.arrow is not None:
+            return arrow_cells(self.arrow[src], boolean=boolean)
+        return series_cells(self.df[src], boolean=boolean)
+
+    def raw(self, name: str) -> pd.Series:
+        src = self.source[name]
+        return self.arrow[src].to_pandas() if self.arrow is not None else self.df[src]
+
+
+def _table_wheels(names: list[str]) -> int:
+    """Wheels a table has: the largest ``i`` of its ``wheel{i}_omega_radps/steer_rad/current_a``."""
+    return max([int(m.group(1)) for m in map(_WHEEL_COLUMN.match, names) if m] + [0])
+
+
+def _count_bad(path: Path, col: str, counts: dict[str, int], group: str, rep: IngestReport) -> None:
+    if counts:
+        rep.bad_cells[col] = counts
+        what = ", ".join(f"{n} {k.replace('_', '-')}" for k, n in counts.items())
+        rep.warnings.append(f"{path}: column '{col}': {sum(counts.values())} bad cell(s) ({what}); "
+                            + (f"group {group} invalid at those rows" if group in VALID_GROUPS
+                               else "value missing at those rows"))
+
+
 def _from_tabular(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap | None, rate_hz: float,
                   rep: IngestReport) -> pd.DataFrame | None:
-    """The canonical columns of a CSV/Parquet table resampled onto the base grid (None: error in ``rep``)."""
+    """The canonical columns of a CSV/Parquet table resampled onto the base grid (None: error in ``rep``).
+
+    Cell by cell: an empty/null cell is no sample; a bad cell (unparseable, non-finite, wrongly
+    typed) is counted and makes its sensor group invalid at that row; a row the table flags
+    invalid (``{group}_valid`` false) stays invalid. Both are kept as NaN samples, so nothing is
+    interpolated or held across them.
+    """
+    table_opts = tmap.table if tmap is not None else {}
     try:
-        if fmt == "csv":
-            df = pd.read_csv(path)
-        else:
-            df = pq.read_table(path).to_pandas()
+        cols = _TableColumns(path, fmt, dict(table_opts.get("columns") or {}))
     except Exception as exc:  # noqa: BLE001 - parser errors of several types
         rep.errors.append(f"{path}: not a readable {fmt.upper()} file ({exc})")
         return None
-    table_opts = tmap.table if tmap is not None else {}
-    if table_opts.get("columns"):
-        df = df.rename(columns=dict(table_opts["columns"]))
     tcol = table_opts.get("time_column", "t_s")
-    if tcol not in df.columns:
+    if tcol not in cols.names:
         rep.errors.append(f"{path}: missing time column '{tcol}' (give a topic map with time_column "
                           "and columns to map your file's names)")
         return None
-    t = pd.to_numeric(df[tcol], errors="coerce").to_numpy(float) * float(table_opts.get("time_scale", 1.0))
+    n_in_table = _table_wheels(cols.names)
+    if n_in_table:
+        check_wheel_count(robot, n_in_table, path)
+    tc = cols.cells(tcol)
+    _count_bad(path, tcol, tc.counts(), "time", rep)
+    t = tc.values * float(table_opts.get("time_scale", 1.0))
     fin = np.isfinite(t)
     if (~fin).any():
         rep.warnings.append(f"{path}: column '{tcol}': {int((~fin).sum())} row(s) without a finite time dropped")
-    df, t = df[fin].reset_index(drop=True), t[fin]
-    order, ooo, dup = clean_times(t)
-    rep.topics["<table>"] = {"type": fmt, "mapped": True, "read": len(t), "decoded": len(order), "corrupt": 0,
+    order, ooo, dup = clean_times(t[fin])
+    rows = np.flatnonzero(fin)[order]          # kept rows of the file, in time order
+    rep.topics["<table>"] = {"type": fmt, "mapped": True, "read": len(t), "decoded": len(rows), "corrupt": 0,
                              "skipped": int((~fin).sum()), "out_of_order": ooo, "duplicates": dup, "non_finite": 0}
     if ooo or dup:
         rep.warnings.append(f"{path}: column '{tcol}': {ooo} out-of-order and {dup} duplicate time(s) "
                             "(sorted, duplicates dropped)")
-    df, t = df.iloc[order].reset_index(drop=True), t[order]
-    if len(t) == 0:
+    if len(rows) == 0:
         rep.errors.append(f"{path}: no rows")
         return None
+    t = t[rows]
     t_s = t - t[0]
     spec = column_map(robot.n_wheels)
-    if "run_id" in df.columns and df["run_id"].nunique() == 1:
-        rep.topics["<table>"]["run_id"] = str(df["run_id"].iloc[0])
+    names = [c for c in cols.names if c in spec and c not in ("t_s", "run_id", tcol) and spec[c].group != "validity"]
+    if "run_id" in cols.names:
+        run_ids = cols.raw("run_id").iloc[rows]
+        if run_ids.nunique() == 1:
+            rep.topics["<table>"]["run_id"] = str(run_ids.iloc[0])
+    n_file = len(tc.values)
+
+    def file_rows(kept: np.ndarray) -> np.ndarray:   # (n_file,) bool of the kept rows selected
+        m = np.zeros(n_file, bool)
+        m[rows[kept]] = True
+        return m
+
+    every = np.ones(len(rows), bool)
+    # rows each group may not use: flagged invalid by the table, or holding a bad cell
+    flagged: dict[str, np.ndarray] = {}
+    for g in VALID_GROUPS:
+        vcol = valid_column(g).name
+        if vcol in cols.names:
+            vc = cols.cells(vcol, boolean=True)
+            _count_bad(path, vcol, vc.counts(rows=file_rows(every)), g, rep)
+            flagged[g] = ~(vc.values[rows] == 1.0)
+    cells = {c: cols.cells(c) for c in names if not c.startswith("gt_state")}
+    unusable = {spec[c].group: flagged.get(spec[c].group, ~every).copy() for c in names}
+    for c, cl in cells.items():
+        g = spec[c].group   # cells on rows the table itself flags invalid are not counted
+        _count_bad(path, c, cl.counts(rows=file_rows(~flagged[g] if g in flagged else every)), g, rep)
+        unusable[g] |= cl.bad[rows]
     signals = []
-    for col in df.columns:
-        if col not in spec or col in ("t_s", "run_id") or spec[col].group == "validity":
-            continue
-        vals = df[col]
+    for col in names:
+        g = spec[col].group
         if col.startswith("gt_state"):
             codes = {**topics.WHEEL_STATE_CODES}
-            v = vals.map(lambda s: codes.get(str(s), np.nan)).to_numpy(float)
+            v = cols.raw(col).iloc[rows].map(lambda s: codes.get(str(s), np.nan)).to_numpy(float)
+            keep = np.isfinite(v)
         else:
-            v = pd.to_numeric(vals, errors="coerce").to_numpy(float)
-        if col == "terrain":
-            v = np.where(v < 0, np.nan, v)
-        g = spec[col].group
-        vcol = valid_column(g).name
-        if vcol in df.columns and g in VALID_GROUPS:
-            v = np.where(df[vcol].astype(bool).to_numpy(), v, np.nan)
-        ok = np.isfinite(v)
+            cl = cells[col]
+            v = cl.values[rows].copy()
+            if col == "terrain":
+                v = np.where(v < 0, np.nan, v)      # -1: unlabelled, a sample like any other
+            keep = ~cl.missing[rows] | unusable[g]   # empty cells on usable rows: no sample
+            if g in VALID_GROUPS:
+                v[unusable[g]] = np.nan
+            own = np.isfinite(cl.values[rows])
+            if not np.isfinite(v[keep]).any():
+                why = ("every cell bad" if cl.bad[rows].all() else "every cell empty" if cl.missing[rows].all()
+                       else f"every row flagged invalid by {g}_valid" if g in flagged and not own[~flagged[g]].any()
+                       else None)   # else: the group's bad cells in another column, reported there
+            if not np.isfinite(v[keep]).any() and why:
+                rep.warnings.append(f"{path}: column '{col}': no usable value in {len(rows)} row(s) ({why}); "
+                                    f"{'group ' + g + ' 0% valid' if g in VALID_GROUPS else 'column empty'}")
         method = "previous" if col.endswith(PREVIOUS_COLUMNS) or col == "cam_confidence" else \
             ("angle" if col.endswith("yaw_rad") else "linear")
-        ts = t_s[ok]
+        ts = t_s[keep]
         gap = np.inf if col == "terrain" or col.startswith("gt_state") else gap_threshold_s(ts, rate_hz)
-        signals.append(Signal(col, ts, v[ok], method, gap))
-    missing = [c.name for c in spec.values() if c.required and c.name not in df.columns]
+        signals.append(Signal(col, ts, v[keep], method, gap))
+    missing = [c.name for c in spec.values() if c.required and c.name not in cols.names]
     if missing:
         rep.warnings.append(f"{path}: column(s) {', '.join(missing)} missing (group marked invalid)")
     if not signals:
@@ -258,7 +348,7 @@ def load_run(path: str | Path, *, robot: RobotSpec | str | Path | None = None,
             df = sink.table()
         else:
             df = _from_tabular(path, fmt, robot_spec, tmap, float(rate_hz), rep)
-    except (LogReadError, TopicMapError) as exc:
+    except (LogReadError, TopicMapError, RobotSpecError) as exc:
         rep.errors.append(str(exc))
         return IngestResult(_empty_table(robot_spec), rep)
     if df is None or len(df) < 2:
@@ -328,7 +418,7 @@ def ingest_to_parquet(path: str | Path, out: str | Path, *, robot: RobotSpec | s
             raise
         sink.tally.finish(rep, path)
         sink.close(keep=rep.usable)
-    except (LogReadError, TopicMapError, SchemaError) as exc:
+    except (LogReadError, TopicMapError, SchemaError, RobotSpecError) as exc:
         rep.errors.append(str(exc))
     return rep
 
@@ -367,7 +457,7 @@ def _run_metadata(path: Path, robot_spec: RobotSpec, tmap: TopicMap | None, rate
         robot_json=robot_spec.to_json(), source_file=str(path), source_sha256=sha256_file(path),
         topic_map=tmap.to_dict() if tmap is not None else None, rate_hz=float(rate_hz),
         skipped=rep.skipped_per_topic(), corrupt=rep.corrupt_per_topic(), run_id=run_id,
-        warnings=list(rep.warnings))
+        warnings=list(rep.warnings), damage=damage_metadata(rep))
 
 
 def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec | str | None = None, *,

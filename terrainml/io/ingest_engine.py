@@ -10,13 +10,16 @@ the file for every pass (bounded memory), :class:`MemoryLog` reads it once and r
    source's gap threshold ``2 * max(base period, median period)`` (exact in O(1) memory for sources
    at or above the base rate; a slower one keeps its larger stamp differences). A topic whose
    stamps are out of order gets one more pass over that topic alone (damaged logs only).
-2. **plan** -- report counts and warnings, per-source columns and gap thresholds, grid length.
+2. **plan** -- report counts and warnings, per-source columns and gap thresholds, grid length; a
+   joint_state topic whose wheel count (joint names matching the map's ``{i}`` templates) differs
+   from the robot spec's is refused (:func:`terrainml.robot.check_wheel_count`).
 3. **produce** -- parts merge into per-source buffers (sorted, duplicate stamps dropped, first in
    file order kept). A chunk of ticks ``[ga, gb]`` is resampled once every source is *settled* past
    ``gb`` (its sample after ``gb`` is known and no earlier one can still arrive, or no unseen sample
    can bracket a tick within the gap threshold, or the source is exhausted). A source slice holds the
    last sample at or before ``ga`` and the first after ``gb``, so interpolation, hold and the gap
-   rule see what they see on the whole log.
+   rule see what they see on the whole log. The last hole tick (no sensor group valid) is carried
+   from chunk to chunk, so labels are never held across a hole (:func:`ingest_signals.assemble`).
 
 Damaged-log edge cases: the non-finite count and the IMU "orientation never set" test are taken
 before duplicate stamps of an out-of-order topic are dropped; a joint in several joint-name sets of
@@ -26,6 +29,7 @@ one topic breaks ties between equal stamps by file order.
 from __future__ import annotations
 
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Protocol
@@ -34,11 +38,11 @@ import numpy as np
 import pandas as pd
 
 from terrainml.io import cdr, t265
-from terrainml.io.ingest_signals import Signal, SourceFacts, assemble, joint_columns, signals_for
+from terrainml.io.ingest_signals import Signal, SourceFacts, assemble, joint_columns, last_hole_s, signals_for
 from terrainml.io.readers import ReadResult, read_bag, read_mcap
 from terrainml.io.resample import _EPS, clean_times, gap_threshold_s
 from terrainml.io.topicmap import Source, TopicMap
-from terrainml.robot import RobotSpec
+from terrainml.robot import RobotSpec, check_wheel_count
 from terrainml.schema import DEFAULT_RATE_HZ
 
 DRAIN_ROWS = 5_000            # decoded rows held before they are merged (scan, streamed produce)
@@ -63,6 +67,9 @@ class IngestReport:
     span_s: float = 0.0
     rate_hz: float = DEFAULT_RATE_HZ
     valid_fraction: dict[str, float] = field(default_factory=dict)
+    bad_cells: dict[str, dict[str, int]] = field(default_factory=dict)   # CSV/Parquet: column -> kind -> cells
+    truncation: dict[str, int] | None = None     # what a truncated log lost (ReadResult.truncation)
+    corrupt_chunks: int = 0
 
     def skipped_per_topic(self) -> dict[str, int]:
         return {t: d["skipped"] for t, d in self.topics.items() if d.get("skipped")}
@@ -74,7 +81,8 @@ class IngestReport:
         return {"source": self.source, "format": self.format, "usable": self.usable, "rows": self.rows,
                 "span_s": self.span_s, "rate_hz": self.rate_hz, "topics": self.topics,
                 "valid_fraction": self.valid_fraction, "warnings": self.warnings, "errors": self.errors,
-                "notes": self.notes}
+                "notes": self.notes, "bad_cells": self.bad_cells, "truncation": self.truncation,
+                "corrupt_chunks": self.corrupt_chunks}
 
 
 # ----------------------------------------------------------------------------- logs
@@ -478,6 +486,18 @@ def _topic_counts(topic: str, ts: TopicScan, extra_dups: dict, d: dict[str, Any]
         d["duplicates"] = extra_dups.get(topic, ts.series.duplicates)
 
 
+def _log_wheels(src: Source, names: set[str]) -> int:
+    """Wheels a joint_state topic has: the largest ``i`` of joint names matching the topic map's
+    ``{i}`` joint templates (0 when none match)."""
+    found = [0]
+    for spec in src.columns.values():
+        joint = spec.get("joint", "")
+        if "{i}" in joint:
+            pattern = re.compile("^" + re.escape(joint).replace(re.escape("{i}"), r"(\d+)") + "$")
+            found += [int(m.group(1)) for m in map(pattern.match, names) if m]
+    return max(found)
+
+
 def plan(scan: Scan, log: FileLog, tmap: TopicMap, robot: RobotSpec, rate_hz: float,
          rep: IngestReport) -> Plan | None:
     """After the scan: report counts and warnings, per-source gap thresholds and column lists, the
@@ -489,6 +509,11 @@ def plan(scan: Scan, log: FileLog, tmap: TopicMap, robot: RobotSpec, rate_hz: fl
                           f"({', '.join(s.topic for s in tmap.sources)}); `terrainml inspect` lists the "
                           "log's topics, `--topics MAP.yaml` maps them")
         return None
+    for topic, ts in scan.topics.items():   # a wheel count that differs from the spec is refused
+        if ts.kind == "joint_state":
+            n_log = _log_wheels(ts.src, {n for names in ts.groups for n in names})
+            if n_log:
+                check_wheel_count(robot, n_log, path)
     extra_gaps, extra_dups = _unsorted_gaps(log, scan, rate_hz, t0)
     buffers: list[Buffer] = []
     facts: dict[str, SourceFacts] = {}
@@ -553,6 +578,7 @@ class Producer:
         self.topic_max: dict[str, int] = {}
         self.all_max: int | None = None
         self.pending_rows = 0
+        self.hole_s = -np.inf     # last tick of the table so far with no sensor group valid
         self.by_topic: dict[str, list[Buffer]] = {}
         for buf in p.buffers:
             self.by_topic.setdefault(buf.topic, []).append(buf)
@@ -636,7 +662,9 @@ class Producer:
                 keep = max(int(np.searchsorted(ts, ga_next + _EPS, side="right")) - 1, 0)
                 if keep:
                     buf.data = {k: (v[keep:] if isinstance(v, np.ndarray) else v) for k, v in buf.data.items()}
-        self.sink.write(assemble(signals, grid, self.robot))
+        chunk = assemble(signals, grid, self.robot, self.hole_s)
+        self.hole_s = last_hole_s(chunk, self.hole_s)
+        self.sink.write(chunk)
 
     def _signals(self, buf: Buffer, sl: slice, t_s: np.ndarray) -> list[Signal]:
         if not len(t_s):
@@ -655,6 +683,7 @@ def _report_read(path: Path, res: ReadResult, tmap: TopicMap, mismatched: dict[s
     """Per-topic counts and the reader's warnings into the report."""
     by_topic = tmap.by_topic()
     rep.warnings.extend(res.warnings)
+    rep.truncation, rep.corrupt_chunks = res.truncation(), res.corrupt_chunks
     for topic, st in res.stats.items():
         rep.topics[topic] = {"type": st.type, "mapped": topic in by_topic, "read": st.read,
                              "decoded": st.decoded, "corrupt": st.corrupt, "skipped": st.skipped,

@@ -17,7 +17,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from terrainml.io import t265
-from terrainml.io.resample import resample
+from terrainml.io.resample import _EPS, resample
 from terrainml.io.topicmap import Source, TopicMap
 from terrainml.robot import RobotSpec
 from terrainml.schema import VALID_GROUPS, WHEEL_STATES, column_map, valid_column, wheel_col
@@ -142,14 +142,32 @@ def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap
     return sig
 
 
-def assemble(signals: list[Signal], grid: np.ndarray, robot: RobotSpec) -> pd.DataFrame:
-    """Resample ``signals`` onto ``grid`` (m,) s: the canonical columns, each ``{group}_valid``."""
+def last_hole_s(df: pd.DataFrame, before_s: float = -np.inf) -> float:
+    """Time (s) of the last tick of ``df`` in a hole -- no sensor group valid -- or ``before_s``."""
+    alive = np.logical_or.reduce([df[valid_column(g).name].to_numpy(bool) for g in VALID_GROUPS])
+    dead = df["t_s"].to_numpy(float)[~alive]
+    return float(dead[-1]) if len(dead) else before_s
+
+
+def assemble(signals: list[Signal], grid: np.ndarray, robot: RobotSpec,
+             hole_before_s: float = -np.inf) -> pd.DataFrame:
+    """Resample ``signals`` onto ``grid`` (m,) s: the canonical columns, each ``{group}_valid``.
+
+    Labels are held from one label sample to the next, but never across a hole: a tick at which
+    no sensor group is valid (a corrupt chunk, a cut, every sensor silent). Ticks in a hole and
+    after it get no label (-1) until a new label sample; ``hole_before_s`` is the last hole tick
+    before ``grid`` (chunked ingest, :func:`last_hole_s`).
+    """
     spec = column_map(robot.n_wheels)
     data: dict[str, np.ndarray] = {"t_s": grid}
     col_valid: dict[str, np.ndarray] = {}
+    label_t = None
     while signals:
         s = signals.pop(0)  # release each source signal once resampled (bounded peak memory)
         held = s.column.startswith("gt_state") or s.column == "terrain"
+        if s.column == "terrain":   # stamp of the label sample each tick holds
+            i = np.searchsorted(s.t_s, grid + _EPS, side="right") - 1
+            label_t = np.where(i >= 0, s.t_s[np.clip(i, 0, None)] if len(s.t_s) else 0.0, np.inf)
         out, valid = resample(s.t_s, s.values, grid, method="previous" if held else s.method,
                               max_gap_s=s.max_gap_s)
         if s.extra_invalid is not None and len(s.t_s):
@@ -174,6 +192,10 @@ def assemble(signals: list[Signal], grid: np.ndarray, robot: RobotSpec) -> pd.Da
                                       else np.zeros(m, bool))
     if "terrain" in data:
         t = data["terrain"]
+        if label_t is not None:
+            alive = np.logical_or.reduce([data[valid_column(g).name] for g in VALID_GROUPS])
+            last_dead = np.maximum.accumulate(np.maximum(np.where(alive, -np.inf, grid), hole_before_s))
+            t = np.where(last_dead > label_t + _EPS, np.nan, t)
         data["terrain"] = np.where(np.isfinite(t), np.nan_to_num(t, nan=-1), -1).astype(np.int64)
     for c in [c for c in data if c.startswith("gt_state")]:
         data[c] = _codes_to_states(data[c])

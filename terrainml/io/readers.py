@@ -35,8 +35,10 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, Schema
 from mcap.stream_reader import get_chunk_data_stream
 from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.msg import normalize_msgtype
 
-from terrainml.io import cdr
+from terrainml.io import cdr, ros1bag
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 BAG_MAGIC = b"#ROSBAG V2.0"
@@ -44,6 +46,7 @@ _HDR = struct.Struct("<BQ")            # MCAP record framing: opcode, body lengt
 _MSG_HDR = struct.calcsize("<HIQQ")    # Message body before its data: channel, sequence, log/publish time
 _COMPRESSIONS = ("", "zstd", "lz4")
 _DAMAGE = (McapError, struct.error, UnicodeDecodeError)   # what parsing a damaged record raises
+OnTimes = Callable[[str, np.ndarray], None]
 
 
 class LogReadError(ValueError):
@@ -60,7 +63,6 @@ class TopicStats:
     skipped: int = 0         # deliberately not used (type mismatch, not mapped)
     first_ns: int | None = None
     last_ns: int | None = None
-    times: list | None = None  # log times (ns) when the reader was asked to keep them
 
 
 @dataclass
@@ -74,6 +76,17 @@ class ReadResult:
     truncated: bool = False
     corrupt_chunks: int = 0
     unattributed_corrupt: int = 0
+    unread_bytes: int = 0            # truncated: bytes from the first incomplete record to the end
+    missing_bytes: int = 0           # truncated: bytes the cut record declares beyond the end of the file
+    incomplete_records: int = 0      # records cut short (top level and inside a cut chunk)
+    recovered_from_cut: int = 0      # complete messages read from inside the cut record
+
+    def truncation(self) -> dict[str, int] | None:
+        """What a truncated file lost (None when the file is complete)."""
+        if not self.truncated:
+            return None
+        return {"unread_bytes": self.unread_bytes, "missing_bytes": self.missing_bytes,
+                "incomplete_records": self.incomplete_records, "recovered_from_cut": self.recovered_from_cut}
 
     def stat(self, topic: str) -> TopicStats:
         s = self.stats.get(topic)
@@ -143,17 +156,26 @@ class _TopicSink:
     """Per-topic block buffer of raw messages; decodes a block when full (bounded memory)."""
 
     def __init__(self, topic: str, type_name: str, kind: str | None, res: ReadResult, block: int,
-                 use_header_stamp: bool, keep_times: bool = False,
+                 use_header_stamp: bool, on_times: OnTimes | None = None,
                  on_part: Callable[[str, dict], None] | None = None):
         self.topic, self.type, self.kind = topic, type_name, kind
-        self.on_part = on_part
+        self.on_part, self.on_times = on_part, on_times
         self.res, self.block, self.hdr = res, block, use_header_stamp
         self.datas: list[bytes] = []
         self.times: list[int] = []
+        self.stamp_buf: list[int] = []     # log times not yet handed to on_times (file order)
         self.stat = res.stat(topic)
         self.stat.type = type_name
-        if keep_times:
-            self.stat.times = []
+
+    def stamps(self, log_ns: np.ndarray | None = None) -> None:
+        """Hand the buffered log times, then ``log_ns``, to ``on_times`` (file order kept)."""
+        if self.on_times is None:
+            return
+        if self.stamp_buf:
+            self.on_times(self.topic, np.asarray(self.stamp_buf, np.int64))
+            self.stamp_buf = []
+        if log_ns is not None and len(log_ns):
+            self.on_times(self.topic, log_ns)
 
     def add(self, data: bytes, log_ns: int) -> None:
         st = self.stat
@@ -162,8 +184,10 @@ class _TopicSink:
             st.first_ns = log_ns
         if st.last_ns is None or log_ns > st.last_ns:
             st.last_ns = log_ns
-        if st.times is not None:
-            st.times.append(log_ns)
+        if self.on_times is not None:
+            self.stamp_buf.append(log_ns)
+            if len(self.stamp_buf) >= self.block:
+                self.stamps()
         if self.kind is None:
             return
         self.datas.append(data)
@@ -173,15 +197,14 @@ class _TopicSink:
 
     def add_view(self, view: "cdr.RowView", log_ns: np.ndarray) -> None:
         """n messages of equal length inside a decompressed chunk (vectorised path): decoded at once,
-        so no chunk buffer outlives its chunk."""
+        so no chunk buffer outlives its chunk. Their log times go to ``on_times`` by the caller
+        (:meth:`stamps`, once per chunk in file order)."""
         st = self.stat
         n = len(log_ns)
         st.read += n
         lo, hi = int(log_ns.min()), int(log_ns.max())
         st.first_ns = lo if st.first_ns is None else min(st.first_ns, lo)
         st.last_ns = hi if st.last_ns is None else max(st.last_ns, hi)
-        if st.times is not None:
-            st.times.extend(log_ns.tolist())
         if self.kind is None:
             return
         parts, bad = cdr.decode_array(self.kind, self.type, view, log_ns, self.hdr)
@@ -208,7 +231,7 @@ class _TopicSink:
 
 
 def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: int = 4096,
-              use_header_stamp: bool = True, validate_crcs: bool = True, keep_times: bool = False,
+              use_header_stamp: bool = True, validate_crcs: bool = True, on_times: OnTimes | None = None,
               progress: Callable[[int, int], None] | None = None,
               on_part: Callable[[str, dict], None] | None = None) -> ReadResult:
     """Stream an MCAP file.
@@ -220,6 +243,8 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
     progress : optional ``(bytes_done, bytes_total)`` callback.
     on_part : optional ``(topic, part)`` consumer of decoded parts, in file order; when given,
         ``ReadResult.parts`` stays empty (streaming ingest: nothing decoded is kept by the reader).
+    on_times : optional ``(topic, log times ns (n,))`` consumer of every message's log time, per
+        topic in file order, in blocks (``inspect``: nothing is kept by the reader).
     """
     path = Path(path)
     res = ReadResult(path=path, format="mcap")
@@ -244,7 +269,7 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
             if ch.id not in channels:
                 type_name = cdr.normalize_type(schemas.get(ch.schema_id, ""))
                 channels[ch.id] = _TopicSink(ch.topic, type_name, wanted(ch.topic, type_name), res, block,
-                                             use_header_stamp, keep_times, on_part)
+                                             use_header_stamp, on_times, on_part)
 
     def walk_records(buf: bytes) -> None:
         """Every record of a decompressed chunk, in order; a record cut short ends the walk."""
@@ -254,6 +279,7 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
             body = p + _HDR.size
             if body + ln > end:
                 res.truncated = True
+                res.incomplete_records += 1
                 break
             if op in (Opcode.MESSAGE, Opcode.SCHEMA, Opcode.CHANNEL):
                 try:
@@ -297,6 +323,7 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
         if total != len(buf):
             return False
         for sink, t, data_off, data_len in per:
+            sink.stamps(t)
             for n in np.unique(data_len):
                 sel = data_len == n
                 sink.add_view(cdr.RowView(arr8, data_off[sel], int(n)), t[sel])
@@ -306,12 +333,14 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
         """The last record runs past the end of the file: keep what a cut chunk still holds."""
         res.truncated = True
         process_chunk()
+        before = sum(st.read for st in res.stats.values())
         if op == Opcode.CHUNK:
             try:
                 chunk = _record(Chunk, rest)   # its data: the bytes that are there
                 walk_records(_partial_decompress(chunk.compression, chunk.data))
             except _DAMAGE:
                 pass
+        res.recovered_from_cut = sum(st.read for st in res.stats.values()) - before
 
     pending_bad_chunk = False
     with open(path, "rb") as f:
@@ -322,9 +351,14 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
             head = f.read(_HDR.size)
             if len(head) < _HDR.size:
                 res.truncated = True   # cut inside a record header, or no footer
+                res.unread_bytes = size - done
+                res.incomplete_records += bool(head)
                 break
             op, ln = _HDR.unpack(head)
             if ln > size - done - _HDR.size:   # runs past the end of the file: truncated (or a corrupt length)
+                res.unread_bytes = size - done
+                res.missing_bytes = done + _HDR.size + ln - size
+                res.incomplete_records += 1
                 read_truncated_tail(op, f.read())
                 break
             body = f.read(ln)
@@ -364,47 +398,110 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
     process_chunk()
     for sink in channels.values():
         sink.flush()
+        sink.stamps()
         if sink.kind is None:
             sink.stat.skipped += sink.stat.read
         res.kinds[sink.topic] = sink.kind or ""
     if res.truncated:
-        res.warnings.append(f"{path}: file is truncated (no summary/footer); every complete message "
-                            "before the cut was kept")
+        res.warnings.append(_truncation_warning(path, res))
     if res.unattributed_corrupt:
         res.warnings.append(f"{path}: {res.unattributed_corrupt} message(s) on channels whose definition "
                             "was lost (corrupt chunk) could not be attributed to a topic")
     return res
 
 
-# ----------------------------------------------------------------------------- ROS 1 bag
-def read_bag(path: Path, wanted: Callable[[str, str], str | None], *, use_header_stamp: bool = True,
-             keep_times: bool = False, progress: Callable[[int, int], None] | None = None,
-             on_part: Callable[[str, dict], None] | None = None) -> ReadResult:
-    """Read a ROS 1 bag (or a ROS 2 bag folder) with rosbags' AnyReader, message by message.
+def _truncation_warning(path: Path, res: ReadResult) -> str:
+    lost = f"{res.unread_bytes:,} byte(s) at the end unread" if res.unread_bytes else "no summary/footer"
+    if res.missing_bytes:
+        lost += f", {res.missing_bytes:,} byte(s) of the last record missing"
+    if res.incomplete_records:
+        lost += f", {res.incomplete_records} incomplete record(s)"
+    return (f"{path}: file is truncated ({lost}); every complete message before the cut was kept"
+            + (f" ({res.recovered_from_cut} from inside the cut record)" if res.recovered_from_cut else ""))
 
-    ``on_part``: optional ``(topic, one-row part)`` consumer (streaming ingest); see :func:`read_mcap`.
+
+# ----------------------------------------------------------------------------- ROS 1 bag
+class _BagTopics:
+    """Per-topic counting and decoding of ROS 1 messages, shared by the indexed (rosbags) and the
+    index-less (:mod:`terrainml.io.ros1bag`) paths."""
+
+    def __init__(self, res: ReadResult, wanted, use_header_stamp: bool, on_times: OnTimes | None,
+                 on_part: Callable[[str, dict], None] | None, deserialize: Callable[[bytes, str], object]):
+        self.res, self.wanted, self.hdr = res, wanted, use_header_stamp
+        self.on_times, self.on_part, self.deserialize = on_times, on_part, deserialize
+        self.parts: dict[str, list] = {}
+        self.stamps: dict[str, list[int]] = {}   # log times not yet handed to on_times
+
+    def flush_stamps(self, topic: str | None = None) -> None:
+        for tp in [topic] if topic is not None else list(self.stamps):
+            if self.stamps.get(tp):
+                self.on_times(tp, np.asarray(self.stamps.pop(tp), np.int64))
+
+    def connection(self, topic: str, msgtype: str) -> str:
+        """Register a topic; its decode kind ('' when only counted)."""
+        if topic not in self.res.kinds:
+            type_name = cdr.normalize_type(msgtype)
+            self.res.stat(topic).type = type_name
+            self.res.kinds[topic] = self.wanted(topic, type_name) or ""
+        return self.res.kinds[topic]
+
+    def message(self, topic: str, msgtype: str, log_ns: int, raw: bytes) -> None:
+        st = self.res.stats[topic]
+        st.read += 1
+        st.first_ns = log_ns if st.first_ns is None else min(st.first_ns, log_ns)
+        st.last_ns = log_ns if st.last_ns is None else max(st.last_ns, log_ns)
+        if self.on_times is not None:
+            buf = self.stamps.setdefault(topic, [])
+            buf.append(log_ns)
+            if len(buf) >= 4096:
+                self.flush_stamps(topic)
+        kind = self.res.kinds[topic]
+        if not kind:
+            st.skipped += 1
+            return
+        try:
+            part = cdr.from_object(kind, self.deserialize(raw, msgtype), log_ns, self.hdr)
+            st.decoded += 1
+        except Exception:  # noqa: BLE001 - bytes that do not fit their type
+            st.corrupt += 1
+            return
+        if part is not None:
+            if self.on_part is None:
+                self.parts.setdefault(topic, []).append(part)
+            else:
+                self.on_part(topic, part)
+
+
+def read_bag(path: Path, wanted: Callable[[str, str], str | None], *, use_header_stamp: bool = True,
+             on_times: OnTimes | None = None, progress: Callable[[int, int], None] | None = None,
+             on_part: Callable[[str, dict], None] | None = None) -> ReadResult:
+    """Read a ROS 1 bag (or a ROS 2 bag folder) message by message.
+
+    An indexed bag is read with rosbags' AnyReader (time order). A bag rosbags cannot open -- cut
+    short, so its index is missing -- is read front to back by :func:`terrainml.io.ros1bag.scan_bag`
+    (file order): every complete message before the cut is kept and what was lost is in
+    ``ReadResult`` (``truncated``, ``unread_bytes``, ``missing_bytes``, ``incomplete_records``).
+
+    ``on_part``/``on_times``: optional streaming consumers; see :func:`read_mcap`.
     """
     path = Path(path)
     res = ReadResult(path=path, format="bag")
-    parts: dict[str, list] = {}
     try:
         reader = AnyReader([path])
         reader.open()
     except Exception as exc:  # noqa: BLE001 - rosbags raises several types
+        if path.is_file():
+            return _read_bag_without_index(path, wanted, use_header_stamp, on_times, progress, on_part, exc)
         raise LogReadError(f"{path}: not a readable ROS bag ({exc})") from None
+    topics = _BagTopics(res, wanted, use_header_stamp, on_times, on_part, reader.deserialize)
     try:
         conns = []
         for c in reader.connections:
-            type_name = cdr.normalize_type(c.msgtype)
-            st = res.stat(c.topic)
-            st.type = type_name
-            kind = wanted(c.topic, type_name)
-            res.kinds[c.topic] = kind or ""
-            if keep_times:
-                st.times = []
-            if kind or keep_times:
+            kind = topics.connection(c.topic, c.msgtype)
+            if kind or on_times is not None:
                 conns.append(c)
             else:
+                st = res.stats[c.topic]
                 st.skipped += c.msgcount
                 st.read += c.msgcount
         total = sum(c.msgcount for c in conns) or 1
@@ -419,31 +516,61 @@ def read_bag(path: Path, wanted: Callable[[str, str], str | None], *, use_header
                 res.truncated = True
                 res.warnings.append(f"{path}: reading stopped early ({exc}); messages before kept")
                 break
-            st = res.stats[conn.topic]
-            st.read += 1
-            st.first_ns = log_ns if st.first_ns is None else min(st.first_ns, log_ns)
-            st.last_ns = log_ns if st.last_ns is None else max(st.last_ns, log_ns)
-            if st.times is not None:
-                st.times.append(log_ns)
-            if not res.kinds[conn.topic]:
-                st.skipped += 1
-                continue
-            try:
-                msg = reader.deserialize(raw, conn.msgtype)
-                part = cdr.from_object(res.kinds[conn.topic], msg, log_ns, use_header_stamp)
-                st.decoded += 1
-            except Exception:  # noqa: BLE001
-                st.corrupt += 1
-                part = None
-            if part is not None:
-                if on_part is None:
-                    parts.setdefault(conn.topic, []).append(part)
-                else:
-                    on_part(conn.topic, part)
+            topics.message(conn.topic, conn.msgtype, log_ns, raw)
             done += 1
             if progress is not None and done % 2000 == 0:
                 progress(done, total)
     finally:
         reader.close()
-    res.parts = parts
+    topics.flush_stamps()
+    res.parts = topics.parts
+    return res
+
+
+def _read_bag_without_index(path: Path, wanted, use_header_stamp: bool, on_times: OnTimes | None,
+                            progress, on_part, open_error: Exception) -> ReadResult:
+    """A bag rosbags refused: scanned record by record; types from the bag's own definitions."""
+    res = ReadResult(path=path, format="bag")
+    typestore = get_typestore(Stores.EMPTY)
+    registered: set[str] = set()
+
+    def deserialize(raw: bytes, msgtype: str):
+        return typestore.deserialize_ros1(raw, msgtype)
+
+    topics = _BagTopics(res, wanted, use_header_stamp, on_times, on_part, deserialize)
+
+    def on_message(conn: ros1bag.BagConnection, log_ns: int, raw: bytes) -> None:
+        msgtype = normalize_msgtype(conn.msgtype)
+        if topics.connection(conn.topic, msgtype) and msgtype not in registered:
+            registered.add(msgtype)
+            try:
+                typestore.register(get_types_from_msg(conn.msgdef, msgtype))
+            except Exception:  # noqa: BLE001 - a bad definition: its messages count as corrupt
+                pass
+        topics.message(conn.topic, msgtype, log_ns, raw)
+
+    try:
+        scan = ros1bag.scan_bag(path, on_message, progress)
+    except ros1bag.BagFormatError as exc:
+        raise LogReadError(f"{path}: not a readable ROS bag ({open_error}; record scan: {exc})") from None
+    topics.flush_stamps()
+    res.parts = topics.parts
+    res.warnings.append(f"{path}: no usable bag index ({open_error}); read record by record")
+    res.warnings.extend(scan.warnings)
+    res.corrupt_chunks = scan.corrupt_chunks
+    for cid, n in scan.lost_per_conn.items():
+        c = scan.connections.get(cid)
+        if c is None:
+            res.unattributed_corrupt += n
+        else:
+            topics.connection(c.topic, normalize_msgtype(c.msgtype))
+            res.stats[c.topic].corrupt += n
+    res.unattributed_corrupt += scan.unattributed
+    res.truncated = scan.truncated
+    res.unread_bytes, res.missing_bytes = scan.unread_bytes, scan.missing_bytes
+    res.incomplete_records, res.recovered_from_cut = scan.incomplete_records, scan.recovered_from_cut
+    for c in scan.connections.values():   # connections defined but without a complete message
+        topics.connection(c.topic, normalize_msgtype(c.msgtype))
+    if res.truncated:
+        res.warnings.append(_truncation_warning(path, res))
     return res
