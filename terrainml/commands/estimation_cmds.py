@@ -11,6 +11,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from terrainml.commands._common import check_output_writable, console, fail, open_run
+from terrainml.io.damage import damage_summary
 from terrainml.robot import check_wheel_count
 
 
@@ -69,8 +70,9 @@ def register(app: typer.Typer) -> None:
                     table, spec, preset, progress=lambda k, n: prog.update(task, completed=k))
             except ValueError as exc:
                 fail(f"{run}: {exc}")
+        damage = damage_summary(table)
         report = {"run": str(run), "preset": preset, "robot": spec.name, "n_ticks": len(est),
-                  "consistency": consistency_report(est, diag)}
+                  "consistency": consistency_report(est, diag), "damage": damage.to_dict()}
         if any(c.startswith("gt_") for c in est.columns):
             report["truth"] = truth_metrics(est, spec.n_wheels)
         try:
@@ -79,6 +81,8 @@ def register(app: typer.Typer) -> None:
         except OSError as exc:  # checked above; a full disk or a race can still fail here
             fail(f"{exc.filename or out}: cannot write ({exc.strerror or exc})")
         _print_report(report)
+        if damage.any:
+            console.print(f"[yellow]{run}: {damage.text}[/]")
         if plot is not None:
             from terrainml.estimation.plots import save_plots
 

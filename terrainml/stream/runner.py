@@ -155,6 +155,8 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
         f"{f' ({reasons})' if reasons else ''}; classifications: {st['classifications']} "
         f"({st['classifier_errors']} errors); sink errors: {sink_err or 0}",
         highlight=False)
+    if counters.damage is not None and counters.damage.any:
+        console.print(f"terrainml predict: source {source}: {counters.damage.text}", highlight=False)
     return code
 
 

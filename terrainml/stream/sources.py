@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Iterator
 
+from terrainml.io.damage import DamageSummary, damage_summary
 from terrainml.io.ingest import load_run
 from terrainml.stream.sample import InvalidSample, check_sample
 
@@ -79,6 +80,7 @@ class SourceCounters:
     received: int = 0
     malformed: int = 0
     malformed_by_reason: dict[str, int] = field(default_factory=dict)
+    damage: DamageSummary | None = None   # what a recorded log's ingest could not read
 
     def count_malformed(self, reason: str, data: Any) -> None:
         """Count one skipped input; warn for the first 3, then every 1000th."""
@@ -90,7 +92,8 @@ class SourceCounters:
 
     def as_dict(self) -> dict[str, Any]:
         return {"received": self.received, "malformed": self.malformed,
-                "malformed_by_reason": dict(self.malformed_by_reason)}
+                "malformed_by_reason": dict(self.malformed_by_reason),
+                "damage": self.damage.to_dict() if self.damage is not None else None}
 
 
 _EOS = object()
@@ -193,10 +196,14 @@ def parse_sample(data: bytes | str, counters: SourceCounters | None = None, *,
 
 # --------------------------------------------------------------------------- log files
 def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = 100.0,
-                     realtime: bool = False, topic_map: Any = None) -> Iterator[dict]:
+                     realtime: bool = False, topic_map: Any = None,
+                     counters: SourceCounters | None = None) -> Iterator[dict]:
     """Samples of a recorded log at the base rate (ingest + resampling of the io owner).
 
     With ``realtime`` each sample is released at its ``t_s`` relative to the start (wall clock).
+    What ingest could not read (corrupt messages, bad cells, a truncated tail) is warned about
+    before the first sample and kept in ``counters.damage`` for the end-of-run summary; the ticks
+    it left without data are invalid in the table, so they are served as flagged fallbacks.
     """
     path = Path(path)
     if not path.is_file():
@@ -208,6 +215,11 @@ def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = 10
     report = getattr(res, "report", None)
     if report is not None and getattr(report, "usable", True) is False:
         raise SourceError(f"{path}: log is not usable ({getattr(report, 'warnings', '')})")
+    damage = damage_summary(res.table)
+    if counters is not None:
+        counters.damage = damage
+    if damage.any:
+        log.warning("%s: %s", path, damage.text)
     yield from iter_table_samples(res.table, realtime=realtime)
 
 
@@ -333,4 +345,4 @@ def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
         raise SourceError(f"source {spec!r}: no such file (expected RUN.mcap, udp://HOST:PORT or -)")
     if ready is not None:
         ready(None)
-    return iter_log_samples(path, robot, rate_hz=rate_hz, realtime=realtime)
+    return iter_log_samples(path, robot, rate_hz=rate_hz, realtime=realtime, counters=counters)

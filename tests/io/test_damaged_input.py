@@ -390,3 +390,19 @@ def test_wheel_count_of_table_differs_from_spec(tmp_path):
     df.to_csv(path, index=False)
     r = load_run(path)
     assert not r.report.usable and str(path) in r.report.errors[0] and "4 wheel" in r.report.errors[0]
+
+
+def test_damage_counts_reach_the_estimate_report(tmp_path):
+    """`estimate` writes the counts into its report and says them (nothing said on a clean log)."""
+    good, bad = tmp_path / "good.mcap", tmp_path / "bad.mcap"
+    _write_labelled(good, seconds=4.0)
+    _corrupt_second_chunk(good, bad)
+    lost = {t: d["corrupt"] for t, d in load_run(bad).report.topics.items() if d["corrupt"]}
+    out = tmp_path / "est.parquet"
+    res = CliRunner().invoke(app, ["estimate", str(bad), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    report = json.loads(out.with_suffix(".report.json").read_text())
+    assert report["damage"]["corrupt_per_topic"] == lost
+    assert "damaged:" in res.output
+    res = CliRunner().invoke(app, ["estimate", str(good), "--out", str(tmp_path / "g.parquet")])
+    assert res.exit_code == 0 and "damaged:" not in res.output

@@ -173,3 +173,33 @@ def test_hostile_stdin_never_stops_predict(model_dir):
     cruise = [m for m in out if 6.5 <= m["t_s"] <= 7.5]  # healthy and classified again
     assert cruise and all(m["estimator_ok"] and not m["fallback"] and m["terrain_class"] == 2
                           for m in cruise)
+
+
+def test_predict_says_what_a_damaged_log_lost(tmp_path, model_dir, capsys):
+    """Issue 21: the damage counts of a log's ingest reach predict, before serving and in the summary."""
+    from mcap.reader import make_reader
+
+    from terrainml.io.ingest import load_run
+    from terrainml.io.mcap_writer import RosMcapWriter
+    from terrainml.stream.runner import run_predict
+
+    good, bad = tmp_path / "good.mcap", tmp_path / "bad.mcap"
+    with RosMcapWriter(good, 3, chunk_size=8 * 1024) as w:   # small chunks: one can be lost
+        for k in range(600):
+            t = k / 100
+            w.write_imu(t, (0.0, 0.0, 9.81), (0.0, 0.0, 0.0))
+            w.write_wheel_joints(t, [1.0 / 0.165] * 3, [0.0] * 3)
+            w.write_motor_current(t, [1.0] * 3)
+    with open(good, "rb") as f:
+        chunks = sorted((c.chunk_start_offset, c.chunk_length) for c in make_reader(f).get_summary().chunk_indexes)
+    start, length = chunks[len(chunks) // 2]
+    data = bytearray(good.read_bytes())
+    data[start + length // 2:start + length // 2 + 64] = bytes(64)
+    bad.write_bytes(bytes(data))
+    lost = sum(d["corrupt"] for d in load_run(bad).report.topics.values())
+    assert lost > 0
+    assert run_predict(model=model_dir, source=str(bad), sinks=["stdout"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("damaged:") == 2 and f"{lost} corrupt message" in err
+    assert run_predict(model=model_dir, source=str(good), sinks=["stdout"]) == 0
+    assert "damaged:" not in capsys.readouterr().err
