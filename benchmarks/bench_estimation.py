@@ -24,11 +24,12 @@ import numpy as np
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.estimation.consistency import (THESIS_INNOVATION_VAR, consistency_report, min_state_duration_s,
                                               truth_metrics)
-from terrainml.estimation.ekf import Ekf, PlanarModel, get_preset
+from terrainml.estimation.ekf import Ekf, get_preset
 from terrainml.estimation.online import OnlineEstimator
 from terrainml.estimation.run import estimate_run_detailed
 from terrainml.estimation.synthetic import kinematic_run
 from terrainml.robot import load_robot
+from tests.estimation import reference_ekf  # the numpy reference filter and model
 
 SYNTH_SLIP = (0.005, 0.03, 0.125, 0.135, 0.19, 0.2, 0.3, 0.42)  # per class, SYSTEM §6.1 targets
 
@@ -94,12 +95,12 @@ def _drive_sequence(run, preset_name):
     return est.model, t, Z, use, est._r_base
 
 
-def _run_ours(model, preset, t, Z, use, r, compiled=None):
+def _run_ours(model, preset, t, Z, use, r, filter_cls=Ekf):
     """Ours tick by tick from Python: ``Ekf.step`` (predict + update) per row, like filterpy."""
-    warm = Ekf(model, preset, compiled=compiled)  # compile / load (numba) outside the timed loop
+    warm = filter_cls(model, preset)  # compile / load (numba) outside the timed loop
     warm.step(0.0, Z[0], use[0], r)
     warm.step(0.01, Z[1], use[1], r)
-    ekf = Ekf(model, preset, compiled=compiled)
+    ekf = filter_cls(model, preset)
     xs = np.empty((len(t), model.n))
     t0 = time.perf_counter()
     for k in range(len(t)):
@@ -124,13 +125,15 @@ def _best_of(n, fn, *args, **kw):
 
 
 def _run_filterpy(model, preset, t, Z, use, r):
+    """filterpy's EKF with the model written in numpy, as a filterpy user would (the test
+    reference's f, F, h, H: the numpy model this package had before its kernels)."""
     from filterpy.kalman import ExtendedKalmanFilter
 
     class _Ekf(ExtendedKalmanFilter):
         dt = 0.01
 
         def predict_x(self, u=0):
-            self.x = model.f(self.x, self.dt)
+            self.x = reference_ekf.f(model, self.x, self.dt)
 
     p = get_preset(preset)
     ref = Ekf(model, p)  # only for P0 and Q
@@ -145,17 +148,17 @@ def _run_filterpy(model, preset, t, Z, use, r):
         if k:
             dt = t[k] - t[k - 1]
             kf.dt = dt
-            kf.F = model.F(kf.x, dt)
+            kf.F = reference_ekf.F(model, kf.x, dt)
             kf.Q = ref.Q0 * (dt / 0.01)
             kf.predict()
             kf.x[2] = math.remainder(kf.x[2], 2 * math.pi)
         m = use[k]
 
         def hx(x, m=m):
-            return model.h(x)[m]
+            return reference_ekf.h(model, x)[m]
 
         def hj(x, m=m):
-            return model.H(x)[m]
+            return reference_ekf.H(model, x)[m]
 
         def resid(a, b, ang=angle[m]):
             y = a - b
@@ -226,8 +229,8 @@ def _speed_section(quick: bool) -> str:
     run = kinematic_run(duration_s=dur, seed=0, slip=0.2,
                         yaw_rate=lambda t: 0.3 * np.sin(0.2 * t))
     lines = ["### Speed\n",
-             "Bare EKF: the same model (f, F, h, H, Q, R, P0 of `terrainml.estimation.ekf`) through "
-             "ours and through filterpy's `ExtendedKalmanFilter`, on a "
+             "Bare EKF: the same model (Q, R, P0 of `terrainml.estimation.ekf`; f, F, h, H compiled "
+             "for ours, in numpy for filterpy) through ours and through filterpy's `ExtendedKalmanFilter`, on a "
              f"{dur:.0f} s run at 100 Hz ({len(run)} ticks; filterpy on the first "
              f"{min(len(run), 2000 if quick else 6000)}). filterpy's EKF has no whole-table mode: it "
              "runs tick by tick from Python (`predict()`, `update()` with the H and h callbacks), "
@@ -236,10 +239,13 @@ def _speed_section(quick: bool) -> str:
              "tick by tick from Python (`Ekf.step`, what the online estimator calls). Rates: best of "
              f"{reps} runs each (least disturbed by other jobs on the machine). The state "
              "difference is the largest over all ticks and states of both of ours against filterpy. "
-             "Whole chain: `estimate_run` (EKF, slip, dynamic state, EST table). Online: "
+             "numpy reference: the dense numpy form of the same filter "
+             "(`tests/estimation/reference_ekf.py`, on the filterpy ticks); filterpy is given that "
+             "reference's numpy f, F, h, H. Whole chain: `estimate_run` (EKF, slip, dynamic state, "
+             "EST table). Online: "
              "`OnlineEstimator.step(dict)` per sample, dict in, EST row dict out.\n",
              "| preset | ours, whole table [ticks/s] (x real time at 100 Hz) | ours, tick by tick [ticks/s] | "
-             "ours, numpy path [ticks/s] | filterpy EKF [ticks/s] | ratio whole table / filterpy | "
+             "numpy reference [ticks/s] | filterpy EKF [ticks/s] | ratio whole table / filterpy | "
              "ratio tick by tick / filterpy | max abs state diff vs filterpy | "
              "whole chain offline [ticks/s] (x real time at 100 Hz) | online step p50 / p99 wall [us] | "
              "online step p50 / p99 CPU [us] |",
@@ -252,7 +258,8 @@ def _speed_section(quick: bool) -> str:
         n_fp = min(len(t), 2000 if quick else 6000)
         xs_b, el_b = _best_of(reps, _run_ours_table, model, preset, t, Z, use, r)
         xs_o, el_o = _best_of(reps, _run_ours, model, preset, t, Z, use, r)
-        _, el_np = _run_ours(model, preset, t, Z, use, r, compiled=False)
+        _, el_np = _run_ours(model, preset, t[:n_fp], Z[:n_fp], use[:n_fp], r,
+                             filter_cls=reference_ekf.ReferenceEkf)
         rate_b, rate_o = len(t) / el_b, len(t) / el_o
         try:
             xs_f, el_f = _best_of(reps, _run_filterpy, model, preset, t[:n_fp], Z[:n_fp], use[:n_fp], r)
@@ -276,7 +283,7 @@ def _speed_section(quick: bool) -> str:
         lat = np.array(lat) / 1e3
         cpu = np.array(cpu) / 1e3
         lines.append(f"| {preset} | {rate_b:,.0f} ({rate_b / 100:,.0f}x, {kind}) | {rate_o:,.0f} ({kind}) | "
-                     f"{len(t) / el_np:,.0f} | {fp} | {ratio_b} | {ratio_o} | {diff:.1e} | "
+                     f"{n_fp / el_np:,.0f} | {fp} | {ratio_b} | {ratio_o} | {diff:.1e} | "
                      f"{chain:,.0f} ({chain / 100:.0f}x) | "
                      f"{np.percentile(lat, 50):.0f} / {np.percentile(lat, 99):.0f} | "
                      f"{np.percentile(cpu, 50):.0f} / {np.percentile(cpu, 99):.0f} |")

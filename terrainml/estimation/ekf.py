@@ -26,9 +26,10 @@ valid sample this tick are dropped from the update)::
     vx_cam  = vx - r y_c,  vy_cam = vy + r x_c,  r_cam = r,  psi_cam = psi   (lever arm, eq. 6.6)
 
 The filter is written filterpy-style: ``x`` and ``P`` are plain arrays and :meth:`Ekf.predict`
-/ :meth:`Ekf.update` follow the textbook equations line by line. With numba they run compiled
-(:mod:`terrainml.estimation._kernel`, the same equations as loops that visit only the nonzeros
-of F and H); :meth:`Ekf.step` runs both in one compiled call and :meth:`Ekf.batch_filter` a
+/ :meth:`Ekf.update` follow the textbook equations. The models f, F, h, H and the equations are
+written once, in :mod:`terrainml.estimation._kernel` (compiled with numba; loops that visit only
+the nonzeros of F and H); :class:`Ekf` packs the robot and the tuning for those kernels,
+:meth:`Ekf.step` runs predict and update in one compiled call and :meth:`Ekf.batch_filter` a
 whole table without Python between ticks.
 
 Presets (:data:`PRESETS`)
@@ -57,14 +58,12 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from scipy.linalg.lapack import dpotrf as _dpotrf
-from scipy.linalg.lapack import dpotrs as _dpotrs
 
+from terrainml.estimation import _kernel as kern
+from terrainml.estimation._kernel import (I_AX, I_AY, I_PSI, I_R, I_VX, I_VY, I_X, I_Y,  # noqa: F401
+                                          N_BASE, EkfModel)
 from terrainml.robot import RobotSpec
 
-# indices of the fixed part of the state
-I_X, I_Y, I_PSI, I_VX, I_VY, I_R, I_AX, I_AY = range(8)
-N_BASE = 8  # states before the steering angles
 NOMINAL_DT_S = 0.01  # tick length the per-tick Q values refer to (thesis: 100 Hz)
 
 TWO_PI = 2.0 * math.pi
@@ -75,11 +74,6 @@ def wrap_angle(a):
     w = np.mod(np.asarray(a, dtype=float) + math.pi, TWO_PI) - math.pi
     w = np.where(w == -math.pi, math.pi, w)
     return float(w) if np.ndim(w) == 0 else w
-
-
-def _wrap_scalar(a: float) -> float:
-    w = (a + math.pi) % TWO_PI - math.pi
-    return math.pi if w == -math.pi else w
 
 
 # --------------------------------------------------------------------- presets
@@ -201,6 +195,13 @@ class MeasurementRow:
     angle: bool = False
 
 
+# row kind -> the kernel's code (the measurement model is written in _kernel, per code)
+KIND_CODES = {"wheel": kern.K_WHEEL, "imu_ax": kern.K_IMU_AX, "imu_ay": kern.K_IMU_AY,
+              "imu_rate": kern.K_IMU_RATE, "imu_yaw": kern.K_YAW, "cam_yaw": kern.K_YAW,
+              "steer": kern.K_STEER, "cam_vx": kern.K_CAM_VX, "cam_vy": kern.K_CAM_VY,
+              "cam_rate": kern.K_CAM_RATE}
+
+
 @dataclass
 class PlanarModel:
     """State layout and measurement rows of the EKF for one robot.
@@ -208,9 +209,12 @@ class PlanarModel:
     Attributes
     ----------
     n : int, number of states (9 + number of steerable wheels).
-    rows : list of MeasurementRow, every measurement the robot *can* provide, in a fixed order.
+    rows : list of MeasurementRow, every measurement the robot *can* provide, in a fixed order
+        (wheel rows first).
     steer_state : array (N,), state index of each wheel's steering angle, -1 for fixed wheels.
     wheel_xy_m : array (N, 2), wheel contact-centre positions in the body frame (m).
+    F_nz, F_nnz, H_nz, H_nnz : the columns where each row of F (n rows) and H (m rows) can be
+        nonzero (ascending, padded with -1) and how many: what the compiled kernels visit.
     """
 
     robot: RobotSpec
@@ -218,7 +222,7 @@ class PlanarModel:
     has_cam_yaw: bool = True
     n: int = 0
     rows: list[MeasurementRow] = field(default_factory=list)
-    steer_state: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    steer_state: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     wheel_xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     i_bias: int = 0
 
@@ -227,7 +231,7 @@ class PlanarModel:
         steerable = [k for k, w in enumerate(robot.wheels) if w.steerable]
         self.n = N_BASE + len(steerable) + 1
         self.i_bias = self.n - 1
-        self.steer_state = np.full(robot.n_wheels, -1, dtype=int)
+        self.steer_state = np.full(robot.n_wheels, -1, dtype=np.int64)
         for j, k in enumerate(steerable):
             self.steer_state[k] = N_BASE + j
         self.wheel_xy_m = np.array([[w.x_m, w.y_m] for w in robot.wheels], dtype=float)
@@ -248,6 +252,18 @@ class PlanarModel:
             if self.has_cam_yaw:
                 rows.append(MeasurementRow("cam_yaw", "cam_yaw_rad", "cam", "cam_yaw", angle=True))
         self.rows = rows
+        self.n_wheel_rows = robot.n_wheels
+        assert all(r.kind == "wheel" for r in rows[:self.n_wheel_rows])  # the kernels rely on it
+        # sparsity of F and H: F probed at a generic state; H: v, r and the wheel's steering
+        # angle for wheel rows
+        F_probe = self.F(0.1 + np.arange(self.n) * 0.37, 1.0)
+        self.F_nz, self.F_nnz = _nonzero_columns(F_probe != 0.0)
+        H_mask = self.constant_H() != 0.0
+        for i in range(self.n_wheel_rows):
+            H_mask[i, [I_VX, I_VY, I_R]] = True
+            if self.steer_state[i] >= 0:
+                H_mask[i, self.steer_state[i]] = True
+        self.H_nz, self.H_nnz = _nonzero_columns(H_mask)
 
     @property
     def m(self) -> int:
@@ -259,181 +275,68 @@ class PlanarModel:
         names += [f"delta{k + 1}" for k in range(self.robot.n_wheels) if self.steer_state[k] >= 0]
         return names + ["bg"]
 
-    # ----------------------------------------------------------------- reference f, h, F, H
-    # Plain (allocating) versions: readable, used by tests and by the benchmark's filterpy run.
+    # ----------------------------------------------------------------- f, F, h, H (allocating)
+    # Thin wrappers over the kernels' model, for tests and the filterpy comparison.
     def f(self, x: np.ndarray, dt: float) -> np.ndarray:
-        """Process model f(x) for tick length ``dt`` (s)."""
-        xn = x.copy()
-        c, s = math.cos(x[I_PSI]), math.sin(x[I_PSI])
-        vx, vy, r = x[I_VX], x[I_VY], x[I_R]
-        xn[I_X] = x[I_X] + dt * (vx * c - vy * s)
-        xn[I_Y] = x[I_Y] + dt * (vx * s + vy * c)
-        xn[I_PSI] = x[I_PSI] + dt * r
-        xn[I_VX] = vx + dt * (x[I_AX] + r * vy)
-        xn[I_VY] = vy + dt * (x[I_AY] - r * vx)
+        """Process model f(x) for tick length ``dt`` (s), shape (n,) (psi wrapped)."""
+        xn = np.array(x, dtype=float)
+        kern.process_model(xn, dt)
         return xn
 
     def F(self, x: np.ndarray, dt: float) -> np.ndarray:
         """Jacobian df/dx, shape (n, n)."""
         F = np.eye(self.n)
-        fill_F(F, x, dt)
+        kern.process_jacobian(F, np.asarray(x, dtype=float), dt)
         return F
-
-    def steer_angles(self, x: np.ndarray) -> np.ndarray:
-        """Steering angle of every wheel (rad), 0 for fixed wheels, shape (N,)."""
-        d = np.zeros(self.robot.n_wheels)
-        m = self.steer_state >= 0
-        d[m] = x[self.steer_state[m]]
-        return d
-
-    def v_long(self, x: np.ndarray) -> np.ndarray:
-        """Longitudinal velocity of every wheel centre (m/s), SYSTEM §7.1, shape (N,)."""
-        d = self.steer_angles(x)
-        u = x[I_VX] - x[I_R] * self.wheel_xy_m[:, 1]
-        w = x[I_VY] + x[I_R] * self.wheel_xy_m[:, 0]
-        return u * np.cos(d) + w * np.sin(d)
 
     def h(self, x: np.ndarray) -> np.ndarray:
         """Measurement model h(x) for every row, shape (m,)."""
-        out = np.empty(self.m)
-        vl = self.v_long(x)
-        R = self.robot.wheel_radius_m
-        cam = self.robot.camera
-        for k, row in enumerate(self.rows):
-            out[k] = {
-                "wheel": lambda: vl[row.wheel] / R,
-                "imu_ax": lambda: x[I_AX],
-                "imu_ay": lambda: x[I_AY],
-                "imu_rate": lambda: x[I_R] + x[self.i_bias],
-                "imu_yaw": lambda: x[I_PSI],
-                "steer": lambda: x[self.steer_state[row.wheel]],
-                "cam_vx": lambda: x[I_VX] - x[I_R] * cam.y_m,
-                "cam_vy": lambda: x[I_VY] + x[I_R] * cam.x_m,
-                "cam_rate": lambda: x[I_R],
-                "cam_yaw": lambda: x[I_PSI],
-            }[row.kind]()
-        return out
+        x = np.asarray(x, dtype=float)
+        H = self.H(x)
+        return np.array([kern.h_row(H, x, i, self.n_wheel_rows, self.H_nz, self.H_nnz) for i in range(self.m)])
 
     def H(self, x: np.ndarray) -> np.ndarray:
         """Jacobian dh/dx for every row, shape (m, n)."""
         H = self.constant_H()
-        fill_wheel_H(H, x, self._wheel_rows(), self.wheel_xy_m, self.steer_state,
-                     self.robot.wheel_radius_m)
+        kern.fill_wheel_H(H, np.asarray(x, dtype=float), self.wheel_xy_m, self.steer_state,
+                          float(self.robot.wheel_radius_m))
         return H
-
-    # ----------------------------------------------------------------- helpers for the fast path
-    def _wheel_rows(self) -> np.ndarray:
-        return np.array([k for k, r in enumerate(self.rows) if r.kind == "wheel"], dtype=int)
 
     def constant_H(self) -> np.ndarray:
         """The state-independent entries of H (wheel rows left zero), shape (m, n)."""
         H = np.zeros((self.m, self.n))
+        kind = np.array([KIND_CODES[r.kind] for r in self.rows], dtype=np.int64)
+        state_of_row = np.array([self.steer_state[r.wheel] if r.kind == "steer" else -1 for r in self.rows],
+                                dtype=np.int64)
         cam = self.robot.camera
-        for k, row in enumerate(self.rows):
-            if row.kind == "imu_ax":
-                H[k, I_AX] = 1.0
-            elif row.kind == "imu_ay":
-                H[k, I_AY] = 1.0
-            elif row.kind == "imu_rate":
-                H[k, I_R] = 1.0
-                H[k, self.i_bias] = 1.0
-            elif row.kind in ("imu_yaw", "cam_yaw"):
-                H[k, I_PSI] = 1.0
-            elif row.kind == "steer":
-                H[k, self.steer_state[row.wheel]] = 1.0
-            elif row.kind == "cam_vx":
-                H[k, I_VX] = 1.0
-                H[k, I_R] = -cam.y_m
-            elif row.kind == "cam_vy":
-                H[k, I_VY] = 1.0
-                H[k, I_R] = cam.x_m
-            elif row.kind == "cam_rate":
-                H[k, I_R] = 1.0
+        cam_xy = np.array([cam.x_m, cam.y_m] if cam is not None else [0.0, 0.0])
+        kern.fill_linear_H(H, kind, state_of_row, cam_xy, self.i_bias)
         return H
-
-
-def fill_F(F: np.ndarray, x: np.ndarray, dt: float) -> None:
-    """Write the state-dependent entries of F = df/dx into ``F`` (identity elsewhere).
-
-    dX'/dpsi = -T (vx sin psi + vy cos psi), dX'/dvx = T cos psi, dX'/dvy = -T sin psi
-    dY'/dpsi =  T (vx cos psi - vy sin psi), dY'/dvx = T sin psi, dY'/dvy =  T cos psi
-    dpsi'/dr = T
-    dvx'/dvy = T r, dvx'/dr = T vy, dvx'/dax = T
-    dvy'/dvx = -T r, dvy'/dr = -T vx, dvy'/day = T
-    """
-    c, s = math.cos(x[I_PSI]), math.sin(x[I_PSI])
-    vx, vy, r = x[I_VX], x[I_VY], x[I_R]
-    F[I_X, I_PSI] = -dt * (vx * s + vy * c)
-    F[I_X, I_VX] = dt * c
-    F[I_X, I_VY] = -dt * s
-    F[I_Y, I_PSI] = dt * (vx * c - vy * s)
-    F[I_Y, I_VX] = dt * s
-    F[I_Y, I_VY] = dt * c
-    F[I_PSI, I_R] = dt
-    F[I_VX, I_VY] = dt * r
-    F[I_VX, I_R] = dt * vy
-    F[I_VX, I_AX] = dt
-    F[I_VY, I_VX] = -dt * r
-    F[I_VY, I_R] = -dt * vx
-    F[I_VY, I_AY] = dt
-
-
-def fill_wheel_H(H: np.ndarray, x: np.ndarray, wheel_rows: np.ndarray, wheel_xy: np.ndarray,
-                 steer_state: np.ndarray, radius_m: float) -> None:
-    """Write the wheel rows of H (analytic derivatives of eq. 4.46).
-
-    With u = vx - r y_i, w = vy + r x_i, c = cos d_i, s = sin d_i, h_i = (u c + w s) / R:
-    dh/dvx = c / R, dh/dvy = s / R, dh/dr = (-y_i c + x_i s) / R, dh/dd_i = (-u s + w c) / R.
-    The wheel rows are the first N rows of H (``PlanarModel`` puts them there).
-    """
-    nw = len(wheel_rows)
-    steer = steer_state >= 0
-    inv_r = 1.0 / radius_m
-    if steer.any():
-        d = np.zeros(nw)
-        d[steer] = x[steer_state[steer]]
-        c, s = np.cos(d), np.sin(d)
-        u = x[I_VX] - x[I_R] * wheel_xy[:, 1]
-        w = x[I_VY] + x[I_R] * wheel_xy[:, 0]
-        H[:nw, I_VX] = c * inv_r
-        H[:nw, I_VY] = s * inv_r
-        H[:nw, I_R] = (wheel_xy[:, 0] * s - wheel_xy[:, 1] * c) * inv_r
-        H[wheel_rows[steer], steer_state[steer]] = ((w * c - u * s) * inv_r)[steer]
-    else:  # fixed wheels: d = 0, constant rows
-        H[:nw, I_VX] = inv_r
-        H[:nw, I_VY] = 0.0
-        H[:nw, I_R] = -wheel_xy[:, 1] * inv_r
 
 
 # --------------------------------------------------------------------- filter
 class Ekf:
     """The EKF itself: ``x`` (n,), ``P`` (n, n), ``predict(dt)``, ``update(z, use, r_diag)``;
     ``step(dt, z, use, r_diag)`` (both, one tick) and ``batch_filter(t_s, z, use, r_diag)`` (a
-    whole table).
+    whole table). The equations run in :mod:`terrainml.estimation._kernel`.
 
     Parameters
     ----------
     model : PlanarModel, the robot's state and measurement layout.
     preset : EkfPreset or name.
-    compiled : use the numba kernels (default: when numba is available); False: the numpy
-        reference methods.
 
     Attributes
     ----------
     x : ndarray (n,), state estimate.
     P : ndarray (n, n), state covariance.
+    Q0 : ndarray (n, n), process noise per 0.01 s tick (scaled by ``dt / 0.01``).
     y : ndarray (m,), last innovations (NaN for rows not used).
     S_diag : ndarray (m,), last innovation variances (NaN for rows not used).
     nis : float, last y^T S^-1 y; ``nis_dof`` its degrees of freedom (rows used).
     n_gated : int, rows rejected by the gate so far.
     """
 
-    def __init__(self, model: PlanarModel, preset: str | EkfPreset = "robust",
-                 compiled: bool | None = None) -> None:
-        from terrainml.estimation import _kernel
-
-        self._kernel = _kernel
-        self.compiled = _kernel.HAVE_NUMBA if compiled is None else bool(compiled and _kernel.HAVE_NUMBA)
+    def __init__(self, model: PlanarModel, preset: str | EkfPreset = "robust") -> None:
         self.model = model
         self.preset = p = get_preset(preset)
         n, m = model.n, model.m
@@ -444,234 +347,66 @@ class Ekf:
                          + [p.p0_steer] * steer_n + [p.p0_bias]).astype(float)
         self.Q0 = np.diag([p.q_xy, p.q_xy, p.q_psi, p.q_vxy, p.q_vxy, p.q_r, p.q_acc, p.q_acc]
                           + [p.q_steer] * steer_n + [p.q_bias]).astype(float)
-        self._I = np.eye(n)
-        self._F = np.eye(n)
-        self._tmp = np.empty((n, n))
-        self._H_all = model.constant_H()
-        self._h_all = np.zeros(m)
-        self._wheel_rows = model._wheel_rows()
-        self._n_wheel_rows = len(self._wheel_rows)
-        assert np.array_equal(self._wheel_rows, np.arange(self._n_wheel_rows))  # wheel rows first
-        self._wheel_xy = model.wheel_xy_m
-        self._steer_state = model.steer_state
-        self._steer_mask = self._steer_state >= 0
-        self._radius = model.robot.wheel_radius_m
-        kinds = [r.kind for r in model.rows]
-        self._angle_rows = np.array([r.angle for r in model.rows], dtype=bool)
-        self._angle_idx = np.flatnonzero(self._angle_rows)
-        # constant parts of h(x) as index maps: h = x[src] (+ x[src2] * coef) for non-wheel rows
-        self._lin_rows = np.array([k for k, kd in enumerate(kinds) if kd != "wheel"], dtype=int)
-        Hl = self._H_all[self._lin_rows]
-        self._H_lin = Hl  # h_lin = H_lin @ x  (all non-wheel rows are linear in x)
-        self._cam_rows = np.array([r.group == "cam" for r in model.rows], dtype=bool)
         self.y = np.full(m, np.nan)
         self.S_diag = np.full(m, np.nan)
         self.nis = float("nan")
         self.nis_dof = 0
-        # gate memory, shared with the compiled kernels: [rows gated so far, consecutive ticks
-        # with a gated row, gate released (0/1)]
+        # gate memory: [rows gated so far, consecutive ticks with a gated row, gate released]
         self._gate_state = np.zeros(3, dtype=np.int64)
         self._gate_chi2 = 0.0 if p.cam_gate_chi2 is None else float(p.cam_gate_chi2)
-        self._gated_rows = np.array([r.group == "cam" or (p.gate_imu_acc and r.kind in ("imu_ax", "imu_ay"))
-                                     for r in model.rows], dtype=bool)
-        # sparsity of F and H for the compiled kernels: the columns each row can be nonzero in
-        # (F probed at a generic state; H: v, r and the wheel's steering angle for wheel rows)
-        F_probe = np.eye(n)
-        fill_F(F_probe, 0.1 + np.arange(n) * 0.37, 1.0)
-        self._F_nz, self._F_nnz = _nonzero_columns(F_probe != 0.0)
-        H_mask = self._H_all != 0.0
-        for i in range(self._n_wheel_rows):
-            H_mask[i, [I_VX, I_VY, I_R]] = True
-            if self._steer_state[i] >= 0:
-                H_mask[i, self._steer_state[i]] = True
-        self._H_nz, self._H_nnz = _nonzero_columns(H_mask)
+        gated = [r.group == "cam" or (p.gate_imu_acc and r.kind in ("imu_ax", "imu_ay")) for r in model.rows]
+        # the kernels take the pack as a plain tuple (see _kernel's docstring)
+        self._model = tuple(EkfModel(
+            Q0=self.Q0, nominal_dt_s=NOMINAL_DT_S, H_const=model.constant_H(),
+            F_nz=model.F_nz, F_nnz=model.F_nnz, H_nz=model.H_nz, H_nnz=model.H_nnz,
+            angle_rows=np.array([r.angle for r in model.rows], dtype=bool), gated_rows=np.array(gated, dtype=bool),
+            gate_max_ticks=int(p.cam_gate_max_ticks), n_wheel_rows=int(model.n_wheel_rows),
+            wheel_xy_m=np.ascontiguousarray(model.wheel_xy_m, dtype=float), steer_state=model.steer_state,
+            wheel_radius_m=float(model.robot.wheel_radius_m)))
 
-    # gate memory (readable names for the entries of _gate_state)
     @property
     def n_gated(self) -> int:
         """Rows rejected by the gate since the filter started."""
-        return int(self._gate_state[0])
+        return int(self._gate_state[kern.G_N_GATED])
 
-    @n_gated.setter
-    def n_gated(self, value: int) -> None:
-        self._gate_state[0] = value
+    def _state(self) -> tuple:
+        """The arrays the kernels update in place (fields of ``_kernel.EkfState``)."""
+        return self.x, self.P, self._gate_state, self.y, self.S_diag
 
-    @property
-    def _gated_run(self) -> int:  # consecutive ticks with a gated row
-        return int(self._gate_state[1])
+    def _gate(self, gate_enabled: bool) -> float:
+        return self._gate_chi2 if gate_enabled else 0.0
 
-    @_gated_run.setter
-    def _gated_run(self, value: int) -> None:
-        self._gate_state[1] = value
-
-    @property
-    def _gate_release(self) -> bool:  # gate released after a long disagreement
-        return bool(self._gate_state[2])
-
-    @_gate_release.setter
-    def _gate_release(self, value: bool) -> None:
-        self._gate_state[2] = int(value)
-
-    # ----------------------------------------------------------------- predict
     def predict(self, dt: float) -> None:
-        """x = f(x);  P = F P F^T + Q (dt / 0.01)."""
-        if self.compiled:  # same equations, compiled (terrainml.estimation._kernel)
-            self._kernel.predict_kernel(self.x, self.P, self.Q0, dt, dt / NOMINAL_DT_S, self._F, self._F_nz,
-                                        self._F_nnz, self._tmp)
-            return
-        x, F = self.x, self._F
-        fill_F(F, x, dt)  # Jacobian at the prior mean, before x moves
-        c, s = math.cos(x[I_PSI]), math.sin(x[I_PSI])
-        vx, vy, r = x[I_VX], x[I_VY], x[I_R]
-        x[I_X] += dt * (vx * c - vy * s)  # X' = X + T (vx cos psi - vy sin psi)
-        x[I_Y] += dt * (vx * s + vy * c)  # Y' = Y + T (vx sin psi + vy cos psi)
-        x[I_PSI] = _wrap_scalar(x[I_PSI] + dt * r)  # psi' = psi + T r
-        x[I_VX] = vx + dt * (x[I_AX] + r * vy)  # vx' = vx + T (ax + r vy)
-        x[I_VY] = vy + dt * (x[I_AY] - r * vx)  # vy' = vy + T (ay - r vx)
-        # r, ax, ay, delta, bg: random walks (x' = x)
-        P = F @ self.P @ F.T  # P = F P F^T + Q
-        P += self.Q0 * (dt / NOMINAL_DT_S)
-        self.P = P
+        """x = f(x);  P = F P F^T + Q0 (dt / 0.01)."""
+        kern.predict_kernel(self._model, self._state(), dt)
 
-    # ----------------------------------------------------------------- h and H
-    def h_and_H(self, wheels: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """h(x) and H = dh/dx at the current (prior) state for every row.
-
-        ``wheels=False`` skips the (state-dependent) wheel rows when none is used this tick.
-        """
-        x, H, h = self.x, self._H_all, self._h_all
-        if wheels:
-            fill_wheel_H(H, x, self._wheel_rows, self._wheel_xy, self._steer_state, self._radius)
-            # wheel rows: h_i = v_long_i / R = H_i[vx, vy, r] . x[vx, vy, r] (exactly linear in v, r)
-            nw = self._n_wheel_rows
-            h[:nw] = H[:nw, I_VX:I_R + 1] @ x[I_VX:I_R + 1]
-        h[self._lin_rows] = self._H_lin @ x
-        return h, H
-
-    # ----------------------------------------------------------------- update
     def update(self, z: np.ndarray, use: np.ndarray, r_diag: np.ndarray, gate_enabled: bool = True) -> None:
         """Joseph-form update with the rows ``use`` (bool, (m,)) of z (m,) and R = diag(r_diag).
 
-        With ``preset.cam_gate_chi2`` set, camera and IMU-acceleration rows whose normalised
-        innovation exceeds it are dropped for the tick (``gate_enabled=False`` skips the gate,
-        e.g. on the first camera sample after a gap). After ``cam_gate_max_ticks`` consecutive
-        gated ticks the gate is released until prediction and sensors agree again.
-
         y = z - h(x) (angles wrapped);  S = H P H^T + R;  K = P H^T S^-1
         x = x + K y;  P = (I - K H) P (I - K H)^T + K R K^T;  NIS = y^T S^-1 y
+
+        With ``preset.cam_gate_chi2`` set, camera and IMU-acceleration rows whose normalised
+        innovation ``y_i^2 / S_ii`` exceeds it are dropped for the tick (``gate_enabled=False``
+        skips the gate, e.g. on the first camera sample after a gap). After
+        ``cam_gate_max_ticks`` consecutive gated ticks the gate is released until prediction and
+        sensors agree again.
         """
-        if self.compiled and self._update_compiled(z, use, r_diag, gate_enabled):
-            return
-        self._update_numpy(z, use, r_diag, gate_enabled)
+        self.nis, self.nis_dof = kern.update_kernel(self._model, self._state(), z, use, r_diag,
+                                                    self._gate(gate_enabled))
 
-    def _update_numpy(self, z: np.ndarray, use: np.ndarray, r_diag: np.ndarray, gate_enabled: bool) -> None:
-        """:meth:`update` in numpy (the reference; also the fallback of the compiled kernel)."""
-        self.y.fill(np.nan)
-        self.S_diag.fill(np.nan)
-        idx = np.flatnonzero(use)
-        if idx.size == 0:
-            self.nis, self.nis_dof = float("nan"), 0
-            return
-        h_all, H_all = self.h_and_H(wheels=bool(idx[0] < self._n_wheel_rows))
-        y_all = z - h_all
-        ang = self._angle_idx
-        if len(ang):
-            y_all[ang] = np.mod(y_all[ang] + math.pi, TWO_PI) - math.pi  # wrapped angle innovations
-        P = self.P
-        gate = self.preset.cam_gate_chi2 if gate_enabled else None
-        gated_now = False
-        for _ in range(2):
-            H = H_all[idx]
-            y = y_all[idx]
-            r = r_diag[idx]
-            k = len(y)
-            HP = H @ P  # H P              (k, n)
-            S = HP @ H.T  # S = H P H^T + R  (k, k)
-            S.flat[:: k + 1] += r
-            if gate is None:
-                break
-            # per-row chi-square gate on camera (and IMU acceleration) rows: y_k^2 / S_kk > gate
-            bad = self._gated_rows[idx] & (y * y > gate * S.diagonal())
-            if not bad.any():
-                self._gate_release = False  # prediction and sensors agree again
-                break
-            if self._gate_release:
-                break  # released: a long disagreement means the prediction is wrong, not the sensor
-            gated_now = True
-            self.n_gated += int(bad.sum())
-            idx = idx[~bad]
-            if idx.size == 0:
-                break
-            gate = None  # the remaining rows are used as they are
-        self._gated_run = self._gated_run + 1 if gated_now else 0
-        if self._gated_run > self.preset.cam_gate_max_ticks:
-            self._gate_release = True
-            self._gated_run = 0
-        if idx.size == 0:
-            self.nis, self.nis_dof = float("nan"), 0
-            return
-        rhs = np.empty((k, self.n + 1))
-        rhs[:, :-1] = HP
-        rhs[:, -1] = y
-        L, info = _dpotrf(S, lower=1, clean=0)
-        if info == 0:
-            sol, info = _dpotrs(L, rhs, lower=1)
-        if info != 0:  # not positive definite (should not happen): least-squares fallback
-            sol = np.linalg.lstsq(S, rhs, rcond=None)[0]
-        K = sol[:, :-1].T  # Kalman gain     (n, k)
-        self.x += K @ y  # x = x + K y
-        self.x[I_PSI] = _wrap_scalar(self.x[I_PSI])
-        A = self._I - K @ H  # Joseph form: P = (I - K H) P (I - K H)^T + K R K^T
-        P = A @ P @ A.T + (K * r) @ K.T
-        self.P = 0.5 * (P + P.T)  # keep exact symmetry against round-off
-        self.nis = float(y @ sol[:, -1])  # NIS = y^T S^-1 y
-        self.nis_dof = k
-        self.y[idx] = y
-        self.S_diag[idx] = S.diagonal()
-
-    def _update_compiled(self, z: np.ndarray, use: np.ndarray, r_diag: np.ndarray, gate_enabled: bool) -> bool:
-        """The same update through the compiled kernel; False if it could not (S not PD)."""
-        nis, dof = self._kernel.update_kernel(
-            self.x, self.P, self._H_all, self._H_nz, self._H_nnz, z, use, r_diag, self._angle_rows,
-            self._gated_rows, self._gate_chi2 if gate_enabled else 0.0, self.preset.cam_gate_max_ticks,
-            self._gate_state, self._n_wheel_rows, self._wheel_xy, self._steer_state, self._radius,
-            self.y, self.S_diag)
-        if dof < 0:  # Cholesky failed (x, P and the gate untouched): let the numpy path handle it
-            return False
-        self.nis = nis
-        self.nis_dof = dof
-        return True
-
-    # ----------------------------------------------------------------- one tick, a whole table
     def step(self, dt: float, z: np.ndarray, use: np.ndarray, r_diag: np.ndarray,
              gate_enabled: bool = True) -> None:
-        """:meth:`predict` over ``dt`` (skipped when ``dt <= 0``), then :meth:`update`.
-
-        Compiled, both run in one call (the online tick pays one dispatch instead of two).
-        """
-        if self.compiled:
-            nis, dof = self._kernel.step_kernel(
-                self.x, self.P, self.Q0, dt, NOMINAL_DT_S, self._F, self._F_nz, self._F_nnz, self._tmp,
-                self._H_all, self._H_nz, self._H_nnz, z, use, r_diag, self._angle_rows, self._gated_rows,
-                self._gate_chi2 if gate_enabled else 0.0, self.preset.cam_gate_max_ticks, self._gate_state,
-                self._n_wheel_rows, self._wheel_xy, self._steer_state, self._radius, self.y, self.S_diag)
-            if dof >= 0:
-                self.nis = nis
-                self.nis_dof = dof
-            else:  # S not PD (predict done, update not): the numpy update decides
-                self._update_numpy(z, use, r_diag, gate_enabled)
-            return
-        if dt > 0.0:
-            self.predict(dt)
-        self.update(z, use, r_diag, gate_enabled)
+        """:meth:`predict` over ``dt`` (skipped when ``dt <= 0``), then :meth:`update`, in one call."""
+        self.nis, self.nis_dof = kern.step_kernel(self._model, self._state(), dt, z, use, r_diag,
+                                                  self._gate(gate_enabled))
 
     def batch_filter(self, t_s: np.ndarray, z: np.ndarray, use: np.ndarray, r_diag: np.ndarray,
                      gate_enabled: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Filter a whole table: :meth:`step` for every row, ``dt = t_s[k] - t_s[k - 1]``.
 
-        The first row is an update only (the state is taken to be at ``t_s[0]``). With numba the
-        loop itself is compiled (no Python between ticks); the result is the same as calling
-        :meth:`step` row by row.
+        The first row is an update only (the state is taken to be at ``t_s[0]``). The loop runs
+        compiled (no Python between ticks); the result is that of :meth:`step` row by row.
 
         Parameters
         ----------
@@ -684,32 +419,13 @@ class Ekf:
         -------
         xs : (n_ticks, n) state after each tick; nis : (n_ticks,) NIS; nis_dof : (n_ticks,) rows used.
         """
-        t_s = np.ascontiguousarray(t_s, dtype=float)
-        z = np.ascontiguousarray(z, dtype=float)
-        use = np.ascontiguousarray(use, dtype=bool)
-        r_diag = np.ascontiguousarray(r_diag, dtype=float)
         n_ticks = len(t_s)
         xs = np.empty((n_ticks, self.n))
         nis = np.empty(n_ticks)
         dof = np.empty(n_ticks, dtype=np.int64)
-        k = 0
-        while k < n_ticks:
-            if self.compiled:
-                k = self._kernel.batch_kernel(
-                    k, t_s, z, use, r_diag, self.x, self.P, self.Q0, NOMINAL_DT_S, self._F, self._F_nz,
-                    self._F_nnz, self._tmp, self._H_all, self._H_nz, self._H_nnz, self._angle_rows,
-                    self._gated_rows, self._gate_chi2 if gate_enabled else 0.0, self.preset.cam_gate_max_ticks,
-                    self._gate_state, self._n_wheel_rows, self._wheel_xy, self._steer_state, self._radius,
-                    self.y, self.S_diag, xs, nis, dof)
-                if k == n_ticks:
-                    break
-                self._update_numpy(z[k], use[k], r_diag, gate_enabled)  # predicted, S not PD
-            else:
-                self.step(t_s[k] - t_s[k - 1] if k else 0.0, z[k], use[k], r_diag, gate_enabled)
-            xs[k] = self.x
-            nis[k] = self.nis
-            dof[k] = self.nis_dof
-            k += 1
+        kern.batch_kernel(self._model, self._state(), np.ascontiguousarray(t_s, dtype=float),
+                          np.ascontiguousarray(z, dtype=float), np.ascontiguousarray(use, dtype=bool),
+                          np.ascontiguousarray(r_diag, dtype=float), self._gate(gate_enabled), xs, nis, dof)
         if n_ticks:
             self.nis, self.nis_dof = float(nis[-1]), int(dof[-1])
         return xs, nis, dof

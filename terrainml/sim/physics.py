@@ -3,10 +3,19 @@
 Integration: semi-implicit (symplectic) Euler at ``dt`` (default 1 ms). The tyre/soil contact is
 stiff at low speed (dF/d(slip velocity) ~ k / v), so each contact force gets a linearly implicit
 correction (Rosenbrock-Euler with a per-contact diagonal Jacobian: wheel inertia J/R^2 and the
-wheel's share of the body mass; slope = max(local, secant to the predicted slip)): the fixed points (steady slip, steady turns) are those of the
-explicit model, only the stiff transient is damped. The force law's slip uses
+wheel's share of the body mass; slope = max(local, secant to the predicted slip)): the fixed
+points (steady slip, steady turns) are those of the explicit model, only the stiff transient is
+damped. The force law's slip uses
 ``max(|omega R|, |v_long|, 0.05 m/s)`` as denominator, and the lateral slip angle uses
 ``max(|v_long|, 0.25 m/s)`` in its denominator (low-speed tyre regularisation).
+
+Inputs are packed: :class:`Vehicle` (robot and drive gains), :class:`Ground` (terrain tables
+and layout), :class:`SimState` (arrays below). :func:`run_substeps` takes them as plain tuples
+(``tuple(pack)``) and rebuilds the named tuples inside: numba types a plain tuple in C, a
+``NamedTuple`` in Python (microseconds a call). The two steps LLVM does not inline itself are
+inlined by numba (``inline="always"``): a call would copy the packs by value. A substep is a
+sequence of named steps: steering rates, kinematics and loads, longitudinal and lateral forces,
+drive torques, friction ellipse, body forces, implicit contact corrections, integration, log.
 
 State layout (float64 arrays, mutated in place)
 -----------------------------------------------
@@ -23,6 +32,7 @@ Uses numba when installed (``pip install numba``); otherwise runs the same code 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -39,6 +49,81 @@ L_T, L_X, L_Y, L_PSI, L_VX, L_VY, L_R, L_AX, L_AY, L_RDOT, L_AZ = range(11)
 WLOG = ("omega", "omega_filt", "delta", "tau", "v_long", "v_lat", "load", "cell")
 N_LOG_BODY = len(LOG_COLS)
 V_REG = 0.05   # m/s: slip denominator floor for the force law (low-speed regularisation)
+
+
+class Vehicle(NamedTuple):
+    """Robot geometry, inertia and low-level control (constant over a run)."""
+
+    wx: np.ndarray  # (N,) wheel contact x, body frame (m)
+    wy: np.ndarray  # (N,) wheel contact y (m)
+    xc: float  # centre of mass x, y (m)
+    yc: float
+    mass: float  # kg
+    iz: float  # yaw inertia (kg m^2)
+    rw: float  # wheel radius (m)
+    jw: float  # wheel inertia (kg m^2)
+    hcg: float  # centre-of-mass height (m)
+    load_pinv: np.ndarray  # (N, 3) static load distribution: pinv of [1; x_i; y_i]
+    kp: float  # wheel-speed PI gains (N m s/rad, N m/rad)
+    ki: float
+    tau_max: float  # torque (current) limit (N m)
+    steer_rate_max: float  # rad/s
+    steer_deadband: float  # rad
+    steer_tau: float  # steering first-order approach (s)
+    omega_lag_tau: float  # drive's reported-speed lag (s)
+    dt: float  # substep (s)
+
+
+class Ground(NamedTuple):
+    """Terrain of a run: per-cell force tables (terrain.py) and the layout grid."""
+
+    h_tab: np.ndarray  # (cells, loads, slips) traction per reference load
+    r_tab: np.ndarray  # (cells, loads, slips) motion resistance per reference load
+    y_tab: np.ndarray  # (cells, alphas) lateral force per load
+    hmax_tab: np.ndarray  # (cells, loads) traction peak per reference load
+    w_ref: float  # reference load of the tables (N)
+    load_grid: np.ndarray  # load factors of the tables' load axis
+    alpha_lo: float  # first slip angle of y_tab (rad) and its step
+    alpha_step: float
+    rough_amp: np.ndarray  # (cells, K) roughness amplitudes (m), wavenumbers (rad/m), phases (N, K)
+    rough_k: np.ndarray
+    rough_phase: np.ndarray
+    lay_grid: np.ndarray  # (nx, ny) layout cells; cell size and origin (m)
+    lay_cell: float
+    lay_ox: float
+    lay_oy: float
+
+
+class SimState(NamedTuple):
+    """Arrays advanced in place (layouts in the module docstring)."""
+
+    body: np.ndarray
+    wheel: np.ndarray
+    acc: np.ndarray
+    log: np.ndarray
+
+
+# per-wheel work array of one substep, (N_CROWS, N): one row per quantity (a 2-D array rather
+# than a tuple of arrays: numba updates a reference count at every read of a tuple's array)
+(C_HH,       # longitudinal (traction) force (N): from the tables, friction-limited, then corrected
+ C_HRAW,     # traction from the tables before the ellipse (N)
+ C_KD,       # dH / d(slip velocity)
+ C_RR,       # motion resistance (N)
+ C_HMAX,     # traction peak at this load (N)
+ C_FYL,      # lateral force (N)
+ C_KY,       # -dF_y / d(v_lat) >= 0
+ C_COS,      # cos, sin of the steering angle
+ C_SIN,
+ C_VLONG,    # wheel-centre velocity along / across the wheel (m/s)
+ C_VLAT,
+ C_DDELTA,   # steering rate (rad/s)
+ C_CELL,     # layout cell under the wheel (an integer, stored as float)
+ C_DEN,      # slip denominator (m/s)
+ C_SLIP,
+ C_LOADIDX,  # fractional load index of the tables
+ C_FX,       # force in body axes (N)
+ C_FY) = range(18)
+N_CROWS = 18
 
 
 @njit(cache=True)
@@ -77,302 +162,332 @@ def _load_index(load_factor, load_grid):
     return n - 1.0
 
 
+# Each step below loops over the wheels and first binds the arrays it uses to local names: an
+# array read from a tuple field inside a loop costs numba a reference-count update per read.
 @njit(cache=True)
-def run_substeps(n_sub, dt, body, wheel, acc, omega_cmd, delta_cmd,
-                 wx, wy, com, geom, ctrl, load_pinv, static_loads,
-                 h_tab, r_tab, y_tab, hmax_tab, load_grid, alpha_lo, alpha_step,
-                 rough_amp, rough_k, rough_phase,
-                 lay_grid, lay_cell, lay_ox, lay_oy,
-                 log, log_row, log_every):
-    """Advance ``n_sub`` substeps; log every ``log_every``-th; return the next free log row.
+def _steering_rates(v, delta_cmd, wheel, ct):
+    """Steering actuators: rate limit, dead band, first-order approach to the command."""
+    for i in range(ct.shape[1]):
+        err = delta_cmd[i] - wheel[W_DELTA, i]
+        if abs(err) <= v.steer_deadband:
+            ct[C_DDELTA, i] = 0.0
+        else:
+            d = err / v.steer_tau
+            if d > v.steer_rate_max:
+                d = v.steer_rate_max
+            elif d < -v.steer_rate_max:
+                d = -v.steer_rate_max
+            ct[C_DDELTA, i] = d
 
-    geom : [mass, Iz, R_wheel, J_wheel, com_h, w_ref]
-    ctrl : [Kp, Ki, tau_max, steer_rate_max, steer_deadband, steer_tau, omega_lag_tau]
-    com  : [xc, yc]
-    """
+
+@njit(cache=True)
+def _kinematics_and_loads(v, g, body, wheel, cpsi, spsi, ct):
+    """Per wheel: layout cell under the contact, velocity along / across the wheel, and load:
+    static + load transfer (previous accelerations), scaled by the roughness's vertical
+    acceleration. Returns the wheels' mean vertical acceleration (m/s^2)."""
+    wx, wy, load_pinv = v.wx, v.wy, v.load_pinv
+    rough_amp, rough_k, rough_phase, lay_grid = g.rough_amp, g.rough_k, g.rough_phase, g.lay_grid
     n = wx.shape[0]
-    mass = geom[0]
-    iz = geom[1]
-    rw = geom[2]
-    jw = geom[3]
-    hcg = geom[4]
-    w_ref = geom[5]
-    kp = ctrl[0]
-    ki = ctrl[1]
-    tau_max = ctrl[2]
-    srate = ctrl[3]
-    sdb = ctrl[4]
-    stau = ctrl[5]
-    lag_tau = ctrl[6]
-    xc = com[0]
-    yc = com[1]
-    n_load = h_tab.shape[1]
-    n_slip = h_tab.shape[2]
-    n_alpha = y_tab.shape[1]
-    s_scale = (n_slip - 1) / 2.0
     nx = lay_grid.shape[0]
     ny = lay_grid.shape[1]
-    m_i = mass / n
-    fx = np.empty(n)
-    fy = np.empty(n)
-    hh = np.empty(n)
-    kd = np.empty(n)
-    fyl = np.empty(n)
-    ky = np.empty(n)
-    rr = np.empty(n)
-    cs = np.empty(n)
-    sn = np.empty(n)
-    vlong = np.empty(n)
-    vlat = np.empty(n)
-    ddelta = np.empty(n)
-    hmaxw = np.empty(n)
-    azw = np.empty(n)
-    cell = np.empty(n, dtype=np.int64)
-    dens = np.empty(n)
-    hraw = np.empty(n)
-    sl = np.empty(n)
-    lfs = np.empty(n)
+    u = body[B_U]
+    w = body[B_W]
+    r = body[B_R]
+    b1 = v.mass * G
+    b2 = v.mass * G * v.xc - v.mass * body[B_AX] * v.hcg
+    b3 = v.mass * G * v.yc - v.mass * body[B_AY] * v.hcg
+    az_mean = 0.0
+    for i in range(n):
+        ld = load_pinv[i, 0] * b1 + load_pinv[i, 1] * b2 + load_pinv[i, 2] * b3
+        # contact-point world position -> layout cell (clamped to the grid)
+        px = body[B_X] + cpsi * wx[i] - spsi * wy[i]
+        py = body[B_Y] + spsi * wx[i] + cpsi * wy[i]
+        ix = min(max(int(math.floor((px - g.lay_ox) / g.lay_cell)), 0), nx - 1)
+        iy = min(max(int(math.floor((py - g.lay_oy) / g.lay_cell)), 0), ny - 1)
+        c = ix * ny + iy
+        ct[C_CELL, i] = c
+        vxi = u - r * (wy[i] - v.yc)
+        vyi = w + r * (wx[i] - v.xc)
+        speed2 = vxi * vxi + vyi * vyi
+        zdd = 0.0
+        for k in range(rough_k.shape[1]):
+            zdd -= rough_amp[c, k] * rough_k[c, k] * rough_k[c, k] * math.sin(
+                rough_k[c, k] * wheel[W_DIST, i] + rough_phase[i, k])
+        zdd *= speed2
+        az_mean += zdd / n
+        f = 1.0 + zdd / G
+        if f < 0.0:
+            f = 0.0
+        ld = ld * f
+        if ld < 0.0:
+            ld = 0.0
+        wheel[W_LOAD, i] = ld
+        de = wheel[W_DELTA, i]
+        ct[C_COS, i] = math.cos(de)
+        ct[C_SIN, i] = math.sin(de)
+        ct[C_VLONG, i] = vxi * ct[C_COS, i] + vyi * ct[C_SIN, i]
+        ct[C_VLAT, i] = -vxi * ct[C_SIN, i] + vyi * ct[C_COS, i]
+    return az_mean
+
+
+@njit(cache=True, inline="always")
+def _longitudinal_forces(v, g, wheel, ct):
+    """Per wheel: traction from the tables at the wheel's slip and load, its slope against the
+    slip velocity, motion resistance and the traction peak at this load."""
+    h_tab, r_tab, hmax_tab, load_grid = g.h_tab, g.r_tab, g.hmax_tab, g.load_grid
+    w_ref = g.w_ref
+    n_load = h_tab.shape[1]
+    n_slip = h_tab.shape[2]
+    s_scale = (n_slip - 1) / 2.0
+    for i in range(ct.shape[1]):
+        c = int(ct[C_CELL, i])
+        vw = wheel[W_OMEGA, i] * v.rw
+        den = max(abs(vw), abs(ct[C_VLONG, i]), V_REG)
+        s = (vw - ct[C_VLONG, i]) / den
+        ct[C_DEN, i] = den
+        if s > 1.0:
+            s = 1.0
+        elif s < -1.0:
+            s = -1.0
+        lf = _load_index(wheel[W_LOAD, i] / w_ref, load_grid)
+        hv, hd = _interp_table(h_tab, c, lf, (s + 1.0) * s_scale, n_load, n_slip)
+        rv, rd = _interp_table(r_tab, c, lf, (s + 1.0) * s_scale, n_load, n_slip)
+        ct[C_HH, i] = hv * w_ref
+        ct[C_HRAW, i] = ct[C_HH, i]
+        ct[C_SLIP, i] = s
+        ct[C_LOADIDX, i] = lf
+        ct[C_KD, i] = hd * w_ref * s_scale / den          # dH / d(slip velocity)
+        ct[C_RR, i] = rv * w_ref * math.tanh(ct[C_VLONG, i] / 0.02)
+        il = int(lf)
+        if il >= n_load - 1:
+            il = n_load - 2
+        fl = lf - il
+        ct[C_HMAX, i] = (hmax_tab[c, il] * (1.0 - fl) + hmax_tab[c, il + 1] * fl) * w_ref
+
+
+@njit(cache=True)
+def _lateral_forces(g, wheel, ct):
+    """Per wheel: lateral force from the slip angle (table per unit load) and its slope."""
+    y_tab = g.y_tab
+    n_alpha = y_tab.shape[1]
+    for i in range(ct.shape[1]):
+        ld = wheel[W_LOAD, i]
+        alpha = math.atan2(ct[C_VLAT, i], max(abs(ct[C_VLONG, i]), 0.25))
+        af = (alpha - g.alpha_lo) / g.alpha_step
+        if af < 0.0:
+            af = 0.0
+        if af > n_alpha - 1.0:
+            af = n_alpha - 1.0
+        ia = int(af)
+        if ia >= n_alpha - 1:
+            ia = n_alpha - 2
+        fa = af - ia
+        y0 = y_tab[int(ct[C_CELL, i]), ia]
+        y1 = y_tab[int(ct[C_CELL, i]), ia + 1]
+        ct[C_FYL, i] = (y0 + (y1 - y0) * fa) * ld
+        dalpha_dv = 1.0 / max(abs(ct[C_VLONG, i]), 0.25) / (1.0 + alpha * alpha)
+        ct[C_KY, i] = -(y1 - y0) / g.alpha_step * ld * dalpha_dv     # -dF_y/dv_lat >= 0
+
+
+@njit(cache=True)
+def _drive_torques(v, wheel, omega_cmd):
+    """PI wheel-speed drives with their current (torque) limit; the integrator holds while the
+    output saturates and is clamped to the limit."""
+    tau_max = v.tau_max
+    for i in range(omega_cmd.shape[0]):
+        e = omega_cmd[i] - wheel[W_OMEGA, i]
+        tau = v.kp * e + wheel[W_INTEG, i]
+        if tau > tau_max:
+            tau = tau_max
+        elif tau < -tau_max:
+            tau = -tau_max
+        else:
+            wheel[W_INTEG, i] += v.ki * e * v.dt
+        if wheel[W_INTEG, i] > tau_max:
+            wheel[W_INTEG, i] = tau_max
+        elif wheel[W_INTEG, i] < -tau_max:
+            wheel[W_INTEG, i] = -tau_max
+        wheel[W_TAU, i] = tau
+
+
+@njit(cache=True)
+def _friction_ellipse(g, wheel, ct):
+    """Combined slip: scale traction and lateral force back onto the friction ellipse."""
+    y_tab = g.y_tab
+    for i in range(ct.shape[1]):
+        lat_max = abs(y_tab[int(ct[C_CELL, i]), 0]) * wheel[W_LOAD, i]
+        if ct[C_HMAX, i] > 1e-9 and lat_max > 1e-9:
+            rho = (ct[C_HH, i] / ct[C_HMAX, i]) ** 2 + (ct[C_FYL, i] / lat_max) ** 2
+            if rho > 1.0:
+                q = 1.0 / math.sqrt(rho)
+                ct[C_HH, i] *= q
+                ct[C_FYL, i] *= q
+
+
+@njit(cache=True)
+def _body_forces(v, ct):
+    """Wheel forces in body axes (into rows C_FX, C_FY of ``ct``); returns their sum and their yaw
+    moment about the centre of mass."""
+    wx, wy = v.wx, v.wy
+    sfx = 0.0
+    sfy = 0.0
+    mz = 0.0
+    for i in range(ct.shape[1]):
+        fl_ = ct[C_HH, i] - ct[C_RR, i]
+        ct[C_FX, i] = fl_ * ct[C_COS, i] - ct[C_FYL, i] * ct[C_SIN, i]
+        ct[C_FY, i] = fl_ * ct[C_SIN, i] + ct[C_FYL, i] * ct[C_COS, i]
+        sfx += ct[C_FX, i]
+        sfy += ct[C_FY, i]
+        mz += (wx[i] - v.xc) * ct[C_FY, i] - (wy[i] - v.yc) * ct[C_FX, i]
+    return sfx, sfy, mz
+
+
+@njit(cache=True, inline="always")
+def _implicit_corrections(v, g, wheel, ud, wd, rdot, ct):
+    """Linearly implicit correction of each contact force (module docstring), given the
+    explicit body accelerations ``ud, wd, rdot``."""
+    wx, wy, h_tab = v.wx, v.wy, g.h_tab
+    dt, rw, jw = v.dt, v.rw, v.jw
+    n_load = h_tab.shape[1]
+    n_slip = h_tab.shape[2]
+    s_scale = (n_slip - 1) / 2.0
+    m_i = v.mass / wx.shape[0]
+    for i in range(ct.shape[1]):
+        dxi = wx[i] - v.xc
+        dyi = wy[i] - v.yc
+        aix = ud - rdot * dyi
+        aiy = wd + rdot * dxi
+        omd = (wheel[W_TAU, i] - rw * ct[C_HH, i]) / jw
+        dvl = aix * ct[C_COS, i] + aiy * ct[C_SIN, i] + ct[C_VLAT, i] * ct[C_DDELTA, i]
+        dvt = -aix * ct[C_SIN, i] + aiy * ct[C_COS, i] - ct[C_VLONG, i] * ct[C_DDELTA, i]
+        bl = rw * rw / jw + 1.0 / m_i
+        # slope for the implicit step: the larger of the local slope and the secant to the
+        # explicitly predicted slip (robust at the corners of free-slip dead zones)
+        ddel = dt * (rw * omd - dvl)
+        kdd = ct[C_KD, i]
+        if abs(ddel) > 1e-12:
+            s_pred = ct[C_SLIP, i] + ddel / ct[C_DEN, i]
+            if s_pred > 1.0:
+                s_pred = 1.0
+            elif s_pred < -1.0:
+                s_pred = -1.0
+            hp, _ = _interp_table(h_tab, int(ct[C_CELL, i]), ct[C_LOADIDX, i], (s_pred + 1.0) * s_scale, n_load, n_slip)
+            ksec = (hp * g.w_ref - ct[C_HRAW, i]) / ddel
+            if ksec > kdd:
+                kdd = ksec
+        if kdd > 0.0:
+            ct[C_HH, i] += kdd * ddel / (1.0 + kdd * dt * bl)
+        bt = 1.0 / m_i + (dxi * dxi + dyi * dyi) / v.iz
+        kyy = ct[C_KY, i]
+        if kyy > 0.0:
+            ct[C_FYL, i] -= kyy * dt * dvt / (1.0 + kyy * dt * bt)
+
+
+@njit(cache=True)
+def _integrate(v, body, wheel, acc, cpsi, spsi, ax_cm, ay_cm, rdot, ct):
+    """Semi-implicit Euler: velocities from the final forces, then pose, wheel speeds, steering,
+    distances and energy. Returns the origin velocity (body axes)."""
+    wx, wy = v.wx, v.wy
+    dt = v.dt
+    u = body[B_U]
+    w = body[B_W]
+    r = body[B_R]
+    psi = body[B_PSI]
+    body[B_U] = u + dt * (ax_cm + r * w)
+    body[B_W] = w + dt * (ay_cm - r * u)
+    body[B_R] = r + dt * rdot
+    body[B_AX] = ax_cm
+    body[B_AY] = ay_cm
+    body[B_RDOT] = rdot
+    u2 = body[B_U]
+    w2 = body[B_W]
+    r2 = body[B_R]
+    # origin velocity (body axes): v_o = v_cm + omega x (O - CM)
+    vxo = u2 + r2 * v.yc
+    vyo = w2 - r2 * v.xc
+    body[B_X] += dt * (cpsi * vxo - spsi * vyo)
+    body[B_Y] += dt * (spsi * vxo + cpsi * vyo)
+    body[B_PSI] = psi + dt * r2
+    for i in range(wx.shape[0]):
+        om = wheel[W_OMEGA, i]
+        om2 = om + dt * (wheel[W_TAU, i] - v.rw * ct[C_HH, i]) / v.jw
+        wheel[W_OMEGA, i] = om2
+        wheel[W_DELTA, i] += dt * ct[C_DDELTA, i]
+        wheel[W_OFILT, i] += dt / v.omega_lag_tau * (om2 - wheel[W_OFILT, i])
+        vxi = u2 - r2 * (wy[i] - v.yc)
+        vyi = w2 + r2 * (wx[i] - v.xc)
+        wheel[W_DIST, i] += dt * math.sqrt(vxi * vxi + vyi * vyi)
+        acc[0] += dt * wheel[W_TAU, i] * om2
+    acc[1] += dt * math.sqrt(vxo * vxo + vyo * vyo)
+    acc[2] += dt
+    return vxo, vyo
+
+
+@njit(cache=True)
+def _log(v, st, row, vxo, vyo, ax_cm, ay_cm, rdot, az_mean, ct):
+    """Write the truth log row ``row`` (columns: LOG_COLS, then the WLOG blocks)."""
+    body, wheel, log, wx, wy = st.body, st.wheel, st.log, v.wx, v.wy
+    n = wx.shape[0]
+    u2 = body[B_U]
+    w2 = body[B_W]
+    r2 = body[B_R]
+    log[row, L_T] = st.acc[2]
+    log[row, L_X] = body[B_X]
+    log[row, L_Y] = body[B_Y]
+    log[row, L_PSI] = body[B_PSI]
+    log[row, L_VX] = vxo
+    log[row, L_VY] = vyo
+    log[row, L_R] = r2
+    # inertial acceleration of the origin (IMU), body axes
+    log[row, L_AX] = ax_cm + rdot * v.yc + r2 * r2 * v.xc
+    log[row, L_AY] = ay_cm - rdot * v.xc + r2 * r2 * v.yc
+    log[row, L_RDOT] = rdot
+    log[row, L_AZ] = az_mean
+    base = N_LOG_BODY
+    for i in range(n):
+        vxi = u2 - r2 * (wy[i] - v.yc)
+        vyi = w2 + r2 * (wx[i] - v.xc)
+        de = wheel[W_DELTA, i]
+        log[row, base + i] = wheel[W_OMEGA, i]
+        log[row, base + n + i] = wheel[W_OFILT, i]
+        log[row, base + 2 * n + i] = de
+        log[row, base + 3 * n + i] = wheel[W_TAU, i]
+        log[row, base + 4 * n + i] = vxi * math.cos(de) + vyi * math.sin(de)
+        log[row, base + 5 * n + i] = -vxi * math.sin(de) + vyi * math.cos(de)
+        log[row, base + 6 * n + i] = wheel[W_LOAD, i]
+        log[row, base + 7 * n + i] = int(ct[C_CELL, i])
+
+
+@njit(cache=True)
+def run_substeps(vehicle, ground, state, n_sub, omega_cmd, delta_cmd, log_row, log_every):
+    """Advance ``n_sub`` substeps; log every ``log_every``-th; return the next free log row.
+
+    ``vehicle``, ``ground``, ``state``: the fields of :class:`Vehicle`, :class:`Ground`,
+    :class:`SimState` as plain tuples. ``omega_cmd``, ``delta_cmd`` (N,): wheel-speed (rad/s)
+    and steering (rad) set-points.
+    """
+    v, g, st = Vehicle(*vehicle), Ground(*ground), SimState(*state)
+    body, wheel = st.body, st.wheel
+    ct = np.empty((N_CROWS, v.wx.shape[0]))
     for step in range(n_sub):
-        u = body[B_U]
-        w = body[B_W]
-        r = body[B_R]
-        psi = body[B_PSI]
-        cpsi = math.cos(psi)
-        spsi = math.sin(psi)
-        # ---- steering actuators (rate limit, dead band, first-order approach)
-        for i in range(n):
-            err = delta_cmd[i] - wheel[W_DELTA, i]
-            if abs(err) <= sdb:
-                ddelta[i] = 0.0
-            else:
-                d = err / stau
-                if d > srate:
-                    d = srate
-                elif d < -srate:
-                    d = -srate
-                ddelta[i] = d
-        # ---- wheel loads: static + load transfer (previous accelerations) + roughness
-        ax = body[B_AX]
-        ay = body[B_AY]
-        b1 = mass * G
-        b2 = mass * G * xc - mass * ax * hcg
-        b3 = mass * G * yc - mass * ay * hcg
-        az_mean = 0.0
-        for i in range(n):
-            ld = load_pinv[i, 0] * b1 + load_pinv[i, 1] * b2 + load_pinv[i, 2] * b3
-            # contact-point world position -> layout cell
-            px = body[B_X] + cpsi * wx[i] - spsi * wy[i]
-            py = body[B_Y] + spsi * wx[i] + cpsi * wy[i]
-            ix = int(math.floor((px - lay_ox) / lay_cell))
-            iy = int(math.floor((py - lay_oy) / lay_cell))
-            if ix < 0:
-                ix = 0
-            elif ix > nx - 1:
-                ix = nx - 1
-            if iy < 0:
-                iy = 0
-            elif iy > ny - 1:
-                iy = ny - 1
-            c = ix * ny + iy
-            cell[i] = c
-            vxi = u - r * (wy[i] - yc)
-            vyi = w + r * (wx[i] - xc)
-            speed2 = vxi * vxi + vyi * vyi
-            zdd = 0.0
-            for k in range(rough_k.shape[1]):
-                zdd -= rough_amp[c, k] * rough_k[c, k] * rough_k[c, k] * math.sin(
-                    rough_k[c, k] * wheel[W_DIST, i] + rough_phase[i, k])
-            zdd *= speed2
-            azw[i] = zdd
-            az_mean += zdd / n
-            f = 1.0 + zdd / G
-            if f < 0.0:
-                f = 0.0
-            ld = ld * f
-            if ld < 0.0:
-                ld = 0.0
-            wheel[W_LOAD, i] = ld
-            # ---- kinematics at the wheel
-            de = wheel[W_DELTA, i]
-            cs[i] = math.cos(de)
-            sn[i] = math.sin(de)
-            vlong[i] = vxi * cs[i] + vyi * sn[i]
-            vlat[i] = -vxi * sn[i] + vyi * cs[i]
-            # ---- longitudinal force from the tables
-            om = wheel[W_OMEGA, i]
-            vw = om * rw
-            den = max(abs(vw), abs(vlong[i]), V_REG)
-            s = (vw - vlong[i]) / den
-            dens[i] = den
-            if s > 1.0:
-                s = 1.0
-            elif s < -1.0:
-                s = -1.0
-            lf = _load_index(ld / w_ref, load_grid)
-            hv, hd = _interp_table(h_tab, c, lf, (s + 1.0) * s_scale, n_load, n_slip)
-            rv, rd = _interp_table(r_tab, c, lf, (s + 1.0) * s_scale, n_load, n_slip)
-            hh[i] = hv * w_ref
-            hraw[i] = hh[i]
-            sl[i] = s
-            lfs[i] = lf
-            kd[i] = hd * w_ref * s_scale / den          # dH / d(slip velocity)
-            rr[i] = rv * w_ref * math.tanh(vlong[i] / 0.02)
-            il = int(lf)
-            if il >= n_load - 1:
-                il = n_load - 2
-            fl = lf - il
-            hmaxw[i] = (hmax_tab[c, il] * (1.0 - fl) + hmax_tab[c, il + 1] * fl) * w_ref
-            # ---- lateral force
-            alpha = math.atan2(vlat[i], max(abs(vlong[i]), 0.25))
-            af = (alpha - alpha_lo) / alpha_step
-            if af < 0.0:
-                af = 0.0
-            if af > n_alpha - 1.0:
-                af = n_alpha - 1.0
-            ia = int(af)
-            if ia >= n_alpha - 1:
-                ia = n_alpha - 2
-            fa = af - ia
-            y0 = y_tab[c, ia]
-            y1 = y_tab[c, ia + 1]
-            fyl[i] = (y0 + (y1 - y0) * fa) * ld
-            dalpha_dv = 1.0 / max(abs(vlong[i]), 0.25) / (1.0 + alpha * alpha)
-            ky[i] = -(y1 - y0) / alpha_step * ld * dalpha_dv     # -dF_y/dv_lat >= 0
-            # ---- PI drive (current limit = torque limit)
-            e = omega_cmd[i] - om
-            tau = kp * e + wheel[W_INTEG, i]
-            if tau > tau_max:
-                tau = tau_max
-            elif tau < -tau_max:
-                tau = -tau_max
-            else:
-                wheel[W_INTEG, i] += ki * e * dt
-            if wheel[W_INTEG, i] > tau_max:
-                wheel[W_INTEG, i] = tau_max
-            elif wheel[W_INTEG, i] < -tau_max:
-                wheel[W_INTEG, i] = -tau_max
-            wheel[W_TAU, i] = tau
-        # ---- friction ellipse (combined slip)
-        for i in range(n):
-            lat_max = abs(y_tab[cell[i], 0]) * wheel[W_LOAD, i]
-            if hmaxw[i] > 1e-9 and lat_max > 1e-9:
-                rho = (hh[i] / hmaxw[i]) ** 2 + (fyl[i] / lat_max) ** 2
-                if rho > 1.0:
-                    q = 1.0 / math.sqrt(rho)
-                    hh[i] *= q
-                    fyl[i] *= q
-        # ---- explicit accelerations
-        sfx = 0.0
-        sfy = 0.0
-        mz = 0.0
-        for i in range(n):
-            fl_ = hh[i] - rr[i]
-            fx[i] = fl_ * cs[i] - fyl[i] * sn[i]
-            fy[i] = fl_ * sn[i] + fyl[i] * cs[i]
-            sfx += fx[i]
-            sfy += fy[i]
-            mz += (wx[i] - xc) * fy[i] - (wy[i] - yc) * fx[i]
-        ud = sfx / mass + r * w
-        wd = sfy / mass - r * u
-        rdot = mz / iz
-        # ---- linearly implicit contact corrections
-        for i in range(n):
-            dxi = wx[i] - xc
-            dyi = wy[i] - yc
-            aix = ud - rdot * dyi
-            aiy = wd + rdot * dxi
-            omd = (wheel[W_TAU, i] - rw * hh[i]) / jw
-            dvl = aix * cs[i] + aiy * sn[i] + vlat[i] * ddelta[i]
-            dvt = -aix * sn[i] + aiy * cs[i] - vlong[i] * ddelta[i]
-            bl = rw * rw / jw + 1.0 / m_i
-            # slope for the implicit step: the larger of the local slope and the secant to the
-            # explicitly predicted slip (robust at the corners of free-slip dead zones)
-            ddel = dt * (rw * omd - dvl)
-            kdd = kd[i]
-            if abs(ddel) > 1e-12:
-                s_pred = sl[i] + ddel / dens[i]
-                if s_pred > 1.0:
-                    s_pred = 1.0
-                elif s_pred < -1.0:
-                    s_pred = -1.0
-                hp, _ = _interp_table(h_tab, cell[i], lfs[i], (s_pred + 1.0) * s_scale, n_load, n_slip)
-                ksec = (hp * w_ref - hraw[i]) / ddel
-                if ksec > kdd:
-                    kdd = ksec
-            if kdd > 0.0:
-                hh[i] += kdd * ddel / (1.0 + kdd * dt * bl)
-            bt = 1.0 / m_i + (dxi * dxi + dyi * dyi) / iz
-            kyy = ky[i]
-            if kyy > 0.0:
-                fyl[i] -= kyy * dt * dvt / (1.0 + kyy * dt * bt)
-        # ---- final forces, semi-implicit Euler
-        sfx = 0.0
-        sfy = 0.0
-        mz = 0.0
-        for i in range(n):
-            fl_ = hh[i] - rr[i]
-            fx[i] = fl_ * cs[i] - fyl[i] * sn[i]
-            fy[i] = fl_ * sn[i] + fyl[i] * cs[i]
-            sfx += fx[i]
-            sfy += fy[i]
-            mz += (wx[i] - xc) * fy[i] - (wy[i] - yc) * fx[i]
-        ax_cm = sfx / mass
-        ay_cm = sfy / mass
-        rdot = mz / iz
-        body[B_U] = u + dt * (ax_cm + r * w)
-        body[B_W] = w + dt * (ay_cm - r * u)
-        body[B_R] = r + dt * rdot
-        body[B_AX] = ax_cm
-        body[B_AY] = ay_cm
-        body[B_RDOT] = rdot
-        u2 = body[B_U]
-        w2 = body[B_W]
-        r2 = body[B_R]
-        # origin velocity (body axes): v_o = v_cm + omega x (O - CM)
-        vxo = u2 + r2 * yc
-        vyo = w2 - r2 * xc
-        body[B_X] += dt * (cpsi * vxo - spsi * vyo)
-        body[B_Y] += dt * (spsi * vxo + cpsi * vyo)
-        body[B_PSI] = psi + dt * r2
-        for i in range(n):
-            om = wheel[W_OMEGA, i]
-            om2 = om + dt * (wheel[W_TAU, i] - rw * hh[i]) / jw
-            wheel[W_OMEGA, i] = om2
-            wheel[W_DELTA, i] += dt * ddelta[i]
-            wheel[W_OFILT, i] += dt / lag_tau * (om2 - wheel[W_OFILT, i])
-            vxi = u2 - r2 * (wy[i] - yc)
-            vyi = w2 + r2 * (wx[i] - xc)
-            wheel[W_DIST, i] += dt * math.sqrt(vxi * vxi + vyi * vyi)
-            acc[0] += dt * wheel[W_TAU, i] * om2
-        acc[1] += dt * math.sqrt(vxo * vxo + vyo * vyo)
-        acc[2] += dt
-        # ---- log
-        if (step + 1) % log_every == 0 and log_row < log.shape[0]:
-            row = log_row
-            log[row, L_T] = acc[2]
-            log[row, L_X] = body[B_X]
-            log[row, L_Y] = body[B_Y]
-            log[row, L_PSI] = body[B_PSI]
-            log[row, L_VX] = vxo
-            log[row, L_VY] = vyo
-            log[row, L_R] = r2
-            # inertial acceleration of the origin (IMU), body axes
-            log[row, L_AX] = ax_cm + rdot * yc + r2 * r2 * xc
-            log[row, L_AY] = ay_cm - rdot * xc + r2 * r2 * yc
-            log[row, L_RDOT] = rdot
-            log[row, L_AZ] = az_mean
-            base = N_LOG_BODY
-            for i in range(n):
-                vxi = u2 - r2 * (wy[i] - yc)
-                vyi = w2 + r2 * (wx[i] - xc)
-                de = wheel[W_DELTA, i]
-                log[row, base + i] = wheel[W_OMEGA, i]
-                log[row, base + n + i] = wheel[W_OFILT, i]
-                log[row, base + 2 * n + i] = de
-                log[row, base + 3 * n + i] = wheel[W_TAU, i]
-                log[row, base + 4 * n + i] = vxi * math.cos(de) + vyi * math.sin(de)
-                log[row, base + 5 * n + i] = -vxi * math.sin(de) + vyi * math.cos(de)
-                log[row, base + 6 * n + i] = wheel[W_LOAD, i]
-                log[row, base + 7 * n + i] = cell[i]
+        cpsi = math.cos(body[B_PSI])
+        spsi = math.sin(body[B_PSI])
+        _steering_rates(v, delta_cmd, wheel, ct)
+        az_mean = _kinematics_and_loads(v, g, body, wheel, cpsi, spsi, ct)
+        _longitudinal_forces(v, g, wheel, ct)
+        _lateral_forces(g, wheel, ct)
+        _drive_torques(v, wheel, omega_cmd)
+        _friction_ellipse(g, wheel, ct)
+        sfx, sfy, mz = _body_forces(v, ct)  # explicit accelerations
+        ud = sfx / v.mass + body[B_R] * body[B_W]
+        wd = sfy / v.mass - body[B_R] * body[B_U]
+        _implicit_corrections(v, g, wheel, ud, wd, mz / v.iz, ct)
+        sfx, sfy, mz = _body_forces(v, ct)  # final forces
+        ax_cm = sfx / v.mass
+        ay_cm = sfy / v.mass
+        rdot = mz / v.iz
+        vxo, vyo = _integrate(v, body, wheel, st.acc, cpsi, spsi, ax_cm, ay_cm, rdot, ct)
+        if (step + 1) % log_every == 0 and log_row < st.log.shape[0]:
+            _log(v, st, log_row, vxo, vyo, ax_cm, ay_cm, rdot, az_mean, ct)
             log_row += 1
     return log_row

@@ -137,27 +137,32 @@ class Simulator:
         self.wy = np.array([w.y_m for w in rb.wheels], float)
         self.steerable = np.array([w.steerable for w in rb.wheels], bool)
         self._steer_i = self.steerable.astype(np.int64)
-        self.com = np.array([rb.com_x_m, rb.com_y_m])
-        self.geom = np.array([rb.mass_kg, rb.yaw_inertia_kgm2, rb.wheel_radius_m, rb.wheel_inertia_kgm2,
-                              rb.com_height_m, self.terrain.load_ref_n])
-        self.ctrl = np.array([gains.kp_nms_per_rad, gains.ki_nm_per_rad, rb.max_wheel_torque_nm,
-                              rb.steering_rate_max_radps, rb.steering_deadband_rad, gains.steer_tau_s,
-                              gains.omega_lag_tau_s])
         a = np.vstack([np.ones(n), self.wx, self.wy])
-        self.load_pinv = np.ascontiguousarray(np.linalg.pinv(a))
         self.static_loads = np.array(rb.static_wheel_loads_n())
         lay = scenario.layout
-        self.lay_grid = np.ascontiguousarray(lay.grid.astype(np.int64))
-        self.lay_cell = float(lay.cell_m)
-        self.lay_ox, self.lay_oy = (float(v) for v in lay.origin_xy_m)
-        self._alpha0 = float(ALPHA_GRID[0])
-        self._alpha_step = float(ALPHA_GRID[1] - ALPHA_GRID[0])
+        ter = self.terrain
+        # the physics kernel's packs, as plain tuples (see terrainml.sim.physics)
+        self._vehicle = tuple(ph.Vehicle(
+            wx=self.wx, wy=self.wy, xc=float(rb.com_x_m), yc=float(rb.com_y_m), mass=float(rb.mass_kg),
+            iz=float(rb.yaw_inertia_kgm2), rw=float(rb.wheel_radius_m), jw=float(rb.wheel_inertia_kgm2),
+            hcg=float(rb.com_height_m), load_pinv=np.ascontiguousarray(np.linalg.pinv(a)),
+            kp=float(gains.kp_nms_per_rad), ki=float(gains.ki_nm_per_rad), tau_max=float(rb.max_wheel_torque_nm),
+            steer_rate_max=float(rb.steering_rate_max_radps), steer_deadband=float(rb.steering_deadband_rad),
+            steer_tau=float(gains.steer_tau_s), omega_lag_tau=float(gains.omega_lag_tau_s), dt=self.dt))
+        self._ground = tuple(ph.Ground(
+            h_tab=ter.h_coef, r_tab=ter.r_coef, y_tab=ter.y_coef, hmax_tab=ter.hmax_coef,
+            w_ref=float(ter.load_ref_n), load_grid=LOAD_FACTORS, alpha_lo=float(ALPHA_GRID[0]),
+            alpha_step=float(ALPHA_GRID[1] - ALPHA_GRID[0]), rough_amp=ter.rough_amp_m,
+            rough_k=ter.rough_k_radpm, rough_phase=ter.rough_phase,
+            lay_grid=np.ascontiguousarray(lay.grid.astype(np.int64)), lay_cell=float(lay.cell_m),
+            lay_ox=float(lay.origin_xy_m[0]), lay_oy=float(lay.origin_xy_m[1])))
         # state
         self.body = np.zeros(9)
         self.wheel = np.zeros((ph.N_WROWS, n))
         self.wheel[ph.W_LOAD] = self.static_loads
         self.acc = np.zeros(3)
         self.log = np.zeros((self.n_rows, ph.N_LOG_BODY + len(ph.WLOG) * n))
+        self._state = tuple(ph.SimState(self.body, self.wheel, self.acc, self.log))
         self._init_log_row()
         self.log_row = 1
         self.tick = 0
@@ -209,13 +214,8 @@ class Simulator:
         self.delta_cmd = delta
         self.cmd[k] = (vx, vy, r)
         self.omega_cmd[k] = omega
-        self.log_row = ph.run_substeps(
-            self.n_sub, self.dt, self.body, self.wheel, self.acc, omega, delta, self.wx, self.wy, self.com, self.geom, self.ctrl,
-            self.load_pinv, self.static_loads, self.terrain.h_coef, self.terrain.r_coef,
-            self.terrain.y_coef, self.terrain.hmax_coef, LOAD_FACTORS, self._alpha0,
-            self._alpha_step, self.terrain.rough_amp_m, self.terrain.rough_k_radpm,
-            self.terrain.rough_phase, self.lay_grid, self.lay_cell, self.lay_ox, self.lay_oy,
-            self.log, self.log_row, self.log_every)
+        self.log_row = ph.run_substeps(self._vehicle, self._ground, self._state, self.n_sub, omega, delta,
+                                       self.log_row, self.log_every)
         self._update_stuck()
         self.tick += 1
 

@@ -1,11 +1,15 @@
-"""EKF model: analytic Jacobians vs finite differences, covariance health, invalid rows."""
+"""EKF model: analytic Jacobians vs finite differences, the compiled filter vs the numpy
+reference (``reference_ekf``) and filterpy, covariance health, invalid rows."""
 
 import math
 
 import numpy as np
 import pytest
+import reference_ekf as ref
+from reference_ekf import ReferenceEkf
 
 from terrainml.estimation.ekf import Ekf, PlanarModel, wrap_angle
+from terrainml.estimation.online import OnlineEstimator
 from terrainml.estimation.run import estimate_run, estimate_run_detailed
 from terrainml.estimation.synthetic import kinematic_run
 from terrainml.robot import load_robot
@@ -32,6 +36,11 @@ def test_jacobians_match_finite_differences(robot_name):
         H_fd = _fd_jacobian(model.h, x)
         np.testing.assert_allclose(model.F(x, dt), F_fd, rtol=1e-6, atol=1e-8)
         np.testing.assert_allclose(model.H(x), H_fd, rtol=1e-6, atol=1e-8)
+        # the kernels' model (written once, in _kernel) against the reference's own equations
+        np.testing.assert_allclose(model.f(x, dt), ref.f(model, x, dt), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(model.F(x, dt), ref.F(model, x, dt), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(model.h(x), ref.h(model, x), rtol=0, atol=1e-12)
+        np.testing.assert_allclose(model.H(x), ref.H(model, x), rtol=0, atol=1e-12)
 
 
 def test_model_shapes_follow_robot():
@@ -109,22 +118,15 @@ def test_invalid_rows_are_dropped_not_fed():
     assert (a.loc[drop, "nis_dof"] < a.loc[~drop & (a.t_s > 1), "nis_dof"].max()).all()
 
 
-def test_compiled_kernel_equals_numpy_reference():
-    from terrainml.estimation import _kernel
-
-    if not _kernel.HAVE_NUMBA:
-        pytest.skip("numba not installed: only the numpy path exists")
+def test_online_estimator_with_compiled_filter_equals_numpy_reference():
     df = kinematic_run(duration_s=12.0, slip=0.2, seed=8, yaw_rate=lambda t: 0.3 * np.sin(0.5 * t),
                        cam_dropouts=((5.0, 5.6),))
     df.loc[300:302, "cam_vx_mps"] += 0.8  # a camera glitch for the gate
-    model = PlanarModel(load_robot("agrimaro"))
-    from terrainml.estimation.online import OnlineEstimator
-
     for preset in ("thesis", "robust"):
         outs = []
-        for compiled in (False, True):
+        for filt in (ReferenceEkf, Ekf):
             est = OnlineEstimator("agrimaro", preset)
-            est.ekf = Ekf(est.model, preset, compiled=compiled)
+            est.ekf = filt(est.model, preset)
             xs = []
             for rec in df.to_dict("records"):
                 est.step(rec)
@@ -132,7 +134,6 @@ def test_compiled_kernel_equals_numpy_reference():
             outs.append((np.array(xs), est.ekf.n_gated))
         np.testing.assert_allclose(outs[1][0], outs[0][0], rtol=1e-9, atol=1e-9, err_msg=preset)
         assert outs[0][1] == outs[1][1]
-    assert model.n == 12
 
 
 def _bare_sequence(preset):
@@ -166,16 +167,53 @@ def test_whole_table_and_tick_by_tick_are_the_same_filter(preset):
     np.testing.assert_array_equal(xs_batch, xs_pu)
     np.testing.assert_array_equal(nis_batch, nis_step)
     assert dof_batch.max() == model.m and dof_batch.min() < model.m  # all rows, and the dropout
-    ref = Ekf(model, preset, compiled=False)
-    xs_ref = ref.batch_filter(t, Z, use, r)[0]
+    reference = ReferenceEkf(model, preset)
+    xs_ref, nis_ref, dof_ref = reference.batch_filter(t, Z, use, r)
     np.testing.assert_allclose(xs_batch, xs_ref, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(nis_batch, nis_ref, rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(dof_batch, dof_ref)
     if preset == "robust":  # the glitch was gated, identically on every path
-        assert ref.n_gated > 0 and ekf_step.n_gated == ekf_pu.n_gated == ref.n_gated
+        assert reference.n_gated > 0 and ekf_step.n_gated == ekf_pu.n_gated == reference.n_gated
+
+
+@pytest.mark.parametrize("preset", ["thesis", "robust"])
+def test_filter_matches_filterpy(preset):
+    # filterpy's ExtendedKalmanFilter (textbook equations) on the same model, f/F/h/H from the
+    # reference; no gate (filterpy has none): the same estimates to round-off
+    kalman = pytest.importorskip("filterpy.kalman")
+    model, t, Z, use, r = _bare_sequence(preset)
+    t, Z, use = t[:400], Z[:400], use[:400]
+    ours = Ekf(model, preset)
+    xs = ours.batch_filter(t, Z, use, r, gate_enabled=False)[0]
+
+    class _Ekf(kalman.ExtendedKalmanFilter):
+        def predict_x(self, u=0):
+            self.x = ref.f(model, self.x, self.dt)
+
+    kf = _Ekf(dim_x=model.n, dim_z=model.m)
+    kf.x, kf.P = np.zeros(model.n), Ekf(model, preset).P
+    angle = np.array([row.angle for row in model.rows])
+    for k in range(len(t)):
+        if k:
+            kf.dt = t[k] - t[k - 1]
+            kf.F, kf.Q = ref.F(model, kf.x, kf.dt), ours.Q0 * (kf.dt / 0.01)
+            kf.predict()
+        m = use[k]
+
+        def resid(a, b, ang=angle[m]):
+            y = a - b
+            y[ang] = np.mod(y[ang] + math.pi, 2 * math.pi) - math.pi
+            return y
+
+        kf.update(Z[k][m], lambda x, m=m: ref.H(model, x)[m], lambda x, m=m: ref.h(model, x)[m],
+                  R=np.diag(r[m]), residual=resid)
+        kf.x[2] = ref.wrap(kf.x[2])
+        np.testing.assert_allclose(xs[k], kf.x, rtol=1e-9, atol=1e-9, err_msg=f"tick {k}")
 
 
 def test_estimate_run_without_numba_matches_compiled():
-    # the pure-Python fallback (TERRAINML_NO_NUMBA=1: platforms without numba) gives the same
-    # EST table as the compiled kernels, to round-off
+    # the pure-Python fallback (TERRAINML_NO_NUMBA=1: platforms without numba; the kernels run as
+    # plain Python) gives the same EST table as the compiled kernels, to round-off
     import json
     import subprocess
     import sys
