@@ -1,4 +1,4 @@
-"""CLI of the lookup area: ``terrainml lookup build|show|plot`` (SYSTEM §10, §15)."""
+"""CLI of the lookup area: ``terrainml lookup build|show|plot`` (design §10, §15)."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from typing import Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from terrainml.commands._common import check_output_writable, console, fail
@@ -16,23 +17,42 @@ from terrainml.robot import RobotSpec, RobotSpecError
 lookup_app = typer.Typer(
     name="lookup",
     help="Desired-slip lookup: class x {traction, braking, steady} targets from terramechanics "
-         "and the robot spec (SYSTEM §10).\n\nExample: `terrainml lookup show --json`",
+         "and the robot spec, for the simulated classes or any terrain catalogue (design §10)."
+         "\n\nExample: `terrainml lookup show --json`",
     no_args_is_help=True,
     add_completion=False,
 )
 
 _ROBOT_HELP = "Robot spec: a YAML path or a built-in name (agrimaro, husky); default agrimaro."
+_CATALOGUE_HELP = ("Terrain catalogue: a YAML path or a built-in name (reference, borealtc); "
+                   "default the eight simulated classes.")
+_CLASSES_HELP = ("Comma-separated class names, in the model's order (default every class of "
+                 "the catalogue).")
 
 
-def _load_table(robot: Optional[str], table_path: Optional[Path]):
-    """Build a table for ``robot`` or read ``table_path``; exit 2 with a clear message on error."""
+def _load_table(robot: Optional[str], table_path: Optional[Path],
+                catalogue: Optional[str] = None, classes: Optional[str] = None):
+    """Build a table (for ``robot``, from ``catalogue`` when given) or read ``table_path``.
+
+    Exits with code 2 and a message naming the file on any refusal.
+    """
+    from terrainml.lookup.catalogue import CatalogueError
     from terrainml.lookup.table import DesiredSlipTable, LookupTableError
 
+    names = None
+    if classes is not None:
+        names = [c.strip() for c in classes.split(",") if c.strip()]
+        if not names:
+            fail(f"--classes: no class name in {classes!r}")
     try:
         if table_path is not None:
+            if catalogue is not None or names is not None:
+                fail("--table reads a saved table: --catalogue and --classes do not apply")
             return DesiredSlipTable.load(table_path, robot=robot)
-        return DesiredSlipTable.build(robot)
-    except (LookupTableError, RobotSpecError) as exc:  # the message names the file
+        if catalogue is None and names is None:
+            return DesiredSlipTable.build(robot)
+        return DesiredSlipTable.from_catalogue(catalogue or "reference", robot, class_names=names)
+    except (LookupTableError, CatalogueError, RobotSpecError) as exc:  # the message names the file
         fail(str(exc))
 
 
@@ -44,7 +64,7 @@ def _rich_table(table) -> None:
                       ("notes", "left")):
         t.add_column(col, justify=just)
     for r in table.rows:
-        t.add_row(str(r.id), r.name, f"{r.traction:+.3f}", f"{r.braking:+.3f}",
+        t.add_row(str(r.id), escape(r.name), f"{r.traction:+.3f}", f"{r.braking:+.3f}",
                   f"{r.steady:+.3f}", f"{r.traction_kind}/{r.braking_kind}",
                   "; ".join(r.notes))
     Console().print(t)  # stdout: the table is the command's output
@@ -54,16 +74,19 @@ def _rich_table(table) -> None:
 def build(
     out: Path = typer.Option(..., "--out", help="Output JSON file for the table."),
     robot: Optional[str] = typer.Option(None, "--robot", help=_ROBOT_HELP),
+    catalogue: Optional[str] = typer.Option(None, "--catalogue", help=_CATALOGUE_HELP),
+    classes: Optional[str] = typer.Option(None, "--classes", help=_CLASSES_HELP),
 ) -> None:
-    """Compute the desired-slip table for a robot and write it as JSON.
+    """Compute the desired-slip table for a robot (and a class set) and write it as JSON.
 
-    The JSON holds the targets, the class parameters they came from, the robot spec and its
-    sha256, and a checksum (verified on load).
+    The JSON holds the targets, the class names and parameters (or given targets and their
+    sources) they came from, the robot spec and its sha256, and a checksum (verified on load).
 
-    Example: ``terrainml lookup build --robot husky --out table.json``
+    Examples: ``terrainml lookup build --robot husky --out table.json``;
+    ``terrainml lookup build --catalogue borealtc --robot husky --out table.json``
     """
     check_output_writable(out)
-    table = _load_table(robot, None)
+    table = _load_table(robot, None, catalogue, classes)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         table.save(out)
@@ -82,12 +105,15 @@ def show(
     table_path: Optional[Path] = typer.Option(None, "--table",
                                               help="Show a saved table (verified) instead of "
                                                    "building one."),
+    catalogue: Optional[str] = typer.Option(None, "--catalogue", help=_CATALOGUE_HELP),
+    classes: Optional[str] = typer.Option(None, "--classes", help=_CLASSES_HELP),
 ) -> None:
     """Print the desired-slip table (rich table, or JSON with --json).
 
-    Example: ``terrainml lookup show --json``
+    Example: ``terrainml lookup show --json``; ``terrainml lookup show --catalogue borealtc
+    --robot husky``
     """
-    table = _load_table(robot, table_path)
+    table = _load_table(robot, table_path, catalogue, classes)
     if as_json:
         print(json.dumps(table.to_summary()))
     else:
@@ -100,6 +126,8 @@ def plot(
     robot: Optional[str] = typer.Option(None, "--robot", help=_ROBOT_HELP),
     table_path: Optional[Path] = typer.Option(None, "--table", help="Mark a saved table's "
                                                                     "targets."),
+    catalogue: Optional[str] = typer.Option(None, "--catalogue", help=_CATALOGUE_HELP),
+    classes: Optional[str] = typer.Option(None, "--classes", help=_CLASSES_HELP),
 ) -> None:
     """Draw mu_net(s) per class with the chosen targets (like thesis Fig. 8.1).
 
@@ -110,7 +138,7 @@ def plot(
     from terrainml.lookup.plot import plot_table
 
     check_output_writable(out)
-    table = _load_table(robot, table_path)
+    table = _load_table(robot, table_path, catalogue, classes)
     try:
         path = plot_table(out, robot=robot if robot is not None else
                           _robot_of(table), table=table)

@@ -38,6 +38,11 @@ def plot_table(out: str | Path, robot: RobotSpec | str | None = None,
     fig, ax = plt.subplots(figsize=(9.0, 5.5))
     colors = plt.get_cmap("viridis")(np.linspace(0.0, 0.95, len(table.rows)))
     for row, col in zip(table.rows, colors):
+        if row.traction_kind == "given":  # direct catalogue targets: no force curve to draw
+            for x, marker in zip((row.traction, row.braking, row.steady), ("^", "v", "o")):
+                ax.plot([x], [0.0], marker=marker, color=col, ms=8, mec="black", mew=0.8)
+            ax.plot([], [], color=col, lw=1.6, label=f"{row.id} {row.name} (given targets)")
+            continue
         p = tm.TerrainParams(**row.params) if row.params else tm.nominal_params(row.id)
         mu = mu_net_curve(p, robot, s)
         ax.plot(s, mu, color=col, lw=1.6, label=f"{row.id} {row.name}")

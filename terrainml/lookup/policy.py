@@ -20,21 +20,27 @@ Probability-aware policy (:func:`choose`), with class probabilities p:
    broken by the smaller steady and then braking magnitude (:meth:`DesiredSlipTable.
    aggressiveness_order`). One class is served for all wheels so the message names one class.
 
-Both functions are cheap (a few microseconds): they run on every 10 ms tick.
+The class-free **safe cap** of design §10 (:meth:`DesiredSlipTable.safe_cap`; per wheel with
+:func:`safe_cap_per_wheel`) is the fallback the design asks for: the largest traction target
+(traction and steady) and the most negative braking target of the table's classes. ``choose``
+still serves the least aggressive row on fallback until the stream switches to it (issue #19).
+
+These functions are cheap (a few microseconds): they run on every 10 ms tick.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Protocol, Sequence
+from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 
 from terrainml.classes import TERRAIN_CLASSES
 
 __all__ = ["CANDIDATE_P", "CONFIDENT_P", "MAX_AGE_S", "PolicyDecision", "choose",
-           "desired_slip_per_wheel", "fallback_class_id", "least_aggressive"]
+           "desired_slip_per_wheel", "fallback_class_id", "least_aggressive",
+           "safe_cap_per_wheel"]
 
 CONFIDENT_P = 0.6   # SYSTEM §10: serve the argmax at or above this probability
 CANDIDATE_P = 0.1   # SYSTEM §10: classes considered when uncertain
@@ -127,6 +133,31 @@ def desired_slip_per_wheel(class_id: int, states: Sequence[str], v_long: Sequenc
     list of N floats: ``sgn(v_long_i) * target(class_id, state_i)``; 0.0 for idle wheels and
     for a zero or non-finite ``v_long_i``; unknown states raise ValueError.
     """
+    return _signed_per_wheel(states, v_long, lambda st: table.target(class_id, st))
+
+
+def safe_cap_per_wheel(states: Sequence[str], v_long: Sequence[float], table: Any,
+                       classes: Sequence[str] | None = None) -> list[float]:
+    """Signed class-free safe cap per wheel (design §10), with the sign logic of eq. 8.7-8.9.
+
+    Parameters
+    ----------
+    states, v_long : as :func:`desired_slip_per_wheel`.
+    table : a :class:`terrainml.lookup.table.DesiredSlipTable` (its ``safe_cap``).
+    classes : optional class names the cap is taken over (default all the table's classes).
+
+    Returns
+    -------
+    list of N floats: ``sgn(v_long_i) * cap(state_i)``, cap = max s_T in traction and steady,
+    min s_B in braking; 0.0 for idle or zero/non-finite speed.
+    """
+    cap = table.safe_cap(classes)
+    return _signed_per_wheel(states, v_long, cap.target)
+
+
+def _signed_per_wheel(states: Sequence[str], v_long: Sequence[float],
+                      target: Callable[[str], float]) -> list[float]:
+    """eq. 8.7-8.9 for any per-state target: sgn(v) * target(state), 0 when idle or v = 0."""
     if len(states) != len(v_long):
         raise ValueError(f"states ({len(states)}) and v_long ({len(v_long)}) differ in length")
     out: list[float] = []
@@ -135,7 +166,7 @@ def desired_slip_per_wheel(class_id: int, states: Sequence[str], v_long: Sequenc
         if st == "idle" or not math.isfinite(v) or v == 0.0:
             out.append(0.0)
         elif st in _ACTIVE_STATES:
-            out.append(math.copysign(1.0, v) * float(table.target(class_id, st)))
+            out.append(math.copysign(1.0, v) * float(target(st)))
         else:
             raise ValueError(f"unknown wheel state {st!r}; expected idle, steady, traction "
                              "or braking")

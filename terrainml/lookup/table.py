@@ -1,5 +1,13 @@
 """Desired-slip table: class x {traction, braking, steady} from terramechanics and the robot spec
-(SYSTEM §10, thesis §8.2).
+(design §10, thesis §8.2).
+
+Classes are known by name: a table is built for the eight simulated classes
+(:meth:`DesiredSlipTable.build`) or for any class set from a terrain catalogue
+(:meth:`DesiredSlipTable.from_catalogue`, :mod:`terrainml.lookup.catalogue`), whose classes give
+either terramechanics parameters (targets computed as below) or direct targets (served as given).
+Integer ids are storage details (the position of a class in the table); lookups take the name
+or the id, and :meth:`DesiredSlipTable.check_classes` refuses a table whose classes differ from
+a model's. :meth:`DesiredSlipTable.safe_cap` is the class-free fallback target of design §10.
 
 For every terrain class the table evaluates the vehicle's net traction coefficient
 
@@ -25,8 +33,8 @@ Rules that keep the table physical, enforced at build time (a violation by the p
 clamped and recorded in the class's ``notes``) and verified again by :meth:`from_json`:
 
 * ``s_T >= s_S + 0.03``;
-* rigid-surface classes (tyre-road force model: ``pavement``, ``compacted_dirt``) have their
-  traction target in [0.10, 0.20];
+* rigid-surface classes (``pavement``, ``compacted_dirt``, or ``rigid_surface: true`` in a
+  catalogue) have their traction target in [0.10, 0.20];
 * no target beyond 0.6 in magnitude.
 
 The JSON form carries the table, the class parameters it came from, the slip grid, the wheel
@@ -49,9 +57,10 @@ from scipy.optimize import brentq
 from terrainml import __version__
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.lookup import terramechanics as tm
+from terrainml.lookup.catalogue import CatalogueClass, TerrainCatalogue, load_catalogue
 from terrainml.robot import RobotSpec, load_robot
 
-__all__ = ["ClassTargets", "DesiredSlipTable", "LookupTableError", "RIGID_CLASSES",
+__all__ = ["ClassTargets", "DesiredSlipTable", "LookupTableError", "RIGID_CLASSES", "SafeCap",
            "mu_net_curve", "STATES"]
 
 SCHEMA = "terrainml.desired_slip_table"
@@ -75,22 +84,54 @@ class LookupTableError(ValueError):
 class ClassTargets:
     """One row of the table (slip values are SAE slip, dimensionless)."""
 
-    id: int
+    id: int                          # storage position; the class is known by its name
     name: str
     traction: float
     braking: float
     steady: float
-    traction_kind: str = "peak"      # "peak" | "knee"
+    traction_kind: str = "peak"      # "peak" | "knee" | "given" (direct target of a catalogue)
     braking_kind: str = "peak"
-    mu_net_traction_max: float = float("nan")   # mu_net at the traction extreme
-    mu_net_braking_min: float = float("nan")    # mu_net at the braking extreme
+    mu_net_traction_max: float = float("nan")   # mu_net at the traction extreme (NaN if given)
+    mu_net_braking_min: float = float("nan")    # mu_net at the braking extreme (NaN if given)
     notes: tuple[str, ...] = ()
     params: dict = field(default_factory=dict)  # the class's TerrainParams, as a dict
+    rigid_surface: bool = False      # the 0.10-0.20 traction rule applies
+    sources: dict = field(default_factory=dict)  # catalogue: field -> reference or assumption
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["notes"] = list(self.notes)
+        for k in ("mu_net_traction_max", "mu_net_braking_min"):  # JSON has no NaN
+            d[k] = d[k] if math.isfinite(d[k]) else None
         return d
+
+
+@dataclass(frozen=True)
+class SafeCap:
+    """Class-free fallback target (design §10): stalls no class of the table, lets no wheel run away.
+
+    Attributes
+    ----------
+    traction : largest traction target s_T over the classes (SAE slip, > 0); also served in
+        ``steady`` (a cap at any class's steady slip would stall the classes that cruise at more).
+    braking : most negative braking target s_B over the classes (< 0).
+    traction_class, braking_class : names of the classes they come from.
+    """
+
+    traction: float
+    braking: float
+    traction_class: str
+    braking_class: str
+
+    def target(self, state: str) -> float:
+        """Target in a wheel state (``idle`` -> 0, ``steady``/``traction`` -> s_T, braking -> s_B)."""
+        if state == "idle":
+            return 0.0
+        if state in ("steady", "traction"):
+            return self.traction
+        if state == "braking":
+            return self.braking
+        raise ValueError(f"unknown wheel state {state!r}; expected one of {', '.join(STATES)}")
 
 
 def slip_grid() -> np.ndarray:
@@ -175,8 +216,9 @@ def _steady_root(params: Any, robot: RobotSpec, loads: Sequence[float],
         return 0.5 * (a + b)
 
 
-def _build_row(cid: int, params: Any, robot: RobotSpec, loads: Sequence[float]) -> ClassTargets:
-    name = TERRAIN_CLASSES[cid]
+def _build_row(cid: int, name: str, params: Any, robot: RobotSpec, loads: Sequence[float],
+               rigid: bool) -> ClassTargets:
+    """Targets of one class from its force model (peak or knee, steady root, rules applied)."""
     s = slip_grid()
     mu = mu_net_curve(params, robot, s, loads)
     if not np.all(np.isfinite(mu)):
@@ -199,8 +241,8 @@ def _build_row(cid: int, params: Any, robot: RobotSpec, loads: Sequence[float]) 
     else:
         s_s = root
 
-    # --- rules (SYSTEM §10); violations by the physics are clamped and recorded
-    if name in RIGID_CLASSES:
+    # --- rules (design §10); violations by the physics are clamped and recorded
+    if rigid:
         lo, hi = RIGID_PEAK_RANGE
         if not lo <= s_t <= hi:
             new = min(max(s_t, lo), hi)
@@ -219,7 +261,7 @@ def _build_row(cid: int, params: Any, robot: RobotSpec, loads: Sequence[float]) 
                 s_s = new
     if s_t < s_s + MIN_TRACTION_MARGIN - 1e-12:
         new_t = s_s + MIN_TRACTION_MARGIN
-        if new_t <= MAX_MAGNITUDE and not (name in RIGID_CLASSES and new_t > RIGID_PEAK_RANGE[1]):
+        if new_t <= MAX_MAGNITUDE and not (rigid and new_t > RIGID_PEAK_RANGE[1]):
             notes.append(f"traction {s_t:.3f} < steady {s_s:.3f} + {MIN_TRACTION_MARGIN}: "
                          f"raised to {new_t:.3f}")
             s_t = new_t
@@ -231,7 +273,42 @@ def _build_row(cid: int, params: Any, robot: RobotSpec, loads: Sequence[float]) 
     return ClassTargets(id=cid, name=name, traction=round(s_t, 6), braking=round(s_b, 6),
                         steady=round(s_s, 6), traction_kind=kind_t, braking_kind=kind_b,
                         mu_net_traction_max=round(mu_t, 6), mu_net_braking_min=round(mu_b, 6),
-                        notes=tuple(notes), params=_params_dict(params))
+                        notes=tuple(notes), params=_params_dict(params), rigid_surface=rigid)
+
+
+def _given_row(cid: int, cls: CatalogueClass) -> ClassTargets:
+    """A catalogue class with direct targets: served as given (validated by the catalogue)."""
+    t = cls.targets or {}
+    return ClassTargets(id=cid, name=cls.name, traction=float(t["traction"]),
+                        braking=float(t["braking"]), steady=float(t["steady"]),
+                        traction_kind="given", braking_kind="given",
+                        rigid_surface=cls.rigid_surface, sources=dict(cls.sources))
+
+
+def _static_loads(robot: RobotSpec) -> list[float]:
+    """Static wheel loads (N) from mass and centre of mass, refused when not all positive."""
+    loads = robot.static_wheel_loads_n()
+    if any(not math.isfinite(w) for w in loads) or sum(loads) <= 0:
+        raise LookupTableError(f"robot {robot.name!r}: invalid static wheel loads {loads}")
+    if min(loads) <= 0.0:
+        raise LookupTableError(
+            f"robot {robot.name!r}: a wheel has no static load ({[round(w, 1) for w in loads]}"
+            " N): the centre of mass lies outside the wheel support polygon")
+    return loads
+
+
+def _meta(rigid_classes: Sequence[str]) -> dict:
+    return {"terrainml_version": __version__,
+            "slip_grid": {"min": S_MIN, "max": S_MAX, "n": N_GRID},
+            "rules": {"min_traction_margin": MIN_TRACTION_MARGIN,
+                      "rigid_peak_range": list(RIGID_PEAK_RANGE),
+                      "rigid_classes": list(rigid_classes),
+                      "max_magnitude": MAX_MAGNITUDE, "knee_fraction": KNEE_FRACTION,
+                      "plateau_tol": PLATEAU_TOL}}
+
+
+def _float_or_nan(value: Any) -> float:
+    return float("nan") if value is None else float(value)
 
 
 def _checksum(doc: dict) -> str:
@@ -240,14 +317,15 @@ def _checksum(doc: dict) -> str:
 
 
 class DesiredSlipTable:
-    """Class x {traction, braking, steady} desired-slip targets for one robot (SYSTEM §10).
+    """Class x {traction, braking, steady} desired-slip targets for one robot (design §10).
 
-    Build with :meth:`build`; read with :meth:`from_json`. ``target(class_id, state)`` is a dict
-    lookup (cheap enough for every 10 ms tick).
+    Build with :meth:`build` (the eight simulated classes) or :meth:`from_catalogue` (any class
+    set, by name); read with :meth:`from_json`. ``target(name_or_id, state)`` is a dict lookup
+    (cheap enough for every 10 ms tick).
 
     Attributes
     ----------
-    rows : tuple of ClassTargets, ordered by class id.
+    rows : tuple of ClassTargets, ordered by class id (the storage position).
     robot_sha256 : sha256 of the robot spec the table was built for.
     robot_spec : dict, that spec.
     wheel_loads_n : tuple of static wheel loads used, N.
@@ -263,12 +341,18 @@ class DesiredSlipTable:
         self.wheel_loads_n = tuple(float(w) for w in wheel_loads_n)
         self.meta = dict(meta or {})
         self._by_id = {r.id: r for r in self.rows}
-        self._targets: dict[tuple[int, str], float] = {}
+        self._by_name = {r.name: r for r in self.rows}
+        if len(self._by_id) != len(self.rows) or len(self._by_name) != len(self.rows):
+            raise LookupTableError("a desired-slip table names each class once, with one id "
+                                   f"(classes {[(r.id, r.name) for r in self.rows]})")
+        # keyed by id and by name: either is one dict lookup
+        self._targets: dict[tuple[int | str, str], float] = {}
         for r in self.rows:
-            self._targets[(r.id, "idle")] = 0.0
-            self._targets[(r.id, "steady")] = float(r.steady)
-            self._targets[(r.id, "traction")] = float(r.traction)
-            self._targets[(r.id, "braking")] = float(r.braking)
+            for key in (r.id, r.name):
+                self._targets[(key, "idle")] = 0.0
+                self._targets[(key, "steady")] = float(r.steady)
+                self._targets[(key, "traction")] = float(r.traction)
+                self._targets[(key, "braking")] = float(r.braking)
         self._rank = {r.id: (abs(r.traction), abs(r.steady), abs(r.braking)) for r in self.rows}
         names = {r.name: r.id for r in self.rows}
         self.fallback_class_id: int = (names["pavement"] if "pavement" in names
@@ -288,25 +372,50 @@ class DesiredSlipTable:
         params : optional {class_id: TerrainParams} overriding the nominal parameters.
         """
         robot = load_robot(robot)
-        loads = robot.static_wheel_loads_n()
-        if any(not math.isfinite(w) for w in loads) or sum(loads) <= 0:
-            raise LookupTableError(f"robot {robot.name!r}: invalid static wheel loads {loads}")
-        if min(loads) <= 0.0:
-            raise LookupTableError(
-                f"robot {robot.name!r}: a wheel has no static load ({[round(w, 1) for w in loads]}"
-                " N): the centre of mass lies outside the wheel support polygon")
+        loads = _static_loads(robot)
         ids = list(range(len(TERRAIN_CLASSES))) if class_ids is None else [int(c) for c in class_ids]
         rows = []
         for cid in ids:
             p = (params or {}).get(cid) or tm.nominal_params(cid)
-            rows.append(_build_row(cid, p, robot, loads))
-        meta = {"terrainml_version": __version__,
-                "slip_grid": {"min": S_MIN, "max": S_MAX, "n": N_GRID},
-                "rules": {"min_traction_margin": MIN_TRACTION_MARGIN,
-                          "rigid_peak_range": list(RIGID_PEAK_RANGE),
-                          "rigid_classes": list(RIGID_CLASSES),
-                          "max_magnitude": MAX_MAGNITUDE, "knee_fraction": KNEE_FRACTION,
-                          "plateau_tol": PLATEAU_TOL}}
+            name = TERRAIN_CLASSES[cid]
+            rows.append(_build_row(cid, name, p, robot, loads, rigid=name in RIGID_CLASSES))
+        return cls(rows, robot_spec=robot.to_dict(), robot_sha256=robot.sha256(),
+                   wheel_loads_n=loads, meta=_meta(RIGID_CLASSES))
+
+    @classmethod
+    def from_catalogue(cls, catalogue: TerrainCatalogue | str | Path,
+                       robot: RobotSpec | str | None = None,
+                       class_names: Sequence[str] | None = None) -> "DesiredSlipTable":
+        """Compute the table for a robot and a class set from a terrain catalogue.
+
+        Parameters
+        ----------
+        catalogue : TerrainCatalogue, built-in name (``reference``, ``borealtc``) or YAML path.
+        robot : RobotSpec, built-in name or YAML path (default the reference robot): static
+            wheel loads from mass and centre of mass, wheel radius and width.
+        class_names : the class set, in the order that gives the ids (e.g. a model's class
+            names); default every catalogue class in file order. A name the catalogue lacks is
+            refused (:class:`terrainml.lookup.catalogue.CatalogueError`, naming the file).
+
+        Returns
+        -------
+        DesiredSlipTable whose row ``k`` is ``class_names[k]``. Terramechanics classes are
+        computed as in :meth:`build`; direct-target classes are served as given.
+        """
+        cat = load_catalogue(catalogue)
+        chosen = cat.select(class_names)
+        robot = load_robot(robot)
+        loads = _static_loads(robot)
+        rows = []
+        for cid, c in enumerate(chosen):
+            if c.params is None:
+                rows.append(_given_row(cid, c))
+                continue
+            row = _build_row(cid, c.name, dataclasses.replace(c.params, class_id=cid), robot,
+                             loads, rigid=c.rigid_surface)
+            rows.append(dataclasses.replace(row, sources=dict(c.sources)))
+        meta = _meta([c.name for c in chosen if c.rigid_surface])
+        meta["catalogue"] = {"name": cat.name, "source": cat.source, "sha256": cat.sha256}
         return cls(rows, robot_spec=robot.to_dict(), robot_sha256=robot.sha256(),
                    wheel_loads_n=loads, meta=meta)
 
@@ -315,38 +424,91 @@ class DesiredSlipTable:
     def class_ids(self) -> tuple[int, ...]:
         return tuple(r.id for r in self.rows)
 
+    @property
+    def class_names(self) -> tuple[str, ...]:
+        """The table's class names, in id order."""
+        return tuple(r.name for r in self.rows)
+
     def class_name(self, class_id: int) -> str:
         return self.row(class_id).name
 
-    def row(self, class_id: int) -> ClassTargets:
+    def row(self, cls: int | str) -> ClassTargets:
+        """The row of a class, by name (or by its storage id)."""
+        if isinstance(cls, str):
+            try:
+                return self._by_name[cls]
+            except KeyError:
+                raise LookupTableError(f"class {cls!r} is not in the desired-slip table (its "
+                                       f"classes: {', '.join(self.class_names)})") from None
         try:
-            return self._by_id[int(class_id)]
-        except KeyError:
-            raise LookupTableError(f"class id {class_id} not in the desired-slip table "
+            return self._by_id[int(cls)]
+        except (KeyError, TypeError, ValueError):
+            raise LookupTableError(f"class id {cls} not in the desired-slip table "
                                    f"(classes {list(self._by_id)})") from None
 
-    def target(self, class_id: int, state: str) -> float:
-        """Unsigned-direction target of a class in a state (``idle`` -> 0; braking < 0)."""
+    def target(self, cls: int | str, state: str) -> float:
+        """Unsigned-direction target of a class (name or id) in a state (idle -> 0; braking < 0)."""
         try:
-            return self._targets[(class_id, state)]
-        except KeyError:
+            return self._targets[(cls, state)]
+        except (KeyError, TypeError):
             if state not in STATES:
                 raise ValueError(f"unknown wheel state {state!r}; expected one of "
                                  f"{', '.join(STATES)}") from None
-            return self._targets[(self.row(class_id).id, state)]
+            return self._targets[(self.row(cls).id, state)]
+
+    def check_classes(self, class_names: Sequence[str], source: str = "the model") -> None:
+        """Refuse a table whose class set differs from ``class_names`` (e.g. a model's).
+
+        Order does not matter (ids are storage details; look targets up by name).
+
+        Raises
+        ------
+        LookupTableError naming ``source`` and listing both sets and their differences.
+        """
+        names = [str(c) for c in class_names]
+        dup = sorted({c for c in names if names.count(c) > 1})
+        if dup:
+            raise LookupTableError(f"{source}: class names {dup} given more than once")
+        mine = set(self.class_names)
+        if set(names) == mine:
+            return
+        raise LookupTableError(
+            f"{source}: classes differ from the desired-slip table's: {source} has "
+            f"{sorted(names)}, the table has {sorted(mine)} (missing from the table: "
+            f"{sorted(set(names) - mine)}; not in {source}: {sorted(mine - set(names))}); build "
+            "a table for these classes with `terrainml lookup build --catalogue CAT.yaml`")
+
+    def safe_cap(self, classes: Iterable[str] | None = None) -> SafeCap:
+        """The class-free fallback target (design §10) over the table's classes.
+
+        The largest traction target s_T (served in traction and steady) and the most negative
+        braking target s_B: every class's own target lies within the cap, so no class is
+        stalled by it, and the slip stays bounded (no wheel runs away).
+
+        Parameters
+        ----------
+        classes : optional subset of class names (default all the table's classes).
+        """
+        rows = self.rows if classes is None else [self.row(str(c)) for c in classes]
+        if not rows:
+            raise LookupTableError("safe_cap needs at least one class")
+        t = max(rows, key=lambda r: r.traction)
+        b = min(rows, key=lambda r: r.braking)
+        return SafeCap(traction=float(t.traction), braking=float(b.braking),
+                       traction_class=t.name, braking_class=b.name)
 
     def aggressiveness_rank(self, class_id: int) -> tuple[float, float, float]:
         """(|traction|, |steady|, |braking|): smaller is less aggressive (policy, SYSTEM §10)."""
         return self._rank[int(class_id)]
 
     def check_rules(self) -> list[str]:
-        """Violations of the SYSTEM §10 rules (empty when the table is physical)."""
+        """Violations of the design §10 rules (empty when the table is physical)."""
         bad = []
         for r in self.rows:
             if not r.traction >= r.steady + MIN_TRACTION_MARGIN - 1e-9:
                 bad.append(f"{r.name}: traction {r.traction} < steady {r.steady} + "
                            f"{MIN_TRACTION_MARGIN}")
-            if r.name in RIGID_CLASSES and not (RIGID_PEAK_RANGE[0] - 1e-9 <= r.traction
+            if r.rigid_surface and not (RIGID_PEAK_RANGE[0] - 1e-9 <= r.traction
                                                 <= RIGID_PEAK_RANGE[1] + 1e-9):
                 bad.append(f"{r.name}: rigid-surface traction {r.traction} outside "
                            f"{list(RIGID_PEAK_RANGE)}")
@@ -425,12 +587,18 @@ class DesiredSlipTable:
                                  steady=float(c["steady"]),
                                  traction_kind=str(c.get("traction_kind", "peak")),
                                  braking_kind=str(c.get("braking_kind", "peak")),
-                                 mu_net_traction_max=float(c.get("mu_net_traction_max")
-                                                           or float("nan")),
-                                 mu_net_braking_min=float(c.get("mu_net_braking_min")
-                                                          or float("nan")),
-                                 notes=tuple(c.get("notes", ())), params=dict(c.get("params", {})))
+                                 mu_net_traction_max=_float_or_nan(c.get("mu_net_traction_max")),
+                                 mu_net_braking_min=_float_or_nan(c.get("mu_net_braking_min")),
+                                 notes=tuple(c.get("notes", ())), params=dict(c.get("params", {})),
+                                 # tables written before catalogues: the rule applied by name
+                                 rigid_surface=bool(c.get("rigid_surface",
+                                                          str(c["name"]) in RIGID_CLASSES)),
+                                 sources=dict(c.get("sources", {})))
                     for c in doc["classes"]]
+            table = cls(rows, robot_spec=spec, robot_sha256=sha,
+                        wheel_loads_n=doc.get("wheel_loads_n", []), meta=doc.get("meta", {}))
+        except LookupTableError as exc:
+            raise LookupTableError(f"{source}: malformed desired-slip table ({exc})") from None
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise LookupTableError(f"{source}: malformed desired-slip table ({exc})") from None
         if spec_sha != sha:
@@ -443,11 +611,9 @@ class DesiredSlipTable:
                     f"{source}: table was built for robot {spec.get('name')!r} "
                     f"(sha256 {str(sha)[:12]}), not for {want.name!r} "
                     f"(sha256 {want.sha256()[:12]}); rebuild it with `terrainml lookup build`")
-        table = cls(rows, robot_spec=spec, robot_sha256=sha,
-                    wheel_loads_n=doc.get("wheel_loads_n", []), meta=doc.get("meta", {}))
         bad = table.check_rules()
         if bad:
-            raise LookupTableError(f"{source}: table breaks the SYSTEM §10 rules: "
+            raise LookupTableError(f"{source}: table breaks the design §10 rules: "
                                    + "; ".join(bad))
         return table
 

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
+import yaml
 from typer.testing import CliRunner
 
 from terrainml.cli import app
@@ -88,3 +89,35 @@ def test_unwritable_output_is_refused_before_building(tmp_path):
     _refused(runner.invoke(app, ["lookup", "plot", "--out", str(blocker / "f.png")]), blocker / "f.png")
     if Path("/proc/self").is_dir():  # fails for root too
         _refused(runner.invoke(app, ["lookup", "build", "--out", "/proc/t.json"]), "/proc/t.json")
+
+
+def test_build_from_a_catalogue_for_a_robot_spec_file(tmp_path):
+    robot_yaml = tmp_path / "heavy_husky.yaml"
+    spec = load_robot("husky").to_dict()
+    spec.update(name="heavy_husky", mass_kg=100.0)
+    robot_yaml.write_text(yaml.safe_dump(spec))
+    out = tmp_path / "t.json"
+    res = runner.invoke(app, ["lookup", "build", "--catalogue", "borealtc", "--robot",
+                              str(robot_yaml), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    table = DesiredSlipTable.load(out, robot=str(robot_yaml))
+    assert table.class_names == ("ASPHALT", "FLOORING", "ICE", "SANDY_LOAM", "SNOW")
+    assert table.wheel_loads_n == pytest.approx([100.0 * 9.81 / 4] * 4, rel=1e-3)
+    res = runner.invoke(app, ["lookup", "show", "--catalogue", "borealtc", "--classes",
+                              "SNOW,ICE", "--json"])
+    assert res.exit_code == 0, res.output
+    assert [c["name"] for c in json.loads(res.stdout)["classes"]] == ["SNOW", "ICE"]
+
+
+def test_bad_catalogue_is_refused_naming_file_class_and_field(tmp_path):
+    cat = tmp_path / "cat.yaml"
+    cat.write_text("schema: terrainml.terrain_catalogue\nschema_version: 1\nclasses:\n"
+                   "  GRAVEL:\n    targets: {traction: 0.9, braking: -0.2, steady: 0.1}\n"
+                   "    sources: {traction: a, braking: b, steady: c}\n")
+    _refused(runner.invoke(app, ["lookup", "build", "--catalogue", str(cat), "--out",
+                                 str(tmp_path / "t.json")]), cat, "class GRAVEL", "traction")
+    assert not (tmp_path / "t.json").exists()
+    _refused(runner.invoke(app, ["lookup", "show", "--catalogue", "borealtc", "--classes",
+                                 "ASPHALT,GRASS"]), "borealtc", "GRASS")
+    _refused(runner.invoke(app, ["lookup", "show", "--catalogue", str(tmp_path / "no.yaml")]),
+             "no.yaml")
