@@ -5,14 +5,15 @@
 1. Data: the BorealTC folder (Clearpath Husky, five terrains, CC0) read by
    :mod:`terrainml.io.borealtc`, 5-s chunks, 1.7-s windows of the 10 raw channels (6 IMU, left
    and right motor current, left and right wheel speed), class-balanced like the authors'
-   "homogeneous augmentation" (:mod:`terrainml.evaluation.protocols`).
+   "homogeneous augmentation"; the protocols run through :mod:`terrainml.experiments.borealtc`
+   (the library behind ``terrainml evaluate-protocol`` too).
 2. Protocol (a), the authors' (stratified 5-fold over 5-s chunks, not grouped by run, seed 21):
    accuracy, balanced accuracy and per-class recall of
    * ``svm``: ``terrainml.models.svm.SVMClassifier`` on
-     :class:`~terrainml.evaluation.protocols.SideChannelFeatures` (RBF, balanced, C and gamma by an
-     inner 3-fold search grouped by chunk, calibrated);
-   * ``hgb``: :class:`~terrainml.evaluation.protocols.BoostedTrees`, gradient-boosted trees on the
-     same features (fixed settings, no search);
+     :class:`~terrainml.features.side_channel.SideChannelFeatures` (RBF, balanced, C and gamma by
+     an inner 3-fold search grouped by chunk, calibrated);
+   * ``hgb``: :class:`~terrainml.models.trees.BoostedTrees`, gradient-boosted trees on the same
+     features (fixed settings, no search);
    * ``svm+hgb``: the mean of the SVM's and the trees' out-of-fold probabilities (fixed rule);
    * ``cnn``: ``terrainml.models.cnn.CNNClassifier`` on the raw windows (early stopping on
      chunks held out of the training part; torch 2 threads);
@@ -27,19 +28,21 @@
 4. What transfers from the simulated reference robot and what does not.
 
 Quick mode: 6 windows per chunk of the smallest class (instead of 11), a smaller SVM grid and
-a 20-epoch CNN (full: 40 epochs, patience 10); see ``protocols.protocol_models``. Run: ``.venv/bin/python -m benchmarks.run_all --only bench_borealtc --out /tmp/b.md``.
+a 20-epoch CNN (full: 40 epochs, patience 10); see ``terrainml.experiments.borealtc.protocol_models``.
+Run: ``.venv/bin/python -m benchmarks.run_all --only bench_borealtc --out /tmp/b.md``.
 """
 
 from __future__ import annotations
 
 import os
 import re
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from terrainml.evaluation.report import markdown_table
+from terrainml.evaluation.report import markdown_table, plot_confusion
 
 ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "datasets" / "borealtc"
 PUBLISHED = {  # label -> file (1.7-s windows)
@@ -55,8 +58,6 @@ SHORT = {"ASPHALT": "ASP", "FLOORING": "FLO", "ICE": "ICE", "SANDY_LOAM": "SAN",
 
 
 def _log(msg: str) -> None:
-    import sys
-
     print(f"[bench_borealtc] {msg}", file=sys.stderr, flush=True)
 
 
@@ -102,7 +103,7 @@ def channel_ablation(W, folds_by_protocol: dict, classes, track_m: float) -> lis
     from sklearn.preprocessing import StandardScaler
     from sklearn.svm import SVC
 
-    from terrainml.evaluation.protocols import side_channel_features
+    from terrainml.features.side_channel import side_channel_features
 
     y = W.meta["terrain"].to_numpy()
     rows = []
@@ -120,55 +121,42 @@ def channel_ablation(W, folds_by_protocol: dict, classes, track_m: float) -> lis
     return rows
 
 
+def _fold_logger(protocol: str):
+    def log(model: str, k: int, n: int) -> None:
+        _log(f"({protocol}) {model}: fold {k}/{n}")
+    return log
+
+
+def _seconds(res) -> float:
+    """Fit and predict time of a result, summed over its folds (s)."""
+    return sum(m["fit_time_s"] + m["predict_time_s"] for m in res.fold_metrics)
+
+
 def run(quick: bool = False) -> str:
     import torch
 
-    from terrainml.io.borealtc import load_borealtc
-    from terrainml.evaluation.protocols import (average_results, chunk_windows, evaluate_protocol,
-                                            make_chunks, protocol_a_folds, protocol_b_folds,
-                                            protocol_models)
+    from terrainml.experiments.borealtc import load_protocol_data, run_protocol
     from terrainml.robot import load_robot
 
     if not ROOT.is_dir():
         return "## BorealTC (real Husky data)\n\nDataset not found at `../shared/datasets/borealtc`; skipped.\n"
     torch.set_num_threads(2)
     t_start = time.perf_counter()
-    robot = load_robot("husky")
-    track_m = float(abs(robot.wheels[0].y_m - robot.wheels[1].y_m))
-    t0 = time.perf_counter()
-    tables, rep = load_borealtc(ROOT, robot=robot)
-    chunks = make_chunks(tables, chunk_s=5.0)
     mpc = WINDOWS_PER_CHUNK[bool(quick)]
-    W = chunk_windows(tables, chunks, window_s=1.7, max_windows_per_chunk=mpc)
-    t_read = time.perf_counter() - t0
-    classes = rep.classes
-    fac = protocol_models(quick, track_m)
-    folds_a = protocol_a_folds(W, n_splits=5, seed=21)
-    folds_b = protocol_b_folds(W, n_splits=5, seed=0)
-    chunk_ids = W.meta["chunk_id"].to_numpy()
-    run_ids = W.meta["run_id"].astype(str).to_numpy()
-    res_a, res_b, times = {}, {}, {}
-    plan = [(p, m) for p in ("a", "b") for m in ("svm", "hgb", "authors-svm")]
-    plan += [(p, "cnn") for p in ("a", "b") if p in CNN_PROTOCOLS]
-    for p, name in plan:
-        t0 = time.perf_counter()
-        folds, inner, res = (folds_a, chunk_ids, res_a) if p == "a" else (folds_b, run_ids, res_b)
-        res[name] = evaluate_protocol(fac[name], W, folds, inner_groups=inner, class_names=classes,
-                                      name=f"({p}) {name}", split_groups=inner)
-        times[(p, name)] = time.perf_counter() - t0
-        _log(f"({p}) {name}: acc {100 * res[name].accuracy:.2f} bal {100 * res[name].balanced_accuracy:.2f} "
-             f"recall {res[name].recall_per_class()} in {times[(p, name)]:.0f} s")
-    # fixed-rule ensembles: mean of the models' out-of-fold probabilities (same folds, nothing tuned)
-    for res, p in ((res_a, "a"), (res_b, "b")):
-        for combo in (("svm", "hgb"), ("svm", "cnn")):
-            if all(m in res for m in combo):
-                key = "+".join(combo)
-                res[key] = average_results([res[m] for m in combo], name=f"({p}) {key}")
-                times[(p, key)] = sum(times[(p, m)] for m in combo)
-                _log(f"({p}) {key}: acc {100 * res[key].accuracy:.2f} bal {100 * res[key].balanced_accuracy:.2f}")
-    order = ("svm", "hgb", "svm+hgb", "cnn", "svm+cnn", "authors-svm")
-    res_a = {k: res_a[k] for k in order if k in res_a}
-    res_b = {k: res_b[k] for k in order if k in res_b}
+    data = load_protocol_data(ROOT, load_robot("husky"), chunk_s=5.0, window_s=1.7, max_windows_per_chunk=mpc)
+    W, chunks, rep, track_m = data.windows, data.chunks, data.report, data.track_m
+    t_read = time.perf_counter() - t_start
+    classes = data.class_names
+    res_a, res_b = {}, {}
+    for p, res in (("a", res_a), ("b", res_b)):
+        # order of the tables; svm+hgb and svm+cnn: fixed-rule means of out-of-fold probabilities
+        names = ["svm", "hgb", "svm+hgb"] + (["cnn", "svm+cnn"] if p in CNN_PROTOCOLS else []) + ["authors-svm"]
+        res.update(run_protocol(data, p, names, quick=quick, progress=_fold_logger(p)))
+        for name, r in res.items():
+            _log(f"({p}) {name}: acc {100 * r.accuracy:.2f} bal {100 * r.balanced_accuracy:.2f} "
+                 f"recall {r.recall_per_class()} in {_seconds(r):.0f} s")
+    times = {(p, k): _seconds(r) for p, res in (("a", res_a), ("b", res_b)) for k, r in res.items()}
+    folds_a, folds_b = res_a["svm"].folds, res_b["svm"].folds
 
     pub = {k: read_published(ROOT / "published_metrics" / f) for k, f in PUBLISHED.items()
            if (ROOT / "published_metrics" / f).is_file()}
@@ -190,7 +178,7 @@ def run(quick: bool = False) -> str:
     for name, r in res_a.items():
         rows.append([f"ours: {name}" if name != "authors-svm" else "authors' SVM recipe, re-run here",
                      _pct(r.accuracy), _pct(r.balanced_accuracy), *_recall_row(r, classes),
-                     f"{100 * r.fold_accuracy_std():.2f}", f"{times[('a', name)]:.0f}"])
+                     f"{100 * r.summary['accuracy']['std']:.2f}", f"{times[('a', name)]:.0f}"])
     for k, d in pub.items():
         rows.append([f"published: {k}", f"{d.get('acc', float('nan')):.2f}", "",
                      *[f"{d[f'r-{s}']:.2f}" if f"r-{s}" in d else "" for s in short], "", ""])
@@ -222,9 +210,9 @@ def run(quick: bool = False) -> str:
     out.append("### Protocol (b): grouped by run (StratifiedGroupKFold 5; no run in train and test)\n")
     rows = []
     for name, r in res_b.items():
-        rows.append([f"ours: {name}" if name != "authors-svm" else "authors' SVM recipe, re-run here", _pct(r.accuracy), _pct(r.balanced_accuracy), *_recall_row(r, classes),
-                     f"{100 * np.std([m['balanced_accuracy'] for m in r.fold_metrics]):.2f}",
-                     f"{times[('b', name)]:.0f}"])
+        rows.append([f"ours: {name}" if name != "authors-svm" else "authors' SVM recipe, re-run here",
+                     _pct(r.accuracy), _pct(r.balanced_accuracy), *_recall_row(r, classes),
+                     f"{100 * r.summary['balanced_accuracy']['std']:.2f}", f"{times[('b', name)]:.0f}"])
     out.append(markdown_table(["model", "accuracy %", "balanced acc. %", *[f"recall {s} %" for s in short],
                                "fold std bal. (pp)", "time s"], rows))
     best_b = max((k for k in res_b if k != "authors-svm"), key=lambda k: res_b[k].balanced_accuracy)
@@ -239,14 +227,13 @@ def run(quick: bool = False) -> str:
     out.append(_confusion_md(res_a[best_name]))
     fig_dir = Path(__file__).resolve().parents[1] / "docs" / "borealtc_figures"
     try:
-        from terrainml.evaluation.report import plot_confusion
-
         fig_dir.mkdir(parents=True, exist_ok=True)
         figs = [plot_confusion(np.asarray(r.pooled["confusion_matrix"]), short,
                                fig_dir / f"confusion_{p}_{k.replace('+', '_')}.png",
                                f"protocol ({p}) {k}: acc {100 * r.accuracy:.1f}%, bal {100 * r.balanced_accuracy:.1f}%")
                 for p, res in (("a", res_a), ("b", res_b)) for k, r in res.items()]
-        out.append(f"\nFigures (row-normalised confusion matrices): {', '.join(f'`docs/borealtc_figures/{f.name}`' for f in figs)}.\n")
+        names = ", ".join(f"`docs/borealtc_figures/{f.name}`" for f in figs)
+        out.append(f"\nFigures (row-normalised confusion matrices): {names}.\n")
     except Exception as exc:  # noqa: BLE001 - figures are optional (no matplotlib backend)
         out.append(f"\n(figures not written: {exc})\n")
     out.append("\n" + TRANSFER_MD)

@@ -1,7 +1,7 @@
 """SVM vs CNN vs MiniRocket on the same grouped folds (issue 8).
 
 All three models see the same raw windows (n, C, 200) and the same folds: ``StratifiedGroupKFold``
-by run, 5 folds, seed 0 (``terrainml.evaluation.cv.grouped_folds``), so no run is in the training and
+by run, 5 folds, seed 0 (``terrainml.evaluation.folds.grouped_folds``), so no run is in the training and
 test parts of a fold. Per model: balanced accuracy and macro-F1 (mean ± std over folds), training
 time per fold, and per-window inference latency (one window per call, p50/p99, after warm-up).
 
@@ -200,15 +200,9 @@ class MiniRocketReference:
 
 
 def _folds(y, groups):
-    try:
-        from terrainml.evaluation.cv import grouped_folds
+    from terrainml.evaluation.folds import grouped_folds
 
-        return grouped_folds(y, groups, N_FOLDS, SEED)
-    except ImportError:
-        from sklearn.model_selection import StratifiedGroupKFold
-
-        cv = StratifiedGroupKFold(n_splits=N_FOLDS, shuffle=True, random_state=SEED)
-        return list(cv.split(np.zeros(len(y)), y, groups))
+    return grouped_folds(y, groups, N_FOLDS, SEED)
 
 
 def latency_ms(predict, X, n_calls: int = 300, warmup: int = 20) -> tuple[float, float]:

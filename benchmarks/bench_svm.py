@@ -114,10 +114,11 @@ def run(quick: bool = False) -> str:
     out += [f"### Grouped {len(cv.folds)}-fold CV by run (seed {SEED}), SVM", "",
             markdown_table(["fold", "test runs", "windows", "balanced acc.", "macro-F1", "desired-slip error",
                             "ECE", "fit s"],
-                           [[int(f.fold), int(f.n_test_runs), int(f.n_windows), f"{f.balanced_accuracy:.3f}",
+                           [[int(f.fold), int(f.n_test_groups), int(f.n_windows), f"{f.balanced_accuracy:.3f}",
                              f"{f.macro_f1:.3f}", f"{f.desired_slip_error_mean:.4f}", f"{f.ece:.3f}",
                              f"{f.fit_time_s:.1f}"] for f in frame.itertuples()]), ""]
-    ba, f1, dse = s["balanced_accuracy"], s["macro_f1"], s.get("desired_slip_error_mean", {"mean": np.nan, "std": np.nan})
+    ba, f1 = s["balanced_accuracy"], s["macro_f1"]
+    dse = s.get("desired_slip_error_mean", {"mean": np.nan, "std": np.nan})
     trans = ev.get("balanced_accuracy", float("nan"))
     checks = [["CV balanced accuracy (mean ± std)", f"{ba['mean']:.3f} ± {ba['std']:.3f}", ">= 0.95",
                "PASS" if ba["mean"] >= 0.95 else "FAIL"],
@@ -135,14 +136,16 @@ def run(quick: bool = False) -> str:
         row = cm[k].copy()
         row[k] = 0
         worst = int(np.argmax(row)) if row.sum() else None
-        rec_rows.append([names.get(c, c), int(cm[k].sum()), f"{cv.pooled['recall_per_class'].get(str(c), float('nan')):.3f}",
+        recall = cv.pooled["recall_per_class"].get(str(c), float("nan"))
+        rec_rows.append([names.get(c, c), int(cm[k].sum()), f"{recall:.3f}",
                          "-" if worst is None else f"{names.get(cv.classes[worst], worst)} ({int(row[worst])})"])
     out += ["Per-class recall, pooled out-of-fold (with the class it is most often mistaken for):", "",
             markdown_table(["class", "windows", "recall", "most confused with"], rec_rows), ""]
     rba, rf1 = ref["balanced_accuracy"], ref["macro_f1"]
     out += ["### Reference on the same folds and features", "",
             markdown_table(["model", "balanced acc.", "macro-F1"],
-                           [["ours: nested grouped search, balanced, calibrated", f"{ba['mean']:.3f} ± {ba['std']:.3f}",
+                           [["ours: nested grouped search, balanced, calibrated",
+                             f"{ba['mean']:.3f} ± {ba['std']:.3f}",
                              f"{f1['mean']:.3f} ± {f1['std']:.3f}"],
                             ["reference: `make_pipeline(StandardScaler(), SVC())` defaults",
                              f"{rba[0]:.3f} ± {rba[1]:.3f}", f"{rf1[0]:.3f} ± {rf1[1]:.3f}"],
@@ -151,7 +154,8 @@ def run(quick: bool = False) -> str:
     if res.ablation is not None:
         out += ["### Feature-set ablation (same folds)", "",
                 markdown_table(["feature set", "features", "balanced acc.", "macro-F1", "desired-slip error"],
-                               [[a.subset, int(a.n_features), f"{a.balanced_accuracy_mean:.3f} ± {a.balanced_accuracy_std:.3f}",
+                               [[a.subset, int(a.n_features),
+                                 f"{a.balanced_accuracy_mean:.3f} ± {a.balanced_accuracy_std:.3f}",
                                  f"{a.macro_f1_mean:.3f} ± {a.macro_f1_std:.3f}", f"{a.desired_slip_error_mean:.4f}"]
                                 for a in res.ablation.itertuples()]), ""]
     # throughput on the same logs with 1 and 2 jobs
@@ -170,7 +174,8 @@ def run(quick: bool = False) -> str:
                 markdown_table(["jobs", "logs", "windows", "time s", "runs/s", "windows/s", "speed-up vs 1 job"],
                                _throughput(logs, ds_a.robot, ds_a.spec)), ""]
     out += [markdown_table(["figure", "value"],
-                           [["SVM final fit (nested search + calibration), s", f"{res.models['svm']['fit_time_s']:.1f}"],
+                           [["SVM final fit (nested search + calibration), s",
+                             f"{res.models['svm']['fit_time_s']:.1f}"],
                             ["whole `train` (5-fold CV + ablation + final fit + report), s", f"{t_train:.0f}"],
                             ["inference latency per window p50 / p99, ms (features + SVM, one window per call)",
                              f"{lat['p50_ms']:.2f} / {lat['p99_ms']:.2f}"],

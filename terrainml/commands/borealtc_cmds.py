@@ -17,7 +17,6 @@ from rich.table import Table
 console = Console(stderr=True, soft_wrap=True)
 
 PROTOCOLS = ("a", "b", "both")
-MODELS = ("svm", "hgb", "cnn", "authors-svm")
 
 
 def _fail(msg: str) -> None:
@@ -29,7 +28,8 @@ def evaluate_protocol_cmd(
     source: Path = typer.Argument(..., help="BorealTC folder: <CLASS>/imu_XX.csv and <CLASS>/pro_XX.csv."),
     protocol: str = typer.Option("both", "--protocol", "-p", help="a (authors': stratified 5-fold over "
                                  "5-s chunks), b (grouped by run) or both."),
-    models: str = typer.Option("svm", "--models", "-m", help="Comma-separated: svm, hgb, cnn, authors-svm; A+B averages the out-of-fold probabilities of A and B (e.g. svm+hgb)."),
+    models: str = typer.Option("svm", "--models", "-m", help="Comma-separated: svm, hgb, cnn, authors-svm; "
+                               "A+B averages the out-of-fold probabilities of A and B (e.g. svm+hgb)."),
     window_s: float = typer.Option(1.7, "--window-s", help="Window length (s)."),
     chunk_s: float = typer.Option(5.0, "--chunk-s", help="Chunk length (s) of protocol (a)."),
     per_chunk: int = typer.Option(11, "--windows-per-chunk", help="Windows per chunk of the smallest "
@@ -52,16 +52,14 @@ def evaluate_protocol_cmd(
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from terrainml.io.borealtc import BorealTCError, load_borealtc
-    from terrainml.evaluation.protocols import (average_results, chunk_windows, evaluate_protocol, make_chunks,
-                                            protocol_a_folds, protocol_b_folds, protocol_models)
+    from terrainml.experiments.borealtc import MODELS, load_protocol_data, run_protocol
+    from terrainml.io.borealtc import BorealTCError
     from terrainml.robot import RobotSpecError, load_robot
 
     if protocol not in PROTOCOLS:
         _fail(f"--protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
     names = [m.strip() for m in models.split(",") if m.strip()]
     bad = [m for m in names if not all(q in MODELS for q in m.split("+"))]
-    base_models = list(dict.fromkeys(q for m in names for q in m.split("+")))
     if bad or not names:
         _fail(f"--models: unknown {bad or models!r}; choose from {', '.join(MODELS)}")
     if not (window_s > 0 and chunk_s >= window_s):
@@ -73,44 +71,33 @@ def evaluate_protocol_cmd(
     except (RobotSpecError, OSError, ValueError) as exc:
         _fail(f"--robot {robot}: {exc}")
     try:
-        tables, rep = load_borealtc(source, robot=rb)
-    except BorealTCError as exc:
+        data = load_protocol_data(source, rb, chunk_s=chunk_s, window_s=window_s, max_windows_per_chunk=per_chunk)
+    except (BorealTCError, ValueError) as exc:
         _fail(str(exc))
-    if not tables:
-        _fail(f"{source}: no run could be read ({rep.skipped})")
-    chunks = make_chunks(tables, chunk_s=chunk_s)
-    if len(chunks) == 0:
-        _fail(f"{source}: no complete {chunk_s:g}-s chunk with valid IMU and wheel data")
-    W = chunk_windows(tables, chunks, window_s=window_s, max_windows_per_chunk=per_chunk)
+    W, chunks = data.windows, data.chunks
     if not quiet:
-        console.print(f"{source}: {rep.runs} runs, classes {rep.classes}; runs without IMU (no chunk): "
-                      f"{chunks.runs_without_chunks or 'none'}; {len(chunks)} chunks, {len(W)} windows",
+        console.print(f"{source}: {data.report.runs} runs, classes {data.report.classes}; runs without IMU "
+                      f"(no chunk): {chunks.runs_without_chunks or 'none'}; {len(chunks)} chunks, {len(W)} windows",
                       highlight=False)
-    wheels = rb.wheels
-    track = float(abs(wheels[0].y_m - wheels[1].y_m)) if len(wheels) > 1 else 0.5708
-    fac = protocol_models(quick, track, n_jobs=n_jobs)
-    todo = [p for p in ("a", "b") if protocol in (p, "both")]
     if len(set(W.meta["terrain"])) < 2:
         _fail(f"{source}: need at least two terrain classes with chunks")
     results = {}
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=console, transient=True, disable=quiet) as progress:
-        for p in todo:
+        for p in [p for p in ("a", "b") if protocol in (p, "both")]:
+            tasks: dict[str, int] = {}
+
+            def tick(model: str, k: int, n: int, p: str = p, tasks: dict = tasks) -> None:
+                if model not in tasks:
+                    tasks[model] = progress.add_task(f"protocol ({p}) {model}", total=n)
+                progress.update(tasks[model], completed=k)
+
             try:
-                folds_ = protocol_a_folds(W, folds, seed_a) if p == "a" else protocol_b_folds(W, folds, seed_b)
+                res = run_protocol(data, p, names, n_splits=folds, seed=seed_a if p == "a" else seed_b,
+                                   quick=quick, n_jobs=n_jobs, progress=tick)
             except ValueError as exc:
-                _fail(f"{source}: protocol ({p}) folds: {exc}")
-            inner = W.meta["chunk_id"].to_numpy() if p == "a" else W.meta["run_id"].astype(str).to_numpy()
-            done = {}
-            for m in base_models:
-                task = progress.add_task(f"protocol ({p}) {m}", total=len(folds_))
-                done[m] = evaluate_protocol(fac[m], W, folds_, inner_groups=inner, class_names=rep.classes,
-                                            name=f"({p}) {m}", split_groups=inner,
-                                            progress=lambda k, n, t=task: progress.update(t, completed=k))
-            for m in names:
-                parts = m.split("+")
-                results[(p, m)] = (done[m] if len(parts) == 1 else
-                                   average_results([done[q] for q in parts], name=f"({p}) {m}"))
+                _fail(f"{source}: protocol ({p}): {exc}")
+            results.update({(p, m): r for m, r in res.items()})
     for (p, m), res in results.items():
         t = Table(title=f"protocol ({p}) {m}: accuracy {100 * res.accuracy:.2f}%, balanced "
                         f"{100 * res.balanced_accuracy:.2f}%", title_justify="left")
@@ -127,9 +114,7 @@ def evaluate_protocol_cmd(
         payload = {f"{p}:{m}": {"accuracy": r.accuracy, "balanced_accuracy": r.balanced_accuracy,
                                 "recall_per_class": r.recall_per_class(),
                                 "confusion_matrix": r.pooled["confusion_matrix"], "classes": r.class_names,
-                                "folds": [{k: v for k, v in f.items() if k != "best_params"} |
-                                          {"best_params": {k: str(v) for k, v in f["best_params"].items()}}
-                                          for f in r.fold_metrics]}
+                                "folds": [_fold_json(f) for f in r.fold_metrics]}
                    for (p, m), r in results.items()}
         payload["_setup"] = {"source": str(source), "window_s": window_s, "chunk_s": chunk_s,
                              "windows_per_chunk": per_chunk, "n_windows": len(W), "n_chunks": len(chunks),
@@ -140,6 +125,13 @@ def evaluate_protocol_cmd(
             _fail(f"{out_json}: cannot write ({exc})")
         if not quiet:
             console.print(f"[green]wrote[/] {out_json}", highlight=False)
+
+
+def _fold_json(m: dict) -> dict:
+    """One fold's entry of the JSON file: sizes, accuracies, fit time, chosen parameters (as text)."""
+    return {"fold": m["fold"], "n_test": m["n_windows"], "accuracy": m["accuracy"],
+            "balanced_accuracy": m["balanced_accuracy"], "fit_time_s": m["fit_time_s"],
+            "best_params": {k: str(v) for k, v in m["best_params"].items()}}
 
 
 def register(app: typer.Typer) -> None:

@@ -1,67 +1,36 @@
-"""Grouped, seeded cross-validation (SYSTEM §9): no run is ever split across folds.
+"""Cross-validation of a model factory on raw windows (design §9): one engine, one result.
 
-:func:`grouped_folds` is ``StratifiedGroupKFold(n_splits, shuffle=True, random_state=seed)``
-over the windows' run ids; the same seed gives the same folds. :func:`cross_validate` fits a
-fresh model (from a factory) on every training part, passing the run ids as ``groups`` so the
-model's own inner search (nested CV) and early stopping stay grouped too, and predicts the
-held-out runs. Folds run through joblib (``n_jobs``; inside ``joblib.parallel_config(backend=
-"dask")`` they run on a Dask cluster), results in fold order.
+:func:`cross_validate` fits a fresh model (from a factory) on the training part of every fold
+and predicts the held-out windows. The folds come from a strategy of
+:mod:`terrainml.evaluation.folds` (default: grouped by run, seeded) and are checked never to
+split a group; the same ``groups`` go to the model's ``fit``, so its own inner search (nested
+CV) and early stopping split by them too and hyper-parameters are never tuned on a test fold.
+Folds run through joblib (``n_jobs``; inside ``joblib.parallel_config(backend="dask")`` they run
+on a Dask cluster), results in fold order.
+
+:class:`CVResult` holds the out-of-fold predictions and probabilities, per-fold and pooled
+metrics; :func:`average_results` is the fixed-rule ensemble of several results (the mean of
+their out-of-fold probabilities, e.g. ``svm+hgb``).
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import pandas as pd
 from joblib import Parallel, delayed
-from sklearn.model_selection import StratifiedGroupKFold
 
+from terrainml.evaluation.folds import check_groups_not_split, grouped_folds
 from terrainml.evaluation.metrics import classification_metrics, summarise_folds
 
-__all__ = ["grouped_folds", "cross_validate", "CVResult", "check_no_shared_runs"]
+__all__ = ["cross_validate", "CVResult", "average_results"]
 
-
-def grouped_folds(y, groups, n_splits: int = 5, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Stratified folds grouped by run, seeded.
-
-    Parameters
-    ----------
-    y : array (n,), labels.
-    groups : array (n,), run ids.
-    n_splits : int >= 2 (lowered to the number of runs when there are fewer, with a floor of 2).
-    seed : int.
-
-    Returns
-    -------
-    list of (train_idx, test_idx) int arrays.
-    """
-    y = np.asarray(y)
-    groups = np.asarray(groups)
-    n_runs = len(np.unique(groups))
-    if n_runs < 2:
-        raise ValueError(f"grouped CV needs at least 2 runs, got {n_runs}")
-    k = int(min(n_splits, n_runs))
-    if k < 2:
-        raise ValueError("n_splits must be >= 2")
-    cv = StratifiedGroupKFold(n_splits=k, shuffle=True, random_state=int(seed))
-    return [(np.asarray(tr), np.asarray(te)) for tr, te in cv.split(np.zeros(len(y)), y, groups)]
-
-
-def check_no_shared_runs(folds, groups) -> None:
-    """Raise AssertionError when a run appears in the test part of two folds or in train and test."""
-    groups = np.asarray(groups)
-    seen: dict[Any, int] = {}
-    for k, (tr, te) in enumerate(folds):
-        test_runs = set(groups[te].tolist())
-        if test_runs & set(groups[tr].tolist()):
-            raise AssertionError(f"fold {k}: runs in both train and test")
-        for r in test_runs:
-            if r in seen:
-                raise AssertionError(f"run {r!r} in the test parts of folds {seen[r]} and {k}")
-            seen[r] = k
+#: columns of :meth:`CVResult.per_fold_frame`
+FOLD_COLUMNS = ("n_windows", "accuracy", "balanced_accuracy", "macro_f1", "adjacent_accuracy", "ece",
+                "desired_slip_error_mean", "fit_time_s", "predict_time_s", "n_test_groups")
 
 
 @dataclass
@@ -71,60 +40,115 @@ class CVResult:
     Attributes
     ----------
     folds : list of (train_idx, test_idx).
-    fold_of : ndarray (n,), fold index that predicted each window.
+    fold_of : ndarray (n,), fold index that predicted each window (-1: in no test part).
     y_true, y_pred : ndarray (n,).
-    proba : ndarray (n, K), columns in ``classes`` order.
-    classes : ndarray (K,).
-    fold_metrics : list of dict (classification_metrics per fold, plus fit/predict times).
+    proba : ndarray (n, K) or None, out-of-fold probabilities with columns in ``classes`` order
+        (None when the model has no ``predict_proba``; otherwise ``y_pred`` is their argmax).
+    classes : ndarray (K,). class_names : list (K,), names of ``classes``.
+    fold_metrics : list of dict, per fold :func:`~terrainml.evaluation.metrics.
+        classification_metrics` plus ``fold``, ``fit_time_s``, ``predict_time_s``,
+        ``n_test_groups`` and ``best_params`` (the model's inner-search choice, if any).
     summary : dict metric -> {mean, std} over folds.
-    pooled : dict, metrics of all out-of-fold predictions together.
+    pooled : dict, metrics of all out-of-fold predictions together (confusion matrix with rows
+        true and columns predicted, recall per class, ...).
+    name : label of the result (e.g. ``"(b) svm"``).
     """
 
     folds: list
     fold_of: np.ndarray
     y_true: np.ndarray
     y_pred: np.ndarray
-    proba: np.ndarray
+    proba: np.ndarray | None
     classes: np.ndarray
+    class_names: list = field(default_factory=list)
     fold_metrics: list = field(default_factory=list)
     summary: dict = field(default_factory=dict)
     pooled: dict = field(default_factory=dict)
+    name: str = ""
+
+    @property
+    def accuracy(self) -> float:
+        return float(self.pooled["accuracy"])
+
+    @property
+    def balanced_accuracy(self) -> float:
+        return float(self.pooled["balanced_accuracy"])
+
+    def recall_per_class(self) -> dict[str, float]:
+        """Pooled recall per class name (NaN for a class with no test window)."""
+        rec = self.pooled["recall_per_class"]
+        return {n: float(rec.get(str(c), np.nan)) for c, n in zip(self.classes.tolist(), self.class_names)}
+
+    def confusion_frame(self) -> pd.DataFrame:
+        """Pooled confusion matrix (windows), rows true and columns predicted, by class name."""
+        return pd.DataFrame(self.pooled["confusion_matrix"], index=self.class_names, columns=self.class_names)
 
     def per_fold_frame(self) -> pd.DataFrame:
-        keys = ("n_windows", "accuracy", "balanced_accuracy", "macro_f1", "adjacent_accuracy", "ece",
-                "desired_slip_error_mean", "fit_time_s", "predict_time_s", "n_test_runs")
-        rows = [{"fold": k, **{c: m.get(c, np.nan) for c in keys}} for k, m in enumerate(self.fold_metrics)]
+        rows = [{"fold": k, **{c: m.get(c, np.nan) for c in FOLD_COLUMNS}} for k, m in enumerate(self.fold_metrics)]
         return pd.DataFrame(rows)
 
 
+def _subset(X, idx):
+    return X.subset(idx) if hasattr(X, "subset") else np.asarray(X)[idx]
+
+
 def _run_fold(factory: Callable[[], Any], X, y, groups, tr, te, fit_kwargs: dict):
+    """Fit on ``tr``, predict ``te``: (classes, proba or None, y_pred, fit s, predict s, best_params)."""
     model = factory()
-    Xtr = X.subset(tr) if hasattr(X, "subset") else np.asarray(X)[tr]
-    Xte = X.subset(te) if hasattr(X, "subset") else np.asarray(X)[te]
+    Xtr, Xte = _subset(X, tr), _subset(X, te)
     t0 = time.perf_counter()
     model.fit(Xtr, y[tr], groups=groups[tr], **fit_kwargs)
     t1 = time.perf_counter()
-    proba = np.asarray(model.predict_proba(Xte), dtype=float)
+    if hasattr(model, "predict_proba") and hasattr(model, "classes_"):
+        cls = np.asarray(model.classes_)
+        proba = np.asarray(model.predict_proba(Xte), dtype=float)
+        pred = cls[np.argmax(proba, axis=1)]
+    else:  # e.g. the BorealTC authors' SVM recipe: labels only
+        cls, proba, pred = None, None, np.asarray(model.predict(Xte))
     t2 = time.perf_counter()
-    return np.asarray(model.classes_), proba, t1 - t0, t2 - t1
+    return cls, proba, pred, t1 - t0, t2 - t1, dict(getattr(model, "best_params_", {}) or {})
 
 
-def cross_validate(factory: Callable[[], Any], X, y, groups, *, n_splits: int = 5, seed: int = 0,
-                   n_jobs: int | None = 1, table: Any = None, classes=None,
-                   fit_kwargs: dict | None = None, folds=None) -> CVResult:
-    """Grouped K-fold CV of a model factory on raw windows.
+def _assemble(folds, y, classes, class_names, y_pred, proba, fold_info: Sequence[dict], table,
+              name) -> CVResult:
+    """Per-fold and pooled metrics of out-of-fold predictions (windows in no test part skipped);
+    ``fold_info`` holds per fold the entries added to its metrics (times, groups, parameters)."""
+    fold_of = np.full(len(y), -1, dtype=np.int64)
+    fold_metrics = []
+    for k, (_, te) in enumerate(folds):
+        fold_of[te] = k
+        m = classification_metrics(y[te], y_pred[te], None if proba is None else proba[te], classes, table)
+        fold_metrics.append({**m, "fold": k, **fold_info[k]})
+    done = fold_of >= 0
+    pooled = classification_metrics(y[done], y_pred[done], None if proba is None else proba[done], classes, table)
+    names = list(class_names) if class_names is not None else [str(c) for c in classes.tolist()]
+    return CVResult(list(folds), fold_of, y, y_pred, proba, classes, names, fold_metrics,
+                    summarise_folds(fold_metrics), pooled, name)
+
+
+def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_splits: int = 5,
+                   seed: int = 0, n_jobs: int | None = 1, table: Any = None, classes=None,
+                   class_names: Sequence[str] | None = None, fit_kwargs: dict | None = None,
+                   name: str = "", progress: Callable[[int, int], None] | None = None) -> CVResult:
+    """K-fold CV of a model factory on raw windows; no group is ever split.
 
     Parameters
     ----------
-    factory : callable returning an unfitted classifier with ``fit(X, y, groups=...)``,
-        ``predict_proba`` and ``classes_``.
+    factory : callable returning an unfitted classifier with ``fit(X, y, groups=...)`` and
+        ``predict_proba`` + ``classes_`` (or only ``predict``: then ``proba`` is None).
     X : Windows or ndarray (n, C, T).
-    y : array (n,), labels. groups : array (n,), run ids.
-    n_splits, seed : folds (see :func:`grouped_folds`).
+    y : array (n,), labels.
+    groups : array (n,), groups no fold may split and the model's inner search splits by
+        (run ids; chunk ids for :func:`~terrainml.evaluation.folds.chunk_folds`).
+    folds : list of (train_idx, test_idx) from a strategy of :mod:`terrainml.evaluation.folds`;
+        default ``grouped_folds(y, groups, n_splits, seed)``.
     n_jobs : joblib jobs over folds.
     table : desired-slip table for the desired-slip error (or None).
     classes : all classes in physical order (default: sorted labels of y).
-    folds : precomputed folds (overrides n_splits/seed).
+    class_names : names of ``classes`` (default: the labels as text).
+    fit_kwargs : more keyword arguments of ``fit``.
+    name : label stored in the result.
+    progress : callback ``(folds done, n folds)`` after each fold, in fold order.
 
     Returns
     -------
@@ -133,28 +157,50 @@ def cross_validate(factory: Callable[[], Any], X, y, groups, *, n_splits: int = 
     y = np.asarray(y)
     groups = np.asarray(groups)
     folds = folds if folds is not None else grouped_folds(y, groups, n_splits, seed)
-    check_no_shared_runs(folds, groups)
+    check_groups_not_split(folds, groups)
     classes = np.asarray(classes) if classes is not None else np.unique(y)
-    results = Parallel(n_jobs=n_jobs)(
-        delayed(_run_fold)(factory, X, y, groups, tr, te, fit_kwargs or {}) for tr, te in folds)
-    n, K = len(y), len(classes)
-    proba = np.zeros((n, K))
-    y_pred = np.empty(n, dtype=y.dtype)
-    fold_of = np.full(n, -1, dtype=np.int64)
-    fold_metrics = []
+    jobs = (delayed(_run_fold)(factory, X, y, groups, tr, te, fit_kwargs or {}) for tr, te in folds)
+    if progress is None:
+        results = Parallel(n_jobs=n_jobs)(jobs)
+    else:  # a generator, to report every fold as it completes
+        results = []
+        for r in Parallel(n_jobs=n_jobs, return_as="generator")(jobs):
+            results.append(r)
+            progress(len(results), len(folds))
+    K = len(classes)
     col = {c: k for k, c in enumerate(classes.tolist())}
-    for k, ((tr, te), (cls_k, p, fit_s, pred_s)) in enumerate(zip(folds, results)):
-        pk = np.zeros((len(te), K))
-        for j, c in enumerate(cls_k.tolist()):
-            pk[:, col[c]] = p[:, j]
-        proba[te] = pk
-        y_pred[te] = classes[np.argmax(pk, axis=1)]
-        fold_of[te] = k
-        m = classification_metrics(y[te], y_pred[te], pk, classes, table)
-        m.update({"fit_time_s": float(fit_s), "predict_time_s": float(pred_s),
-                  "n_test_runs": int(len(np.unique(groups[te])))})
-        fold_metrics.append(m)
-    res = CVResult(folds, fold_of, y, y_pred, proba, classes, fold_metrics)
-    res.summary = summarise_folds(fold_metrics)
-    res.pooled = classification_metrics(y, y_pred, proba, classes, table)
-    return res
+    y_pred = np.empty(len(y), dtype=y.dtype)
+    proba = np.zeros((len(y), K)) if all(r[1] is not None for r in results) else None
+    for (_, te), (cls_k, p, pred, *_) in zip(folds, results):
+        y_pred[te] = pred
+        if proba is not None:
+            for j, c in enumerate(cls_k.tolist()):
+                proba[te, col[c]] = p[:, j]
+    info = [{"fit_time_s": float(fit_s), "predict_time_s": float(pred_s),
+             "n_test_groups": int(len(np.unique(groups[te]))), "best_params": best}
+            for (_, te), (*_, fit_s, pred_s, best) in zip(folds, results)]
+    return _assemble(folds, y, classes, class_names, y_pred, proba, info, table, name)
+
+
+def average_results(results: Sequence[CVResult], name: str = "average", table: Any = None) -> CVResult:
+    """Fixed-rule ensemble: the mean of the out-of-fold probabilities of several results.
+
+    The results must come from the same windows, folds and classes (checked) and carry
+    probabilities. No weight is tuned, so nothing is learnt from the test folds. Fit and predict
+    times per fold are the sums of the members'. ``table``: as in :func:`cross_validate`.
+    """
+    first = results[0]
+    for r in results[1:]:
+        if not (np.array_equal(r.y_true, first.y_true) and np.array_equal(r.fold_of, first.fold_of)
+                and np.array_equal(r.classes, first.classes)):
+            raise ValueError("average_results: results from different windows, folds or classes")
+    if any(r.proba is None for r in results):
+        raise ValueError("average_results: every result needs out-of-fold probabilities")
+    proba = np.mean([r.proba for r in results], axis=0)
+    y_pred = first.classes[np.argmax(proba, axis=1)]
+    info = [{"fit_time_s": sum(r.fold_metrics[k]["fit_time_s"] for r in results),
+             "predict_time_s": sum(r.fold_metrics[k]["predict_time_s"] for r in results),
+             "n_test_groups": m["n_test_groups"], "best_params": {}}
+            for k, m in enumerate(first.fold_metrics)]
+    return _assemble(first.folds, first.y_true, first.classes, first.class_names, y_pred, proba, info,
+                     table, name)

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-import pandas as pd
+from matplotlib.figure import Figure  # no pyplot: no global backend or figure registry
 
 from terrainml.models.artifacts import json_safe
 
@@ -43,18 +43,18 @@ def _pm(summary: dict, key: str, digits: int = 3) -> str:
     return f"{s['mean']:.{digits}f} ± {s['std']:.{digits}f}"
 
 
+def _num(x: float, digits: int) -> str:
+    return f"{x:.{digits}f}" if np.isfinite(x) else "n/a"
+
+
 def plot_confusion(cm: np.ndarray, names: Sequence[str], path: Path, title: str) -> Path:
     """Row-normalised confusion matrix with counts, saved as PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     cm = np.asarray(cm, dtype=float)
     rows = cm.sum(axis=1, keepdims=True)
     norm = np.divide(cm, rows, out=np.zeros_like(cm), where=rows > 0)
     k = len(names)
-    fig, ax = plt.subplots(figsize=(1.2 + 0.75 * k, 1.0 + 0.7 * k), dpi=100)
+    fig = Figure(figsize=(1.2 + 0.75 * k, 1.0 + 0.7 * k), dpi=100)
+    ax = fig.add_subplot()
     im = ax.imshow(norm, vmin=0, vmax=1, cmap="Blues")
     ax.set_xticks(range(k), names, rotation=45, ha="right", fontsize=8)
     ax.set_yticks(range(k), names, fontsize=8)
@@ -69,7 +69,6 @@ def plot_confusion(cm: np.ndarray, names: Sequence[str], path: Path, title: str)
     fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
     fig.tight_layout()
     fig.savefig(path, metadata={"Software": None})
-    plt.close(fig)
     return path
 
 
@@ -108,11 +107,11 @@ def write_report(out: str | Path, result: Any) -> dict:
         md += [f"## {name}: per fold", "",
                markdown_table(["fold", "windows", "runs", "bal. acc.", "acc.", "macro-F1", "adjacent",
                                "slip err.", "ECE", "fit s"],
-                              [[int(f.fold), int(f.n_windows), int(f.n_test_runs), f"{f.balanced_accuracy:.3f}",
+                              [[int(f.fold), int(f.n_windows), int(f.n_test_groups), f"{f.balanced_accuracy:.3f}",
                                 f"{f.accuracy:.3f}", f"{f.macro_f1:.3f}", f"{f.adjacent_accuracy:.3f}",
-                                "n/a" if not np.isfinite(f.desired_slip_error_mean) else f"{f.desired_slip_error_mean:.4f}",
-                                f"{f.ece:.3f}", f"{f.fit_time_s:.1f}"] for f in frame.itertuples()]), "",
-               f"Per-class recall (pooled out-of-fold): " + ", ".join(
+                                _num(f.desired_slip_error_mean, 4), f"{f.ece:.3f}", f"{f.fit_time_s:.1f}"]
+                               for f in frame.itertuples()]), "",
+               "Per-class recall (pooled out-of-fold): " + ", ".join(
                    f"{k} {v:.2f}" for k, v in zip(names, [cv.pooled["recall_per_class"].get(str(c), float('nan'))
                                                           for c in cv.classes])), "",
                f"![confusion {name}]({png.name})", ""]
@@ -124,9 +123,9 @@ def write_report(out: str | Path, result: Any) -> dict:
         doc["ablation"] = ab.to_dict(orient="records")
         md += ["## Feature-set ablation (SVM, same folds)", "",
                markdown_table(["feature set", "features", "bal. acc.", "macro-F1", "desired-slip error"],
-                              [[a.subset, int(a.n_features), f"{a.balanced_accuracy_mean:.3f} ± {a.balanced_accuracy_std:.3f}",
-                                f"{a.macro_f1_mean:.3f} ± {a.macro_f1_std:.3f}",
-                                "n/a" if not np.isfinite(a.desired_slip_error_mean) else f"{a.desired_slip_error_mean:.4f}"]
+                              [[a.subset, int(a.n_features),
+                                f"{a.balanced_accuracy_mean:.3f} ± {a.balanced_accuracy_std:.3f}",
+                                f"{a.macro_f1_mean:.3f} ± {a.macro_f1_std:.3f}", _num(a.desired_slip_error_mean, 4)]
                                for a in ab.itertuples()]), ""]
     counts = result.dataset_summary.get("rejections", {})
     if counts:

@@ -1,1 +1,2 @@
-"""Steady windows and feature sets (SYSTEM §8): :mod:`.windows`, :mod:`.sets`."""
+"""Steady windows and feature sets (SYSTEM §8): :mod:`.windows`, :mod:`.sets` (the reference
+robot's features) and :mod:`.side_channel` (a skid-steer robot without camera or steering)."""

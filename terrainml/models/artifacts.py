@@ -6,16 +6,17 @@ Layout of ``runs/NAME/`` (SYSTEM §9)::
     svm/model.skops               SVM (skops, no pickle)
     cnn/cnn_weights.safetensors   CNN weights (safetensors) } written by CNNClassifier.save
     cnn/cnn_config.json           CNN config (JSON)         }
-    desired_slip_table.json       the lookup table the controller uses with this model
+    desired_slip_table.json       an attachment: the lookup table served with this model
     report.md, report.json, confusion_<model>.png, folds_<model>.csv, ...
 
 The manifest records: ``schema``/``schema_version``, terrainml version, UTC time, classes
 (ids and names, from the data), channels and the window spec, feature names per model, the
 robot spec and its sha256, the training-data fingerprint, a metrics summary, the models
-(name, kind, files) with the default one, and ``files``: sha256 and size of every other file
-in the folder. It is written in one canonical form (sorted keys, 2-space indent) and carries
-``manifest_sha256``, the sha256 of that canonical text without the field, so one changed byte
-anywhere in it is detected.
+(name, kind, files) with the default one, ``attachments`` (names of files the caller stores with
+the models, e.g. the desired-slip table written by :mod:`terrainml.pipeline.train`; this module
+does not read them), and ``files``: sha256 and size of every other file in the folder. It is
+written in one canonical form (sorted keys, 2-space indent) and carries ``manifest_sha256``, the
+sha256 of that canonical text without the field, so one changed byte anywhere in it is detected.
 
 :func:`load_artifact` verifies, before anything is deserialised: the manifest's canonical form,
 self-hash, schema and version; every listed file's presence, size and sha256; the robot spec's
@@ -33,22 +34,23 @@ import math
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
+import skops.io as sio
 
-from terrainml.classes import TERRAIN_CLASSES
+from terrainml import __version__
 from terrainml.features.windows import WindowSpec
+from terrainml.hashing import sha256_file
 from terrainml.robot import RobotSpec
 
 __all__ = ["ArtifactError", "Artifact", "save_artifact", "load_artifact", "verify_artifact",
-           "read_manifest", "ALLOWED_SKOPS_TYPES", "MANIFEST_NAME", "SCHEMA", "SCHEMA_VERSION",
-           "sha256_file", "json_safe"]
+           "read_manifest", "write_manifest", "ALLOWED_SKOPS_TYPES", "MANIFEST_NAME", "SCHEMA",
+           "SCHEMA_VERSION", "json_safe"]
 
 SCHEMA = "terrainml.model"
 SCHEMA_VERSION = 1
 MANIFEST_NAME = "manifest.json"
-TABLE_NAME = "desired_slip_table.json"
 SKOPS_NAME = "model.skops"
 
 #: Types skops may instantiate besides its own defaults (checked against
@@ -78,14 +80,6 @@ ALLOWED_SKOPS_TYPES: frozenset[str] = frozenset({
 
 class ArtifactError(ValueError):
     """A model folder cannot be trusted or used (the message names the file)."""
-
-
-def sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def json_safe(obj: Any) -> Any:
@@ -133,8 +127,6 @@ def save_model_files(directory: Path, name: str, model: Any) -> tuple[str, list[
     sub = Path(directory) / name
     sub.mkdir(parents=True, exist_ok=True)
     if kind == "svm":
-        import skops.io as sio
-
         path = sub / SKOPS_NAME
         sio.dump(model, path)
         return kind, [path]
@@ -145,8 +137,8 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
                   class_names: Sequence[str], channels: Sequence[str], window_spec: WindowSpec,
                   robot: RobotSpec, training_fingerprint: str, metrics_summary: dict | None = None,
                   default_model: str | None = None, preset: str = "robust",
-                  table: Any = None, extra: dict | None = None) -> dict:
-    """Write models and (when given) the desired-slip table, then the manifest over all files.
+                  attachments: Mapping[str, str] | None = None, extra: dict | None = None) -> dict:
+    """Write models and attachments, then the manifest over all files.
 
     Parameters
     ----------
@@ -159,7 +151,9 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
     metrics_summary : {model: {metric: {mean, std}}}, stored as is.
     default_model : model served by default (first of ``models`` when None).
     preset : estimation preset used to build the data.
-    table : DesiredSlipTable or None.
+    attachments : {file name: text} written into ``directory`` and listed in the manifest under
+        ``attachments`` (e.g. ``{"desired_slip_table.json": table.to_json()}``); verified on load
+        like every file, read by whoever knows their format (:attr:`Artifact.attachments`).
     extra : more JSON-able fields stored under ``extra``.
 
     Other files already in ``directory`` (reports) are hashed into the manifest too; call
@@ -176,10 +170,10 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
             entry["feature_subset"] = model.features_.subset
             entry["best_params"] = model.best_params_
         entries[name] = entry
-    if table is not None:
-        (directory / TABLE_NAME).write_text(table.to_json() + "\n")
-    from terrainml import __version__
-
+    for fname, text in (attachments or {}).items():
+        if Path(fname).name != fname or fname == MANIFEST_NAME:
+            raise ArtifactError(f"{directory / fname}: an attachment is a plain file name, not {MANIFEST_NAME}")
+        (directory / fname).write_text(text)
     doc = {
         "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "terrainml_version": __version__,
         "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
@@ -188,7 +182,7 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
         "robot": {"name": robot.name, "sha256": robot.sha256(), "spec": robot.to_dict()},
         "training_fingerprint": str(training_fingerprint), "preset": str(preset),
         "models": entries, "default_model": default_model or next(iter(models)),
-        "desired_slip_table": TABLE_NAME if table is not None else None,
+        "attachments": sorted(attachments or {}),
         "metrics_summary": metrics_summary or {}, "extra": extra or {},
     }
     return write_manifest(directory, doc)
@@ -267,12 +261,13 @@ def verify_artifact(directory: str | Path) -> dict:
         for rel in entry.get("files", []):
             if rel not in files:
                 raise ArtifactError(f"{directory / rel}: model file of {name!r} not hashed in the manifest")
+    for rel in doc.get("attachments") or []:
+        if rel not in files:
+            raise ArtifactError(f"{directory / rel}: attachment not hashed in the manifest")
     return doc
 
 
 def _load_skops(path: Path) -> Any:
-    import skops.io as sio
-
     try:
         untrusted = sio.get_untrusted_types(file=path)
     except Exception as exc:  # noqa: BLE001 - skops raises many types on corrupt files
@@ -294,7 +289,8 @@ class Artifact:
     ----------
     path : Path. manifest : dict. model_name, kind : served model and its kind.
     model : fitted classifier on raw windows (``predict_proba(Windows)``).
-    robot : RobotSpec. table : DesiredSlipTable or None. window_spec : WindowSpec.
+    robot : RobotSpec. window_spec : WindowSpec.
+    attachments : {file name: Path} of the verified attachments (e.g. the desired-slip table).
     class_ids : list of int. class_names : list of str. channels : list of str.
     preset : estimation preset. features : None (the models compute their own features).
     """
@@ -305,8 +301,8 @@ class Artifact:
     kind: str
     model: Any
     robot: RobotSpec
-    table: Any
     window_spec: WindowSpec
+    attachments: dict = field(default_factory=dict)
     class_ids: list = field(default_factory=list)
     class_names: list = field(default_factory=list)
     channels: list = field(default_factory=list)
@@ -342,7 +338,7 @@ def load_artifact(directory: str | Path, model: str | None = None) -> Artifact:
         clf = _load_skops(path)
     elif kind == "cnn":
         try:
-            from terrainml.models.cnn import CNNClassifier
+            from terrainml.models.cnn import CNNClassifier  # noqa: PLC0415 - torch, optional
         except ImportError as exc:
             raise ArtifactError(f"{mpath}: model {name!r} needs the CNN ({exc})") from None
         sub = directory / Path(entry["files"][0]).parent
@@ -352,22 +348,12 @@ def load_artifact(directory: str | Path, model: str | None = None) -> Artifact:
             raise ArtifactError(str(exc)) from None
     else:
         raise ArtifactError(f"{mpath}: unknown model kind {kind!r} for {name!r}")
-    table = None
-    if doc.get("desired_slip_table"):
-        tpath = directory / doc["desired_slip_table"]
-        from terrainml.lookup.table import DesiredSlipTable
-
-        try:
-            table = DesiredSlipTable.from_json(tpath.read_text(), robot=robot, source=str(tpath))
-        except ValueError as exc:
-            raise ArtifactError(str(exc)) from None
+    # folders written before attachments existed name the desired-slip table on its own
+    names = doc.get("attachments") or ([doc["desired_slip_table"]] if doc.get("desired_slip_table") else [])
+    attachments = {str(n): directory / str(n) for n in names}
     classes = [int(c) for c in doc["classes"]]
     if sorted(np.asarray(clf.classes_).astype(int).tolist()) != sorted(classes):
         raise ArtifactError(f"{mpath}: model classes {list(clf.classes_)} differ from the manifest's {classes}")
-    return Artifact(directory, doc, name, kind, clf, robot, table, spec, classes,
+    return Artifact(directory, doc, name, kind, clf, robot, spec, attachments, classes,
                     list(doc.get("class_names", [])), list(doc.get("channels", [])),
                     doc.get("preset", "robust"))
-
-
-def default_class_names(classes: Sequence[int]) -> list[str]:
-    return [TERRAIN_CLASSES[int(c)] if 0 <= int(c) < len(TERRAIN_CLASSES) else str(c) for c in classes]

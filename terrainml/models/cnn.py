@@ -63,6 +63,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from safetensors.torch import load_file, save_file
 from sklearn.base import BaseEstimator, ClassifierMixin
 from sklearn.metrics import balanced_accuracy_score
 from sklearn.model_selection import GroupShuffleSplit, StratifiedGroupKFold
@@ -778,8 +779,6 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
         list of Path
             The two files written (for the artifact manifest).
         """
-        from safetensors.torch import save_file
-
         check_is_fitted(self, "model_")
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
@@ -800,8 +799,6 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
             When a file is missing, the config is not a terrainml CNN config of a known version,
             or the weights do not match the architecture (the message names the file).
         """
-        from safetensors.torch import load_file
-
         directory = Path(directory)
         config_path, weights_path = directory / CONFIG_NAME, directory / WEIGHTS_NAME
         for p in (config_path, weights_path):

@@ -21,6 +21,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from sklearn.utils.validation import check_is_fitted
 
 __all__ = ["export_onnx", "OnnxCNN", "ONNX_NAME", "INPUT_NAME", "OUTPUT_NAME"]
 
@@ -53,9 +54,8 @@ def export_onnx(clf, path, opset: int = DEFAULT_OPSET) -> Path:
     ``onnxscript`` package, which terrainml does not depend on); the deprecation warning it
     emits is silenced here. The graph is checked with ``onnx.checker`` after export.
     """
-    import onnx
-    import torch
-    from sklearn.utils.validation import check_is_fitted
+    import onnx  # noqa: PLC0415 - optional (cnn extra)
+    import torch  # noqa: PLC0415 - optional (cnn extra)
 
     check_is_fitted(clf, "model_")
     path = Path(path)
@@ -108,7 +108,7 @@ class OnnxCNN:
     """
 
     def __init__(self, path, n_threads: int | None = None):
-        import onnxruntime as ort
+        import onnxruntime as ort  # noqa: PLC0415 - optional (cnn extra)
 
         self.path = Path(path)
         if not self.path.is_file():

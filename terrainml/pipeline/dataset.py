@@ -29,9 +29,12 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
+from joblib import Parallel, delayed, parallel_config
 
 from terrainml.classes import TERRAIN_CLASSES
-from terrainml.features.windows import RULES, Windows, WindowSpec, cut_windows
+from terrainml.estimation.run import estimate_run
+from terrainml.features.windows import RULES, Windows, WindowSpec, cut_windows, default_channels
+from terrainml.io.ingest import load_run
 from terrainml.robot import RobotSpec, load_robot
 
 __all__ = ["find_logs", "process_log", "build_dataset", "Dataset", "write_windows",
@@ -122,8 +125,6 @@ def process_log(path: str | Path, robot: RobotSpec | str | None = None, preset: 
                            "n_rows": 0, "windows": None, "counts": {}, "class_names": None}
     try:
         if table is None:
-            from terrainml.io.ingest import load_run
-
             res = load_run(path, robot=robot, rate_hz=spec.rate_hz)
             if not res.report.usable or len(res.table) == 0:
                 out["status"] = "unusable"
@@ -136,8 +137,6 @@ def process_log(path: str | Path, robot: RobotSpec | str | None = None, preset: 
         if "run_id" in table.columns and len(table):
             out["run_id"] = str(table["run_id"].iloc[0])
         out["n_rows"] = int(len(table))
-        from terrainml.estimation.run import estimate_run
-
         est = estimate_run(table, robot, preset)
         wins, counts = cut_windows(est, robot, spec, online=False, run_id=out["run_id"])
         labelled = wins.meta["terrain"].to_numpy() >= 0
@@ -153,8 +152,6 @@ def process_log(path: str | Path, robot: RobotSpec | str | None = None, preset: 
 
 
 def _collect(results: Sequence[dict], robot: RobotSpec, spec: WindowSpec, preset: str) -> Dataset:
-    from terrainml.features.windows import default_channels
-
     channels = tuple(spec.channels) if spec.channels is not None else default_channels(robot)
     rows = []
     totals = {"n_windows": 0, "n_kept": 0, "n_rejected": 0, **{r: 0 for r in RULES}, "unlabelled": 0}
@@ -206,8 +203,6 @@ def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | 
     -------
     Dataset (windows in input-log order, per-run table, rejection counts).
     """
-    from joblib import Parallel, delayed, parallel_config
-
     spec = spec or WindowSpec()
     robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
     paths = find_logs(source) if isinstance(source, (str, Path)) else [Path(p) for p in source]
@@ -222,7 +217,7 @@ def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | 
                 progress(k + 1, total, r["source"])
 
     if dask_address:
-        from distributed import Client
+        from distributed import Client  # noqa: PLC0415 - dask, optional
 
         with Client(dask_address, timeout="30s") as client:  # noqa: F841 - registers the backend
             with parallel_config(backend="dask"):
@@ -236,8 +231,6 @@ def build_from_tables(tables: Sequence[pd.DataFrame], robot: RobotSpec | str | N
                       preset: str = "robust", spec: WindowSpec | None = None, n_jobs: int = 1,
                       names: Sequence[str] | None = None) -> Dataset:
     """Like :func:`build_dataset` for already ingested run tables (e.g. the BorealTC reader)."""
-    from joblib import Parallel, delayed
-
     spec = spec or WindowSpec()
     robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
     names = names or [str(t["run_id"].iloc[0]) if "run_id" in t.columns and len(t) else f"run{k}"

@@ -3,7 +3,8 @@
 :func:`train` runs, for every requested model kind (``svm``, ``cnn``), grouped K-fold CV
 (:mod:`terrainml.evaluation.cv`, seeded) and a final fit on all windows, measures per-window
 latency, runs the SVM feature-set ablation (kinematic / currents / imu / all) on the same folds,
-then writes the artifact (:mod:`terrainml.models.artifacts`) and the report
+then writes the artifact (:mod:`terrainml.models.artifacts`) with the desired-slip table as an
+attachment (:data:`TABLE_FILE`, when the class set is ours) and the report
 (:mod:`terrainml.evaluation.report`) into one folder whose manifest hashes every file. The model
 with the best CV balanced accuracy is the folder's default (served) model.
 
@@ -12,6 +13,7 @@ with the best CV balanced accuracy is the folder's default (served) model.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -20,19 +22,28 @@ import numpy as np
 import pandas as pd
 
 from terrainml.classes import TERRAIN_CLASSES
-from terrainml.features.sets import FEATURE_SUBSETS, FeatureSet
-from terrainml.evaluation.cv import cross_validate, grouped_folds
-from terrainml.pipeline.dataset import Dataset
+from terrainml.evaluation.cv import cross_validate
+from terrainml.evaluation.folds import grouped_folds
 from terrainml.evaluation.metrics import classification_metrics, latency_per_window_ms
+from terrainml.evaluation.report import write_report
+from terrainml.features.sets import FEATURE_SUBSETS, FeatureSet
+from terrainml.lookup.table import DesiredSlipTable
+from terrainml.models.artifacts import (Artifact, ArtifactError, load_artifact, save_artifact,
+                                        write_manifest)
+from terrainml.models.svm import SVMClassifier
+from terrainml.pipeline.dataset import Dataset
 
-__all__ = ["MODEL_KINDS", "make_factory", "train", "evaluate", "TrainResult", "desired_slip_table_for"]
+__all__ = ["MODEL_KINDS", "TABLE_FILE", "make_factory", "train", "evaluate", "TrainResult",
+           "desired_slip_table_for", "served_table"]
 
 MODEL_KINDS = ("svm", "cnn")
+#: the desired-slip table's attachment in a model folder (read back by :func:`served_table`)
+TABLE_FILE = "desired_slip_table.json"
 
 
 def _cnn_class():
     try:
-        from terrainml.models.cnn import CNNClassifier
+        from terrainml.models.cnn import CNNClassifier  # noqa: PLC0415 - torch, optional
     except ImportError as exc:  # pragma: no cover - cnn.py ships with the package
         raise RuntimeError(f"the CNN model is not available in this install ({exc})") from None
     return CNNClassifier
@@ -53,8 +64,6 @@ def make_factory(kind: str, ds: Dataset, seed: int = 0, subset: str = "all", n_j
     """
     params = dict(params or {})
     if kind == "svm":
-        from terrainml.models.svm import SVMClassifier
-
         fs = FeatureSet.for_robot(ds.robot, subset=subset, channel_names=ds.windows.channels,
                                   rate_hz=ds.windows.rate_hz)
         return lambda: SVMClassifier(features=fs, random_state=seed, n_jobs=n_jobs, **params)
@@ -74,11 +83,24 @@ def desired_slip_table_for(ds: Dataset | None, robot: Any) -> Any:
     if all_names is not None and list(all_names) != list(TERRAIN_CLASSES):
         return None
     try:
-        from terrainml.lookup.table import DesiredSlipTable
-
         return DesiredSlipTable.build(robot)
     except Exception:  # noqa: BLE001 - the metric is then reported as n/a
         return None
+
+
+def served_table(art: Artifact) -> DesiredSlipTable | None:
+    """The desired-slip table stored with a verified model folder, or None when it has none.
+
+    Raises ArtifactError (naming the file) when the stored table is not a valid table of the
+    folder's robot.
+    """
+    path = art.attachments.get(TABLE_FILE)
+    if path is None:
+        return None
+    try:
+        return DesiredSlipTable.from_json(path.read_text(), robot=art.robot, source=str(path))
+    except ValueError as exc:
+        raise ArtifactError(str(exc)) from None
 
 
 @dataclass
@@ -141,9 +163,6 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     -------
     TrainResult (its ``manifest`` is the written manifest).
     """
-    from terrainml.models.artifacts import save_artifact, write_manifest
-    from terrainml.evaluation.report import write_report
-
     say = progress or (lambda msg: None)
     out = Path(out)
     W = ds.windows
@@ -170,8 +189,6 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
         cv = cross_validate(factory, W, y, groups, folds=fold_list, n_jobs=n_jobs, table=table, classes=classes)
         say(f"{kind}: final fit on {len(W)} windows")
         model = factory()
-        import time
-
         t0 = time.perf_counter()
         model.fit(W, y, groups=groups)
         fit_s = time.perf_counter() - t0
@@ -198,7 +215,8 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     metrics_summary = {k: r["cv"].summary for k, r in results.items()}
     save_artifact(out, fitted, classes=classes.tolist(), class_names=names, channels=W.channels,
                   window_spec=ds.spec, robot=ds.robot, training_fingerprint=ds.fingerprint,
-                  metrics_summary=metrics_summary, default_model=default, preset=ds.preset, table=table,
+                  metrics_summary=metrics_summary, default_model=default, preset=ds.preset,
+                  attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
                   extra={"folds": len(fold_list), "seed": seed, "n_windows": len(W),
                          "latency_ms": {k: r["latency"] for k, r in results.items()}})
     write_report(out, res)
@@ -215,8 +233,6 @@ def evaluate(model_dir: str | Path, ds: Dataset, model: str | None = None) -> di
     other metrics of :func:`classification_metrics`, ``model``, ``model_dir``,
     ``training_fingerprint`` and ``data_fingerprint``.
     """
-    from terrainml.models.artifacts import load_artifact
-
     art = load_artifact(model_dir, model)
     W = ds.windows
     missing = [c for c in art.channels if c not in W.channels]
@@ -228,7 +244,7 @@ def evaluate(model_dir: str | Path, ds: Dataset, model: str | None = None) -> di
     proba = np.asarray(art.model.predict_proba(W), dtype=float)
     classes = np.asarray(art.model.classes_)
     y_pred = classes[np.argmax(proba, axis=1)]
-    m = classification_metrics(W.y, y_pred, proba, classes, art.table)
+    m = classification_metrics(W.y, y_pred, proba, classes, served_table(art))
     m.update({"model": art.model_name, "model_kind": art.kind, "model_dir": str(model_dir),
               "training_fingerprint": art.manifest.get("training_fingerprint"),
               "data_fingerprint": ds.fingerprint,

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from terrainml.models import artifacts
 from terrainml.models.artifacts import ArtifactError, load_artifact
-from terrainml.pipeline.train import evaluate, train
+from terrainml.pipeline.train import evaluate, served_table, train
 
 SMALL = {"svm": {"C_grid": (10.0,), "gamma_grid": ("scale",)},
          "cnn": {"max_epochs": 2, "conv_channels": (4, 4, 4), "patience": 1}}
@@ -42,7 +42,8 @@ def test_train_writes_verified_artifact_and_report(trained, dataset):
     assert len(rep["models"]["svm"]["per_fold"]) == 3
     for name in ("svm", "cnn"):
         art = load_artifact(out, name)
-        assert art.kind == name and art.table is not None
+        assert art.kind == name and art.attachments == {"desired_slip_table.json": out / "desired_slip_table.json"}
+        assert served_table(art) is not None
         p = art.model.predict_proba(dataset.windows)
         assert p.shape == (len(dataset.windows), 3)
         np.testing.assert_allclose(p, res.fitted[name].predict_proba(dataset.windows), rtol=0, atol=1e-6)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from terrainml.evaluation.cv import check_no_shared_runs, grouped_folds
+from terrainml.evaluation.folds import check_groups_not_split, grouped_folds
 from terrainml.evaluation.metrics import (classification_metrics, desired_slip_errors,
-                                      expected_calibration_error)
+                                          expected_calibration_error)
 
 
 def _labels(n_runs_per_class=6, classes=(0, 1, 2, 3), windows_per_run=(3, 9)):
@@ -32,7 +32,7 @@ def test_no_run_in_two_folds_and_every_run_tested_once():
             assert not tested[j] & tested[k]
     assert set().union(*tested) == set(g)
     assert sorted(np.concatenate([te for _, te in folds]).tolist()) == list(range(len(y)))
-    check_no_shared_runs(folds, g)
+    check_groups_not_split(folds, g)
 
 
 def test_same_seed_same_folds_other_seed_other_folds():
@@ -47,7 +47,7 @@ def test_same_seed_same_folds_other_seed_other_folds():
 def test_shared_run_is_detected():
     g = np.array(["a", "a", "b", "b"])
     with pytest.raises(AssertionError, match="run"):
-        check_no_shared_runs([(np.array([0, 2]), np.array([1, 3]))], g)
+        check_groups_not_split([(np.array([0, 2]), np.array([1, 3]))], g)
 
 
 def test_ece_hand_worked():

@@ -6,7 +6,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from terrainml.features.windows import Windows
 from terrainml.evaluation.cv import cross_validate
 from terrainml.pipeline.dataset import (DatasetError, build_dataset, find_logs, read_windows,
                                       write_windows)

@@ -22,7 +22,7 @@ def boreal_tables():
 @pytest.fixture(scope="session")
 def boreal_windows(boreal_tables):
     """Chunks and a light window set (6 windows per chunk of the smallest class)."""
-    from terrainml.evaluation.protocols import chunk_windows, make_chunks
+    from terrainml.experiments.borealtc import chunk_windows, make_chunks
 
     tables, _ = boreal_tables
     chunks = make_chunks(tables, chunk_s=5.0)

@@ -3,7 +3,6 @@
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from terrainml.io.borealtc import BorealTCError, discover, load_borealtc, read_pro_csv, run_table

@@ -42,8 +42,8 @@ def test_evaluate_protocol_both_writes_metrics(tmp_path):
     _write_folder(tmp_path / "data")
     out = tmp_path / "r.json"
     res = CliRunner().invoke(_app(), ["evaluate-protocol", str(tmp_path / "data"), "-p", "both",
-                                      "-m", "svm", "--quick", "--n-jobs", "1", "--windows-per-chunk", "2", "--folds", "2",
-                                      "--json", str(out), "-q"])
+                                      "-m", "svm", "--quick", "--n-jobs", "1", "--windows-per-chunk", "2",
+                                      "--folds", "2", "--json", str(out), "-q"])
     assert res.exit_code == 0, res.output
     d = json.loads(out.read_text())
     assert set(d) == {"a:svm", "b:svm", "_setup"}

@@ -10,10 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from terrainml.evaluation.cv import CVResult, average_results, cross_validate
+from terrainml.evaluation.folds import check_groups_not_split
+from terrainml.experiments.borealtc import chunk_windows, make_chunks, protocol_folds, windows_per_chunk
+from terrainml.features.side_channel import side_channel_features
 from terrainml.features.windows import Windows
-from terrainml.evaluation.protocols import (ProtocolResult, check_groups_not_split, chunk_windows,
-                                        evaluate_protocol, make_chunks, protocol_a_folds,
-                                        protocol_b_folds, side_channel_features, windows_per_chunk)
 
 BOREAL = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "borealtc"
 
@@ -39,8 +40,9 @@ def test_chunks_follow_raw_durations_and_skip_runs_without_imu(boreal_tables, bo
 
 def test_protocol_a_never_splits_a_chunk_but_mixes_runs(boreal_windows):
     _, w = boreal_windows
-    folds = protocol_a_folds(w, n_splits=5, seed=21)
+    folds, chunk_ids = protocol_folds(w, "a", n_splits=5, seed=21)
     chunk = w.meta["chunk_id"].to_numpy()
+    assert np.array_equal(chunk_ids, chunk)
     check_groups_not_split(folds, chunk)  # raises if a chunk is in train and test
     test_all = np.concatenate([te for _, te in folds])
     assert np.array_equal(np.sort(test_all), np.arange(len(w)))  # every window tested once
@@ -58,14 +60,14 @@ def test_protocol_a_never_splits_a_chunk_but_mixes_runs(boreal_windows):
 
 def test_protocol_b_never_splits_a_run(boreal_windows):
     _, w = boreal_windows
-    folds = protocol_b_folds(w, n_splits=5, seed=0)
+    folds, _ = protocol_folds(w, "b", n_splits=5, seed=0)
     runs = w.meta["run_id"].to_numpy()
     check_groups_not_split(folds, runs)
     assert sum(len(te) for _, te in folds) == len(w)
     for _, te in folds:  # every fold tests every class (ASPHALT has 7 runs for 5 folds)
         assert set(w.meta["terrain"].iloc[te]) == {0, 1, 2, 3, 4}
     with pytest.raises(AssertionError, match="both train and test"):
-        check_groups_not_split(protocol_a_folds(w), runs)
+        check_groups_not_split(protocol_folds(w, "a")[0], runs)
 
 
 def test_windows_stay_inside_their_chunk_and_are_homogeneous(boreal_windows):
@@ -168,17 +170,17 @@ class _Always:
         return np.full(len(X), self.label)
 
 
-def test_evaluate_protocol_recall_and_confusion_hand_worked():
-    # 3 classes, 10 windows each; a model that always says class 1: recall (0, 1, 0), accuracy 1/3
+def test_cross_validate_labels_only_model_recall_and_confusion_hand_worked():
+    # 3 classes, 10 windows each; a model that always says class 1 (labels, no probabilities):
+    # recall (0, 1, 0), accuracy 1/3
     n = 30
     y = np.repeat([0, 1, 2], 10)
     meta = pd.DataFrame({"run_id": [f"r{k // 5}" for k in range(n)], "terrain": y,
                          "chunk_id": np.arange(n) // 2})
     w = Windows(np.zeros((n, 1, 4)), ("c",), meta)
-    folds = protocol_b_folds(w, n_splits=2, seed=0)
-    res = evaluate_protocol(lambda: _Always(1), w, folds, inner_groups=meta["chunk_id"].to_numpy(),
-                            class_names=["A", "B", "C"], split_groups=meta["run_id"].to_numpy())
-    assert isinstance(res, ProtocolResult)
+    folds, runs = protocol_folds(w, "b", n_splits=2, seed=0)
+    res = cross_validate(lambda: _Always(1), w, y, runs, folds=folds, class_names=["A", "B", "C"])
+    assert isinstance(res, CVResult) and res.proba is None
     assert res.accuracy == pytest.approx(1 / 3)
     assert res.balanced_accuracy == pytest.approx(1 / 3)
     assert res.recall_per_class() == {"A": 0.0, "B": 1.0, "C": 0.0}
@@ -187,20 +189,34 @@ def test_evaluate_protocol_recall_and_confusion_hand_worked():
     assert cm.to_numpy().sum() == n
 
 
+class _Fixed:
+    """A "model" whose probabilities for window k are row k of a fixed table (windows hold k)."""
+
+    def __init__(self, table):
+        self.table = table
+
+    def fit(self, X, y, groups=None):
+        self.classes_ = np.array([0, 1])
+        return self
+
+    def predict_proba(self, X):
+        return self.table[np.asarray(X)[:, 0, 0].astype(int)]
+
+
 def test_average_results_is_the_mean_of_probabilities():
     # two "models" on the same 4 windows, 2 classes: p1 = (0.9, 0.1), (0.4, 0.6), ...; the average
     # of 0.4/0.6 and 0.8/0.2 is 0.6/0.4 -> class 0
-    from terrainml.evaluation.protocols import _result, average_results
-
     y = np.array([0, 0, 1, 1])
-    fold_of = np.array([0, 0, 1, 1])
-    fm = [{"fit_time_s": 1.0}, {"fit_time_s": 1.0}]
+    runs = np.array([0, 0, 1, 1])
+    X = np.arange(4.0)[:, None, None]
+    folds = [(np.array([2, 3]), np.array([0, 1])), (np.array([0, 1]), np.array([2, 3]))]
     p1 = np.array([[0.9, 0.1], [0.4, 0.6], [0.2, 0.8], [0.6, 0.4]])
     p2 = np.array([[0.8, 0.2], [0.8, 0.2], [0.3, 0.7], [0.7, 0.3]])
-    cls = np.array([0, 1])
-    r1 = _result("m1", cls, ["a", "b"], y, cls[p1.argmax(1)], fold_of, fm, p1)
-    r2 = _result("m2", cls, ["a", "b"], y, cls[p2.argmax(1)], fold_of, fm, p2)
+    r1, r2 = (cross_validate(lambda p=p: _Fixed(p), X, y, runs, folds=folds, class_names=["a", "b"])
+              for p in (p1, p2))
+    assert r1.y_pred.tolist() == [0, 1, 1, 0] and r2.y_pred.tolist() == [0, 0, 1, 0]
     avg = average_results([r1, r2])
+    np.testing.assert_allclose(avg.proba[1], [0.6, 0.4])
     assert avg.y_pred.tolist() == [0, 0, 1, 0]
     assert avg.accuracy == pytest.approx(0.75)
     assert avg.recall_per_class() == {"a": 1.0, "b": 0.5}

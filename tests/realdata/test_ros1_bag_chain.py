@@ -40,7 +40,8 @@ def test_bag_ingests_with_expected_topics_and_duration(bag_run):
 
 
 def test_bag_windows_and_features(bag_run):
-    from terrainml.evaluation.protocols import chunk_windows, make_chunks, side_channel_features
+    from terrainml.experiments.borealtc import chunk_windows, make_chunks
+    from terrainml.features.side_channel import side_channel_features
 
     t = bag_run.table.copy()
     t["terrain"] = 0  # unlabelled log: a single dummy class to reuse the chunker
