@@ -19,7 +19,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/terrainml demo --out runs/demo
 
+# the linter and the layers contract first (seconds), then the tests
 test: $(STAMP)
+	$(BIN)/ruff check terrainml tests benchmarks
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -n 2 --timeout 1800 tests
 
 bench: $(STAMP)

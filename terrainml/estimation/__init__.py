@@ -1,4 +1,4 @@
-"""Estimation (SYSTEM §7): planar EKF, per-wheel slip, dynamic state, consistency.
+"""Estimation (design §7): planar EKF, per-wheel slip, dynamic state, consistency.
 
 Public API
 ----------

@@ -101,7 +101,7 @@ class EkfState(NamedTuple):
 
 @njit(cache=True)
 def wrap_scalar(a):
-    """Angle wrapped to (-pi, pi] (rad)."""
+    """Angle wrapped to (-pi, pi] (rad): the compiled twin of :func:`terrainml.angles.wrap_angle`."""
     w = (a + math.pi) % TWO_PI - math.pi
     return math.pi if w == -math.pi else w
 
@@ -254,7 +254,7 @@ def _rows_used(m, x, use, z, H):
             k += 1
             yy = z[i] - h_row(H, x, i, m.n_wheel_rows, m.H_nz, m.H_nnz)
             if m.angle_rows[i]:
-                yy = (yy + math.pi) % TWO_PI - math.pi  # wrapped angle innovation
+                yy = wrap_scalar(yy)  # wrapped angle innovation
             yv[i] = yy
     return idx, k, yv
 
@@ -592,7 +592,7 @@ def measurements_tick(t_s, z_raw, row_valid, group_of_row, last_seen, angle, yaw
         if angle[k] and row_valid[k]:  # yaw zeroed at the first valid sample
             if math.isnan(yaw_offset[k]):
                 yaw_offset[k] = z_raw[k]
-            z_out[k] = (z_raw[k] - yaw_offset[k] + math.pi) % TWO_PI - math.pi
+            z_out[k] = wrap_scalar(z_raw[k] - yaw_offset[k])
     if any_alpha:
         for k in range(m):
             if use_out[k]:
@@ -601,7 +601,7 @@ def measurements_tick(t_s, z_raw, row_valid, group_of_row, last_seen, angle, yaw
                 else:
                     d = z_out[k] - z_f[k]
                     if angle[k]:
-                        d = (d + math.pi) % TWO_PI - math.pi
+                        d = wrap_scalar(d)
                     z_f[k] = z_f[k] + one_minus_alpha[k] * d  # z = alpha z_prev + (1 - alpha) z_raw
             prev_valid[k] = use_out[k]
             z_out[k] = z_f[k]
@@ -611,7 +611,7 @@ def measurements_tick(t_s, z_raw, row_valid, group_of_row, last_seen, angle, yaw
 def wheels_tick(t_s, dt, first, cam_ok, x, P, steer_state, wheel_xy, radius, omega_radps, dead_band_mps,
                 lag_tau_s, lag_y, slip_memory, slip_memory_tau_s, slip_mem, accel_tau_s, accel_y1, accel_y2,
                 theta, dwell_s, idle_speed, state, cand, cand_since, steer_out, v_long_out, slip_out):
-    """Slip and dynamic state of every wheel after the EKF update (SYSTEM §7.1, §7.2).
+    """Slip and dynamic state of every wheel after the EKF update (design §7.1, §7.2).
 
     Writes ``steer_out``, ``v_long_out``, ``slip_out`` (N,) and advances the encoder lag
     (``lag_y``), the slip memory (``slip_mem``), the manoeuvre filter (``accel_y1/2``) and the

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from scipy import stats
+from scipy.ndimage import uniform_filter1d
 
 from terrainml.estimation.run import Diagnostics
 
@@ -67,8 +68,6 @@ def steady_mask_from_truth(est: pd.DataFrame, accel_max_mps2: float = 0.15, min_
     """Ticks of steady motion by true kinematics: true body speed above ``min_speed_mps`` and
     its rate of change (and the yaw rate's) below ``accel_max_mps2`` (per s), both smoothed over
     ``smooth_s``; a 0.5 s margin after every non-steady tick is removed as well."""
-    from scipy.ndimage import uniform_filter1d
-
     t = est["t_s"].to_numpy(float)
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.01
     w = max(1, int(round(smooth_s / dt)))

@@ -1,4 +1,4 @@
-"""Dynamic state per wheel: idle | steady | traction | braking (SYSTEM §7.2; thesis eq. 8.6).
+"""Dynamic state per wheel: idle | steady | traction | braking (design §7.2; thesis eq. 8.6).
 
 ::
 
@@ -13,7 +13,7 @@ acceleration is perpendicular to the wheel's velocity and Power is ~0 (steady).
 
 The acceleration feeding Power is the *manoeuvre* acceleration: the EKF (or true) acceleration
 through two cascaded first-order low-passes of ``MANOEUVRE_TAU_S`` = 0.3 s each (critically
-damped, -3 dB near 0.34 Hz, variable-dt safe). *Departure/addition to SYSTEM §7.2*: on rough
+damped, -3 dB near 0.34 Hz, variable-dt safe). *Departure/addition to design §7.2*: on rough
 or soft ground the body shakes at 3-8 Hz with 0.05-0.4 m/s^2 rms (terrain roughness modulating
 wheel loads and thrust); theta = 0.02 m^2/s^3 sits far below that, so an unfiltered Power
 flips sign every few ticks and, with the dwell debounce, the state freezes in whatever state it

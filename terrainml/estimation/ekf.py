@@ -1,4 +1,4 @@
-"""Planar EKF of SYSTEM §7 (thesis §6.1), generalised to any :class:`~terrainml.robot.RobotSpec`.
+"""Planar EKF of design §7 (thesis §6.1), generalised to any :class:`~terrainml.robot.RobotSpec`.
 
 State (body frame ``body``: x forward, y left; world frame fixed at the start pose)::
 
@@ -10,7 +10,7 @@ j-th *steerable* wheel and ``bg`` the gyro bias. A robot without steerable wheel
 Husky) has no steering states: their angles are fixed at 0 (thesis: 12 states for 3 steerable
 wheels; here ``n = 9 + Ns``).
 
-Process model ``f`` (sampling time T), SYSTEM §7 (signs of thesis eq. 4.33-4.34, *not* 6.2)::
+Process model ``f`` (sampling time T), design §7 (signs of thesis eq. 4.33-4.34, *not* 6.2)::
 
     X'   = X + T (vx cos psi - vy sin psi)      Y' = Y + T (vx sin psi + vy cos psi)
     psi' = psi + T r
@@ -53,7 +53,6 @@ Presets (:data:`PRESETS`)
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -62,18 +61,12 @@ import numpy as np
 from terrainml.estimation import _kernel as kern
 from terrainml.estimation._kernel import (I_AX, I_AY, I_PSI, I_R, I_VX, I_VY, I_X, I_Y,  # noqa: F401
                                           N_BASE, EkfModel)
+from terrainml.angles import wrap_angle  # noqa: F401  (re-exported: the EKF's yaw convention)
 from terrainml.robot import RobotSpec
 
 NOMINAL_DT_S = 0.01  # tick length the per-tick Q values refer to (thesis: 100 Hz)
 
-TWO_PI = 2.0 * math.pi
 
-
-def wrap_angle(a):
-    """Wrap angle(s) to (-pi, pi] (rad). Works on scalars and arrays."""
-    w = np.mod(np.asarray(a, dtype=float) + math.pi, TWO_PI) - math.pi
-    w = np.where(w == -math.pi, math.pi, w)
-    return float(w) if np.ndim(w) == 0 else w
 
 
 # --------------------------------------------------------------------- presets

@@ -5,7 +5,7 @@ slip (:mod:`.slip`) and the dynamic-state machine (:mod:`.dynamic_state`). The o
 :func:`terrainml.estimation.run.estimate_run` loops over the same :meth:`OnlineEstimator.core`
 code, so offline and online outputs are identical.
 
-Sample format: a mapping with ``t_s`` (s) and any canonical run-table columns (SYSTEM §5), e.g.
+Sample format: a mapping with ``t_s`` (s) and any canonical run-table columns (design §5), e.g.
 ``wheel1_omega_radps``, ``imu_ax_mps2``, ``cam_vx_mps`` and optionally ``{group}_valid``. A row
 is used only when its group is valid (missing ``_valid`` key = valid) and its value is finite;
 missing keys are treated as invalid, never as stale values.
@@ -80,12 +80,12 @@ class OnlineEstimator:
     preset : ``"thesis"``, ``"robust"`` or an :class:`~terrainml.estimation.ekf.EkfPreset`.
     has_imu_yaw, has_cam_yaw : whether the yaw rows exist (the run table may lack the optional
         ``imu_yaw_rad`` / ``cam_yaw_rad`` columns; rows are then simply dropped every tick).
-    theta, dwell_s : dynamic-state threshold (m^2/s^3) and minimum dwell (s), SYSTEM §7.2.
+    theta, dwell_s : dynamic-state threshold (m^2/s^3) and minimum dwell (s), design §7.2.
     accel_tau_s : time constant (s) of each stage of the manoeuvre filter
         (:class:`~terrainml.estimation.dynamic_state.ManoeuvreFilter`) on the EKF acceleration
         used for the wheel Power. theta = 0.02 m^2/s^3 is ~0.02 m/s^2 at 1 m/s, below the IMU's
         noise and terrain vibration; without smoothing the state chatters or freezes
-        (*departure*: SYSTEM §7.2 does not filter the acceleration).
+        (*departure*: design §7.2 does not filter the acceleration).
 
     Examples
     --------

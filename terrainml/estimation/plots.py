@@ -6,19 +6,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib.figure import Figure  # no pyplot: no global figure state, no backend switch
 
 from terrainml.estimation.consistency import nis_band
 from terrainml.estimation.run import Diagnostics
 from terrainml.robot import RobotSpec
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def wheel_kinematics_twist(run: pd.DataFrame, robot: RobotSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -44,7 +36,6 @@ def wheel_kinematics_twist(run: pd.DataFrame, robot: RobotSpec) -> tuple[np.ndar
 def save_plots(run: pd.DataFrame, est: pd.DataFrame, diag: Diagnostics, robot: RobotSpec,
                out_dir: str | Path) -> list[Path]:
     """Write the estimation figures into ``out_dir``; returns the file paths."""
-    plt = _plt()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t = est["t_s"].to_numpy()
@@ -57,7 +48,8 @@ def save_plots(run: pd.DataFrame, est: pd.DataFrame, diag: Diagnostics, robot: R
               ("yaw_rate", "ekf_yaw_rate_radps", "cam_yaw_rate_radps", fk_r, "gt_yaw_rate_radps",
                "yaw rate [rad/s]", "6_5")]
     for name, ekf_col, cam_col, fk, gt_col, label, fig in series:
-        f, ax = plt.subplots(figsize=(10, 4))
+        f = Figure(figsize=(10, 4))
+        ax = f.subplots()
         ax.plot(t, fk, lw=0.6, alpha=0.7, label="wheel kinematics")
         if has_cam:
             ax.plot(t, run[cam_col].to_numpy(), lw=0.6, alpha=0.7, label="camera (at mount)")
@@ -73,14 +65,14 @@ def save_plots(run: pd.DataFrame, est: pd.DataFrame, diag: Diagnostics, robot: R
         p = out_dir / f"fig{fig}_{name}.png"
         f.tight_layout()
         f.savefig(p, dpi=110)
-        plt.close(f)
         files.append(p)
     # innovations (Fig. 6.2, 6.4, 6.6)
     for row, fig in (("cam_vx", "6_2"), ("cam_vy", "6_4"), ("cam_yaw_rate", "6_6")):
         if row not in diag.rows:
             continue
         y = diag.innovation[:, diag.rows.index(row)]
-        f, ax = plt.subplots(figsize=(10, 3))
+        f = Figure(figsize=(10, 3))
+        ax = f.subplots()
         ax.plot(t, y, lw=0.6)
         m = np.isfinite(y)
         ax.set_title(f"innovation {row}: var {np.var(y[m]) if m.any() else float('nan'):.2e}")
@@ -89,11 +81,11 @@ def save_plots(run: pd.DataFrame, est: pd.DataFrame, diag: Diagnostics, robot: R
         p = out_dir / f"fig{fig}_innovation_{row}.png"
         f.tight_layout()
         f.savefig(p, dpi=110)
-        plt.close(f)
         files.append(p)
     # slip per wheel (Fig. 7.2-7.4)
     N = robot.n_wheels
-    f, axes = plt.subplots(N, 1, figsize=(10, 2.2 * N), sharex=True, squeeze=False)
+    f = Figure(figsize=(10, 2.2 * N))
+    axes = f.subplots(N, 1, sharex=True, squeeze=False)
     for i in range(N):
         ax = axes[i, 0]
         ax.plot(t, est[f"slip{i + 1}"].to_numpy(), lw=0.7, label=f"slip{i + 1} (EKF)")
@@ -106,13 +98,13 @@ def save_plots(run: pd.DataFrame, est: pd.DataFrame, diag: Diagnostics, robot: R
     p = out_dir / "fig7_slip_per_wheel.png"
     f.tight_layout()
     f.savefig(p, dpi=110)
-    plt.close(f)
     files.append(p)
     # NIS with the 95 % band
     nis = est["nis"].to_numpy(float)
     dof = est["nis_dof"].to_numpy(float)
     lo, hi = nis_band(dof)
-    f, ax = plt.subplots(figsize=(10, 3))
+    f = Figure(figsize=(10, 3))
+    ax = f.subplots()
     ax.semilogy(t, np.where(dof > 0, nis, np.nan), lw=0.5, label="NIS")
     ax.semilogy(t, hi, "r--", lw=0.8, label="95% band")
     ax.semilogy(t, np.maximum(lo, 1e-6), "r--", lw=0.8)
@@ -122,6 +114,5 @@ def save_plots(run: pd.DataFrame, est: pd.DataFrame, diag: Diagnostics, robot: R
     p = out_dir / "nis.png"
     f.tight_layout()
     f.savefig(p, dpi=110)
-    plt.close(f)
     files.append(p)
     return files

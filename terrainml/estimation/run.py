@@ -153,7 +153,7 @@ def estimate_run(table: pd.DataFrame, robot: RobotSpec | str | None = None,
 
     Parameters
     ----------
-    table : DataFrame (n_ticks, ...), canonical run table (SYSTEM §5).
+    table : DataFrame (n_ticks, ...), canonical run table (design §5).
     robot : RobotSpec, name or path; None: the spec stored in the table's metadata, else the
         reference robot.
     preset : ``"robust"`` (default) or ``"thesis"``.

@@ -1,4 +1,4 @@
-"""Per-wheel longitudinal slip (SYSTEM §7.1; thesis §7.1-7.2, eq. 7.1, 7.2, 7.7, 8.4-8.5).
+"""Per-wheel longitudinal slip (design §7.1; thesis §7.1-7.2, eq. 7.1, 7.2, 7.7, 8.4-8.5).
 
 ::
 
@@ -39,7 +39,7 @@ def wheel_v_long(vx_mps, vy_mps, yaw_rate_radps, steer_rad, wheel_x_m, wheel_y_m
 
 
 def slip_ratio(v_ang_mps, v_long_mps, dead_band_mps: float = DEAD_BAND_MPS):
-    """SAE longitudinal slip with dead band and saturation (SYSTEM §7.1).
+    """SAE longitudinal slip with dead band and saturation (design §7.1).
 
     Parameters
     ----------

@@ -15,6 +15,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from terrainml.angles import wrap_angle
 from terrainml.robot import RobotSpec, load_robot
 
 
@@ -137,7 +138,7 @@ def kinematic_run(robot: RobotSpec | str | None = None, *, duration_s: float = 2
     df["gt_yaw_rate_radps"] = br
     df["gt_x_m"] = gx
     df["gt_y_m"] = gy
-    df["gt_yaw_rad"] = (yaw + math.pi) % (2 * math.pi) - math.pi
+    df["gt_yaw_rad"] = wrap_angle(yaw)
     moving = np.abs(v_long) >= 0.05
     for i in range(N):
         df[f"gt_slip{i + 1}"] = np.where(moving[:, i] | (np.abs(v_ang[:, i]) >= 0.05), S[:, i], 0.0)

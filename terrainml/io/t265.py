@@ -1,4 +1,4 @@
-"""Intel RealSense T265 frames to robot body axes (SYSTEM §4, thesis §5.2.3, eq. 5.1-5.10).
+"""Intel RealSense T265 frames to robot body axes (design §4, thesis §5.2.3, eq. 5.1-5.10).
 
 Frames
 ------
@@ -39,7 +39,7 @@ Ingest (:func:`t265_odometry_to_body`)
    zeroed at the first valid frame (eq. 5.10 applied to yaw).
 
 Ingest stores the **camera-mount velocity in body axes** (lever arm NOT removed; the EKF's
-measurement model does that, thesis §5.2.3 and SYSTEM §7). :func:`robot_velocity_from_mount`
+measurement model does that, thesis §5.2.3 and design §7). :func:`robot_velocity_from_mount`
 gives the robot-centre velocity (eq. 5.4) when wanted; :func:`robot_position_from_pose` gives the
 zeroed robot-centre track (eq. 5.8-5.10).
 
@@ -59,6 +59,8 @@ from typing import Sequence
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from terrainml.angles import wrap_angle
+
 # eq. 5.5: q_align = q1 (x) q2, q1 = -90 deg about x, q2 = -90 deg about the new (intrinsic) z.
 Q_ALIGN = Rotation.from_euler("XZ", [-90.0, -90.0], degrees=True)
 
@@ -69,12 +71,6 @@ POSE_TO_BODY = Rotation.from_matrix(np.array([[0.0, 0.0, -1.0],    # x_b (fwd)  
 # v_imu = Q_ALIGN.apply(v_body)  <=>  v_body = Q_ALIGN.inv().apply(v_imu); x_b = z_imu, y_b = x_imu, z_b = y_imu
 IMU_TO_BODY = Q_ALIGN.inv()
 
-
-def wrap_angle(a_rad: np.ndarray | float) -> np.ndarray | float:
-    """Wrap angles to (-pi, pi]."""
-    a = np.asarray(a_rad, dtype=float)
-    out = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
-    return float(out) if np.ndim(out) == 0 else out
 
 
 def _as_rot(q_xyzw: np.ndarray) -> Rotation:
@@ -192,7 +188,7 @@ def robot_position_from_pose(position_m: np.ndarray, q_xyzw: np.ndarray, mount_x
 
     ``P_robot = P_cam - R r_body`` (eq. 5.8-5.9, in body-convention axes), then zeroing at the first
     frame ``P_final = P_robot - P_start`` (eq. 5.10) and rotation by the start yaw so that ``world``
-    is the robot's start pose (SYSTEM §4).
+    is the robot's start pose (design §4).
     """
     pos = np.atleast_2d(np.asarray(position_m, float))
     a = POSE_TO_BODY if mount is None else mount * POSE_TO_BODY

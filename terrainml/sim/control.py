@@ -25,9 +25,6 @@ class DriveGains:
     omega_lag_tau_s: float = 0.040     # drive's speed estimate filter (thesis §7.2.2)
 
 
-def wrap(a):
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2 * np.pi)
-
 
 @njit(cache=True)
 def _ik_kernel(vx, vy, r, wx, wy, radius, steer_now, steerable, min_speed, omega, delta):

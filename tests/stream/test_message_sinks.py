@@ -12,7 +12,7 @@ import pytest
 from terrainml.stream.message import FIELD_NAMES, DesiredSlip, json_schema
 from terrainml.stream.sinks import (decode_can_frames, encode_can_frames, open_sink, SinkError)
 
-SYSTEM_11_FIELDS = ["t_s", "seq", "slip_desired", "slip_measured", "wheel_state", "terrain_class",
+DESIGN_11_FIELDS = ["t_s", "seq", "slip_desired", "slip_measured", "wheel_state", "terrain_class",
                     "terrain_name", "confidence", "class_probabilities", "classification_age_s",
                     "fallback", "fallback_reason", "estimator_ok", "processing_ms"]
 
@@ -28,9 +28,9 @@ def _msg(**kw):
 
 
 def test_fields_are_those_of_system_11():
-    assert list(FIELD_NAMES) == SYSTEM_11_FIELDS
-    assert list(json.loads(_msg().to_json())) == SYSTEM_11_FIELDS
-    assert json_schema(3, 8)["required"] == SYSTEM_11_FIELDS
+    assert list(FIELD_NAMES) == DESIGN_11_FIELDS
+    assert list(json.loads(_msg().to_json())) == DESIGN_11_FIELDS
+    assert json_schema(3, 8)["required"] == DESIGN_11_FIELDS
 
 
 def test_non_finite_values_replaced_by_documented_safe_values():
