@@ -31,7 +31,7 @@ from terrainml.estimation.synthetic import kinematic_run
 from terrainml.robot import load_robot
 from tests.estimation import reference_ekf  # the numpy reference filter and model
 
-SYNTH_SLIP = (0.005, 0.03, 0.125, 0.135, 0.19, 0.2, 0.3, 0.42)  # per class, SYSTEM §6.1 targets
+SYNTH_SLIP = (0.005, 0.03, 0.125, 0.135, 0.19, 0.2, 0.3, 0.42)  # per class, design §6.1 targets
 
 
 # --------------------------------------------------------------------- run sources

@@ -97,7 +97,7 @@ def synthetic_windows(runs_per_class: int = 12, windows_per_run: int = 30, seed:
                       n_wheels: int = 3) -> "BenchData":
     """A physically flavoured stand-in for the simulated dataset (placeholder only).
 
-    Per run, the class's nominal steady slip (SYSTEM §6.1 calibration targets) and rolling
+    Per run, the class's nominal steady slip (design §6.1 calibration targets) and rolling
     resistance are drawn with a ±15% spread, speed 0.5-1.2 m/s; currents follow the traction
     effort, ``imu_az`` carries class-dependent roughness (band-limited noise). Channels as the
     reference robot's raw windows: slip_1..N, current_1..N, vx, vy, r, imu_ax, imu_ay, imu_az.

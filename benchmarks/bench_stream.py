@@ -1,5 +1,5 @@
 """Benchmark of the online predictor (issue 9): per-tick latency, a one-hour replay, and the
-closed-loop traction-control comparison in the simulator (SYSTEM §12; see ``_closed_loop_section``).
+closed-loop traction-control comparison in the simulator (design §12; see ``_closed_loop_section``).
 
 Measured in one run:
 
@@ -161,7 +161,7 @@ def _rss_mb() -> float:
     return psutil.Process(os.getpid()).memory_info().rss / 2**20
 
 
-# ---------------------------------------------------------------- closed loop (SYSTEM §12)
+# ---------------------------------------------------------------- closed loop (design §12)
 CL_CLASSES = ("tilled_loam", "dry_sand", "wet_mud")
 # (label, policy, run_closed_loop keyword overrides); "model" marks the predictor-served mode
 CL_MODES = (
@@ -169,7 +169,7 @@ CL_MODES = (
     ("fixed 0.1 target", "fixed", {}),
     ("terrain-aware, true class (oracle)", "terrain-aware", {}),
     ("terrain-aware, SVM served by the predictor", "terrain-aware", {"model": True}),
-    ("terrain-aware, served s_S in steady (SYSTEM §10 literally)", "terrain-aware",
+    ("terrain-aware, served s_S in steady (design §10 literally)", "terrain-aware",
      {"steady_target": "served"}),
     ("terrain-aware, tracking PI + feed-forward, served s_S", "terrain-aware",
      {"steady_target": "served", "pid": {"mode": "track"}}),
@@ -277,7 +277,7 @@ def _closed_loop_section(quick: bool) -> str:
     lines = [
         "## Closed-loop traction control in the simulator (`terrainml control closed-loop`)",
         "",
-        f"Straight runs (SYSTEM §6 scenario: 1 m/s^2 start to 1 m/s, cruise, brake), "
+        f"Straight runs (design §6 scenario: 1 m/s^2 start to 1 m/s, cruise, brake), "
         f"{duration_s:.0f} s, seeds {list(seeds)} (each seed = one terrain draw, the same for every "
         f"mode), reference robot. Energy = mechanical energy at the wheels (integral of tau omega, "
         f"regeneration negative) / distance. Slip PID: `terrainml.control.traction.tuned_config` "

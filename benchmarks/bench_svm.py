@@ -98,7 +98,7 @@ def run(quick: bool = False) -> str:
             f"{len(ds_b.windows)} windows. Generation + build (or cache) took {t_data:.0f} s.", "",
             markdown_table(["class", "windows", "runs with windows"],
                            [[n, per_class[n], runs_per_class[n]] for n in per_class]), "",
-            "Steady-window rejections (SYSTEM §8), dataset A: "
+            "Steady-window rejections (design §8), dataset A: "
             + ", ".join(f"{k} {v}" for k, v in ds_a.counts.items()) + ".", ""]
     if len(ds_a.class_ids) < 2:
         return "\n".join(out + ["Fewer than two classes have steady windows: nothing to train."]) + "\n"

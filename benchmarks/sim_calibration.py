@@ -2,7 +2,7 @@
 
 Also the record of how the free parameters of :mod:`terrainml.lookup.terramechanics` were
 calibrated: :func:`calibrate_class` re-derives a class's shear modulus K and free slip s_f by least
-squares so that (a) the root of mu_net(s) = 0 on the reference robot equals the SYSTEM §6.1 target
+squares so that (a) the root of mu_net(s) = 0 on the reference robot equals the design §6.1 target
 and (b) the traction peak of mu_net sits at the chosen peak slip (``CALIBRATION_TARGETS``).
 
 Run: ``.venv/bin/python -m benchmarks.sim_calibration`` (prints the section) or through
@@ -20,7 +20,7 @@ from terrainml.classes import TERRAIN_CLASSES
 from terrainml.lookup import terramechanics as tm
 from terrainml.robot import load_robot
 
-# SYSTEM §6.1 steady-slip ranges at 1 m/s (tilled_loam / dry_sand "about": ±0.03 used)
+# design §6.1 steady-slip ranges at 1 m/s (tilled_loam / dry_sand "about": ±0.03 used)
 TARGET_RANGES = {
     "pavement": (-0.01, 0.01), "compacted_dirt": (0.02, 0.05), "short_grass": (0.116, 0.135),
     "gravel_on_firm_soil": (0.122, 0.146), "tall_damp_grass": (0.16, 0.22), "tilled_loam": (0.17, 0.23),

@@ -1,4 +1,4 @@
-"""The eight terrain-stiffness classes (SYSTEM §6.1), ordered stiff to soft.
+"""The eight terrain-stiffness classes (design §6.1), ordered stiff to soft.
 
 Ids are stable and part of every artifact. Other datasets (e.g. BorealTC) bring their own
 class sets; artifacts store the classes they were trained on, so this list is only the default.

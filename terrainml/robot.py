@@ -1,4 +1,4 @@
-"""Robot specification (SYSTEM §3): every geometric and physical constant of a robot in one YAML file.
+"""Robot specification (design §3): every geometric and physical constant of a robot in one YAML file.
 
 A spec describes any number of wheels, each steerable or fixed, with or without a tracking camera,
 so the swerve-drive reference robot (``agrimaro``) and a skid-steer robot (``husky``) share one
@@ -58,6 +58,16 @@ class ImuSpec:
 
 
 @dataclass(frozen=True)
+class MotorSpec:
+    """Wheel drive losses for battery energy (design §6): copper loss (tau / k_t)^2 R_ph, a driver
+    efficiency when motoring, and the share of negative electrical power returned when braking."""
+
+    phase_resistance_ohm: float = 0.25
+    driver_efficiency: float = 0.95
+    regen_efficiency: float = 0.65
+
+
+@dataclass(frozen=True)
 class RobotSpec:
     """A validated robot description. Build with :meth:`from_yaml` or :func:`load_robot`."""
 
@@ -82,6 +92,18 @@ class RobotSpec:
     imu: ImuSpec = field(default_factory=ImuSpec)
     track_width_range_m: tuple[float, float] | None = None
     description: str = ""
+    # optional (issue 18); None = the documented default (MotorSpec(), ground clearance 0.10 m) and
+    # left out of to_dict(), so specs without them keep their hash
+    ground_clearance_m: float | None = None
+    motor: MotorSpec | None = None
+
+    @property
+    def motor_or_default(self) -> MotorSpec:
+        return self.motor if self.motor is not None else MotorSpec()
+
+    @property
+    def ground_clearance_or_default_m(self) -> float:
+        return self.ground_clearance_m if self.ground_clearance_m is not None else 0.10
 
     # ----------------------------------------------------------------- derived
     @property
@@ -123,6 +145,9 @@ class RobotSpec:
         d["wheels"] = [asdict(w) for w in self.wheels]
         if self.track_width_range_m is not None:
             d["track_width_range_m"] = list(self.track_width_range_m)
+        for key in ("ground_clearance_m", "motor"):
+            if d[key] is None:
+                del d[key]
         return d
 
     def to_yaml(self) -> str:
@@ -189,6 +214,7 @@ _KNOWN = {
     "com_xy_m", "com_height_m", "yaw_inertia_kgm2", "wheel_inertia_kgm2",
     "torque_constant_nm_per_a", "max_wheel_torque_nm", "steering_rate_max_radps",
     "steering_deadband_rad", "tyre", "tyre_flat_m", "camera", "imu", "track_width_range_m",
+    "ground_clearance_m", "motor",
     # accept the flat keys produced by to_dict() too
     "com_x_m", "com_y_m",
 }
@@ -254,6 +280,24 @@ def _parse_spec(data: Any, source: str) -> RobotSpec:
     if data.get("track_width_range_m") is not None:
         track = _pair(data, "track_width_range_m", source)
 
+    motor = None
+    if data.get("motor") is not None:
+        m = data["motor"]
+        if not isinstance(m, dict):
+            raise RobotSpecError(f"{source}: field 'motor' must be a mapping")
+        keys = ("phase_resistance_ohm", "driver_efficiency", "regen_efficiency")
+        bad = sorted(set(m) - set(keys))
+        if bad:
+            raise RobotSpecError(f"{source}: unknown field(s) motor.{', motor.'.join(bad)}")
+        dflt = MotorSpec()
+        motor = MotorSpec(**{k: _num(m, k, f"{source}: motor", nonneg=True, default=getattr(dflt, k)) for k in keys})
+        if not (0.0 < motor.driver_efficiency <= 1.0 and 0.0 <= motor.regen_efficiency <= 1.0):
+            raise RobotSpecError(f"{source}: motor.driver_efficiency must be in (0, 1] and "
+                                 "motor.regen_efficiency in [0, 1]")
+    clearance = None
+    if data.get("ground_clearance_m") is not None:
+        clearance = _num(data, "ground_clearance_m", source, positive=True)
+
     spec = RobotSpec(
         name=name,
         description=str(data.get("description", "")),
@@ -276,6 +320,8 @@ def _parse_spec(data: Any, source: str) -> RobotSpec:
         camera=camera,
         imu=imu,
         track_width_range_m=track,
+        ground_clearance_m=clearance,
+        motor=motor,
     )
     if drive == "swerve" and not spec.has_steering:
         raise RobotSpecError(f"{source}: field 'drive' is swerve but no wheel is steerable")

@@ -1,4 +1,4 @@
-"""Canonical run table (SYSTEM §5): one row per base-rate tick, SI units, body frame.
+"""Canonical run table (design §5): one row per base-rate tick, SI units, body frame.
 
 This module is the single place that names every column, its unit and dtype. Readers produce
 tables that pass :func:`validate_run_table`; every later stage consumes them.
@@ -49,7 +49,7 @@ class Column:
 
 # sensor groups that carry a {group}_valid column
 VALID_GROUPS = ("wheels", "steer", "current", "imu", "cam", "cmd")
-# wheel dynamic states (SYSTEM §7.2), in code order
+# wheel dynamic states (design §7.2), in code order
 WHEEL_STATES = ("idle", "steady", "traction", "braking")
 
 
@@ -96,7 +96,7 @@ BASE_COLUMNS: list[Column] = [
 
 def truth_wheel_columns(i: int) -> list[Column]:
     return [
-        Column(f"gt_slip{i}", "-", "float64", "truth", False, f"true slip of wheel {i} (SYSTEM §7.1)"),
+        Column(f"gt_slip{i}", "-", "float64", "truth", False, f"true slip of wheel {i} (design §7.1)"),
         Column(f"gt_state{i}", "-", "string", "truth", False, f"true dynamic state of wheel {i}"),
     ]
 
@@ -214,7 +214,7 @@ def make_metadata(*, robot_json: str | None = None, source_file: str | None = No
                   source_sha256: str | None = None, topic_map: dict | None = None,
                   rate_hz: float = DEFAULT_RATE_HZ, skipped: dict[str, int] | None = None,
                   corrupt: dict[str, int] | None = None, **extra: Any) -> dict[str, Any]:
-    """Build the SYSTEM §5 table metadata."""
+    """Build the design §5 table metadata."""
     meta = {
         "schema_version": SCHEMA_VERSION,
         "robot_spec": robot_json,

@@ -23,7 +23,7 @@ def test_agrimaro_static_loads_equal_at_centroid():
     ag = load_robot()
     loads = ag.static_wheel_loads_n()
     assert sum(loads) == pytest.approx(80 * 9.81)
-    # CoM at the triangle centroid: equal loads (SYSTEM §3)
+    # CoM at the triangle centroid: equal loads (design §3)
     assert np.allclose(loads, loads[0], rtol=1e-6)
 
 

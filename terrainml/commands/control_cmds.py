@@ -1,4 +1,4 @@
-"""CLI of the control area: ``terrainml control closed-loop`` (SYSTEM §12, §15).
+"""CLI of the control area: ``terrainml control closed-loop`` (design §12, §15).
 
 The controller (online predictor, models) and the simulator are imported inside the command so
 that ``terrainml --help`` stays fast.

@@ -1,4 +1,4 @@
-"""``terrainml estimate``: EKF + slip + dynamic state + NIS over one run (SYSTEM §7, §15)."""
+"""``terrainml estimate``: EKF + slip + dynamic state + NIS over one run (design §7, §15)."""
 
 from __future__ import annotations
 

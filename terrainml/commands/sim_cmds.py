@@ -106,7 +106,7 @@ def plot(
 ) -> None:
     """Plot true and measured slip per wheel (like thesis Fig. 7.2-7.4).
 
-    Measured = SYSTEM §7.1 slip from the raw encoder speed and a camera-based wheel-centre velocity
+    Measured = design §7.1 slip from the raw encoder speed and a camera-based wheel-centre velocity
     (no EKF). Example: ``terrainml sim plot runs/grass.mcap --out runs/plots``
     """
     from terrainml.sim.plot import plot_run

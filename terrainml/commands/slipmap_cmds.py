@@ -1,4 +1,4 @@
-"""CLI: ``terrainml slipmap fit|merge|experiment`` (SYSTEM §13, the IRLS paper).
+"""CLI: ``terrainml slipmap fit|merge|experiment`` (design §13, the IRLS paper).
 
 The slip maps (statsmodels), run tables (pyarrow) and the experiment are imported inside the
 commands so that ``terrainml --help`` stays fast.

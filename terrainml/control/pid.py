@@ -1,4 +1,4 @@
-"""Per-wheel slip PID (SYSTEM §12; thesis §8.3, eq. 8.1-8.3).
+"""Per-wheel slip PID (design §12; thesis §8.3, eq. 8.1-8.3).
 
 For every wheel i, at every control tick::
 
@@ -7,7 +7,7 @@ For every wheel i, at every control tick::
     omega_cmd_i = omega_low_level_i + PID_out_i                        (eq. 8.3)
 
 ``s_des_i`` is the signed desired slip of eq. 8.7-8.9 (:func:`terrainml.lookup.policy.
-desired_slip_per_wheel`), ``s_meas_i`` the measured SAE slip of SYSTEM §7.1 (positive in forward
+desired_slip_per_wheel`), ``s_meas_i`` the measured SAE slip of design §7.1 (positive in forward
 traction), ``omega_low_level_i`` the wheel-speed set-point of the low-level kinematic control
 (rad/s) and ``omega_cmd_i`` what the wheel's velocity loop (the ODrive on the reference robot)
 receives. Because the slip ``(omega R - v) / max(|omega R|, |v|)`` always grows with omega, a
@@ -67,7 +67,7 @@ MODES = ("track", "limit")
 def wheel_speed_for_slip(v_long_mps, slip, wheel_radius_m: float) -> np.ndarray:
     """Wheel speed (rad/s) that gives SAE slip ``slip`` at wheel-centre speed ``v_long_mps``.
 
-    The inverse of ``s = (omega R - v) / max(|omega R|, |v|)`` (SYSTEM §7.1): in traction
+    The inverse of ``s = (omega R - v) / max(|omega R|, |v|)`` (design §7.1): in traction
     (``slip`` with the sign of ``v``) ``omega R = v / (1 - |s|)``, in braking ``omega R = v (1 -
     |s|)``. ``|s|`` is clipped to 0.95 (a finite wheel speed). Shapes broadcast.
     """
@@ -149,7 +149,7 @@ class PIDStep:
 
 
 class SlipPID:
-    """Per-wheel slip PID for N wheels (SYSTEM §12), vectorised over wheels.
+    """Per-wheel slip PID for N wheels (design §12), vectorised over wheels.
 
     Parameters
     ----------
@@ -216,7 +216,7 @@ class SlipPID:
         Parameters
         ----------
         slip_desired : array_like, shape (N,), signed desired slip s_des_i (eq. 8.7-8.9).
-        slip_measured : array_like, shape (N,), measured slip s_meas_i (SYSTEM §7.1).
+        slip_measured : array_like, shape (N,), measured slip s_meas_i (design §7.1).
         v_long_mps : array_like, shape (N,), wheel-centre longitudinal speed, m/s.
         body_speed_mps : float, body speed |v| = hypot(vx, vy), m/s.
         omega_low_level_radps : array_like, shape (N,), low-level wheel-speed set-point, rad/s.

@@ -129,7 +129,7 @@ def write_report(out: str | Path, result: Any) -> dict:
                                for a in ab.itertuples()]), ""]
     counts = result.dataset_summary.get("rejections", {})
     if counts:
-        md += ["## Window rejections (steady rules, SYSTEM §8)", "",
+        md += ["## Window rejections (steady rules, design §8)", "",
                markdown_table(["rule", "windows rejected"], [[k, v] for k, v in counts.items()]), ""]
     doc = json_safe(doc)
     (out / "report.json").write_text(json.dumps(doc, indent=2, sort_keys=True, allow_nan=False) + "\n")

@@ -1,4 +1,4 @@
-"""Closed-loop traction-control experiment in the simulator (SYSTEM §12, beyond the thesis).
+"""Closed-loop traction-control experiment in the simulator (design §12, beyond the thesis).
 
 The harness builds a straight-run scenario on one terrain, runs the :class:`Simulator` with a
 :class:`terrainml.control.traction.SlipController` in its control hook and reports energy per
@@ -6,7 +6,7 @@ metre, mean speed, mean tractive efficiency and stuck events. The controller is 
 code (it only sees measured samples); this module is the only place that knows both.
 
 Each control tick (100 Hz) the hook's sample is the simulator's measured sample plus the
-low-level wheel-speed set-points ``wheel{i}_cmd_omega_radps`` (SYSTEM §5 optional column; what a
+low-level wheel-speed set-points ``wheel{i}_cmd_omega_radps`` (design §5 optional column; what a
 robot's traction controller reads from its own kinematic layer) and the commanded twist
 ``cmd_vx_mps``, ``cmd_vy_mps``, ``cmd_yaw_rate_radps``. They are computed exactly as
 :meth:`Simulator.step` computes them for the same tick (scenario command + inverse kinematics
@@ -124,7 +124,7 @@ def run_closed_loop(terrain: str | int, policy: str, *, model: str | Path | None
                     return_result: bool = False) -> dict[str, Any] | tuple[dict[str, Any], SimResult]:
     """Simulate one run on ``terrain`` under ``policy``; return the report dict.
 
-    ``scenario``: ``"straight"`` (the default: 1 m/s^2 start, cruise, brake; SYSTEM §6) or
+    ``scenario``: ``"straight"`` (the default: 1 m/s^2 start, cruise, brake; design §6) or
     ``"step_stop_and_go"`` (:func:`step_stop_and_go`). ``pid`` defaults to
     :func:`terrainml.control.traction.tuned_config`; ``steady_target`` as in
     :class:`~terrainml.control.traction.SlipController`. The scenario and the terrain draw depend

@@ -1,2 +1,2 @@
-"""Steady windows and feature sets (SYSTEM §8): :mod:`.windows`, :mod:`.sets` (the reference
+"""Steady windows and feature sets (design §8): :mod:`.windows`, :mod:`.sets` (the reference
 robot's features) and :mod:`.side_channel` (a skid-steer robot without camera or steering)."""

@@ -1,4 +1,4 @@
-"""Feature sets on raw windows (SYSTEM §8) as a scikit-learn transformer.
+"""Feature sets on raw windows (design §8) as a scikit-learn transformer.
 
 :class:`FeatureSet` maps raw windows ``X`` of shape (n_windows, n_channels, n_samples) (a
 :class:`~terrainml.features.windows.Windows` or an array plus ``channel_names``) to a feature
@@ -24,7 +24,7 @@ Features (names ``<source>__<feature>``):
   per-wheel feature of the slip and current families, its ``mean``, ``max`` and ``spread``
   (max - min) over wheels, named ``slip_wheels__<feature>__mean`` etc.
 
-Two additions beyond SYSTEM §8, both measured on the simulated dataset (grouped CV balanced
+Two additions beyond design §8, both measured on the simulated dataset (grouped CV balanced
 accuracy of the SVM went from 0.87 to 0.98 with them and the selection step of
 :class:`~terrainml.models.svm.SVMClassifier`):
 
@@ -554,7 +554,7 @@ def _loads_key(wheel_loads_n) -> tuple | None:
 def compute_features(X: np.ndarray, channels: Sequence[str], rate_hz: float = 100.0,
                      torque_constant_nm_per_a: float = 2.0, wheel_radius_m: float = 0.165,
                      wheel_loads_n: Sequence[float] | None = None) -> tuple[np.ndarray, list[str]]:
-    """All features of SYSTEM §8 for raw windows.
+    """All features of design §8 for raw windows.
 
     Parameters
     ----------
@@ -577,7 +577,7 @@ def compute_features(X: np.ndarray, channels: Sequence[str], rate_hz: float = 10
 
 
 class FeatureSet(TransformerMixin, BaseEstimator):
-    """Window features (SYSTEM §8) with named subsets, as a stateless sklearn transformer.
+    """Window features (design §8) with named subsets, as a stateless sklearn transformer.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""YAML topic maps: which topic and field feeds which canonical column (SYSTEM §5).
+"""YAML topic maps: which topic and field feeds which canonical column (design §5).
 
 Format (see ``terrainml/io/topicmaps/default.yaml`` and docs/io.md)::
 

@@ -1,4 +1,4 @@
-"""Default ROS 2 topic names and message types (SYSTEM §5). A YAML topic map overrides them."""
+"""Default ROS 2 topic names and message types (design §5). A YAML topic map overrides them."""
 
 from __future__ import annotations
 

@@ -1,1 +1,1 @@
-"""Desired-slip lookup (SYSTEM §10) and the terramechanics models it is built on (SYSTEM §6.1-6.2)."""
+"""Desired-slip lookup (design §10) and the terramechanics models it is built on (design §6.1-6.2)."""

@@ -1,4 +1,4 @@
-"""Serving policy: which class's targets to serve, fallback, per-wheel sign (SYSTEM §10).
+"""Serving policy: which class's targets to serve, fallback, per-wheel sign (design §10).
 
 Per-wheel sign logic (thesis eq. 8.7-8.9)::
 
@@ -42,9 +42,9 @@ __all__ = ["CANDIDATE_P", "CONFIDENT_P", "MAX_AGE_S", "PolicyDecision", "choose"
            "desired_slip_per_wheel", "fallback_class_id", "least_aggressive",
            "safe_cap_per_wheel"]
 
-CONFIDENT_P = 0.6   # SYSTEM §10: serve the argmax at or above this probability
-CANDIDATE_P = 0.1   # SYSTEM §10: classes considered when uncertain
-MAX_AGE_S = 1.0     # SYSTEM §10: older classifications are stale
+CONFIDENT_P = 0.6   # design §10: serve the argmax at or above this probability
+CANDIDATE_P = 0.1   # design §10: classes considered when uncertain
+MAX_AGE_S = 1.0     # design §10: older classifications are stale
 FALLBACK_NAME = "pavement"
 _ACTIVE_STATES = ("steady", "traction", "braking")
 
@@ -124,7 +124,7 @@ def desired_slip_per_wheel(class_id: int, states: Sequence[str], v_long: Sequenc
     Parameters
     ----------
     class_id : served class.
-    states : N dynamic states (``idle|steady|traction|braking``, SYSTEM §7.2).
+    states : N dynamic states (``idle|steady|traction|braking``, design §7.2).
     v_long : N wheel-centre longitudinal speeds, m/s (only the sign is used).
     table : anything with ``target(class_id, state)``.
 
@@ -177,7 +177,7 @@ def choose(probabilities: Sequence[float] | np.ndarray | None, age_s: float | No
            estimator_ok: bool, table: TargetTable, *, states: Sequence[str] | None = None,
            v_long: Sequence[float] | None = None, class_ids: Sequence[int] | None = None,
            max_age_s: float = MAX_AGE_S) -> PolicyDecision:
-    """Pick the served class and (optionally) the per-wheel desired slip (SYSTEM §10).
+    """Pick the served class and (optionally) the per-wheel desired slip (design §10).
 
     Parameters
     ----------

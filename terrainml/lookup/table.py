@@ -16,10 +16,10 @@ For every terrain class the table evaluates the vehicle's net traction coefficie
 with H and R from :mod:`terrainml.lookup.terramechanics` (the one source of truth the simulator
 uses too), evaluated at every wheel's static load ``W_i`` (``robot.static_wheel_loads_n()``:
 mass and centre of mass), the robot's wheel radius and width, and the same slip on every wheel.
-With equal loads this is the single-wheel curve mu_net = DP / W of SYSTEM §6.2; with unequal
+With equal loads this is the single-wheel curve mu_net = DP / W of design §6.2; with unequal
 loads it is the load-weighted vehicle curve (the drawbar-pull coefficient of the whole robot).
 
-Targets (SYSTEM §10):
+Targets (design §10):
 
 * traction ``s_T``: slip of the traction peak point (argmax of mu_net on s > 0) when the peak is
   interior; otherwise (the curve still rises, or is flat within ``PLATEAU_TOL`` of its maximum,
@@ -73,7 +73,7 @@ PLATEAU_TOL = 0.01                              # peak within 1 % of the end val
 MIN_TRACTION_MARGIN = 0.03                      # rule: s_T >= s_S + 0.03
 RIGID_PEAK_RANGE = (0.10, 0.20)                 # rule: rigid-surface traction peaks
 MAX_MAGNITUDE = 0.6                             # rule: |target| <= 0.6
-RIGID_CLASSES = ("pavement", "compacted_dirt")  # tyre-road (Burckhardt) classes, SYSTEM §6.1
+RIGID_CLASSES = ("pavement", "compacted_dirt")  # tyre-road (Burckhardt) classes, design §6.1
 
 
 class LookupTableError(ValueError):
@@ -368,7 +368,7 @@ class DesiredSlipTable:
         Parameters
         ----------
         robot : RobotSpec, built-in name or YAML path (default the reference robot).
-        class_ids : classes to include (default all eight of SYSTEM §6.1).
+        class_ids : classes to include (default all eight of design §6.1).
         params : optional {class_id: TerrainParams} overriding the nominal parameters.
         """
         robot = load_robot(robot)
@@ -498,7 +498,7 @@ class DesiredSlipTable:
                        traction_class=t.name, braking_class=b.name)
 
     def aggressiveness_rank(self, class_id: int) -> tuple[float, float, float]:
-        """(|traction|, |steady|, |braking|): smaller is less aggressive (policy, SYSTEM §10)."""
+        """(|traction|, |steady|, |braking|): smaller is less aggressive (policy, design §10)."""
         return self._rank[int(class_id)]
 
     def check_rules(self) -> list[str]:

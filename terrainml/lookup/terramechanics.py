@@ -1,11 +1,11 @@
-"""Wheel-terrain force curves of the eight terrain classes: the ONE source of truth (SYSTEM §6.1-6.2).
+"""Wheel-terrain force curves of the eight terrain classes: the ONE source of truth (design §6.1-6.2).
 
 The simulator (:mod:`terrainml.sim`) and the desired-slip lookup (:mod:`terrainml.lookup.table`) both
 import this module; it imports neither.
 
 Conventions
 -----------
-* ``slip`` is the SAE split slip of thesis eq. 7.1-7.2 / SYSTEM §7.1, in [-1, 1]: positive in
+* ``slip`` is the SAE split slip of thesis eq. 7.1-7.2 / design §7.1, in [-1, 1]: positive in
   traction (wheel faster than the ground), negative in braking. Braking uses the same curves by
   symmetry: the thrust of braking slip ``-s`` is ``-H(s)`` and the sinkage (hence the motion
   resistance) depends on ``|s|``.
@@ -17,7 +17,7 @@ Conventions
   ``mu_net = (H - R) / W``. The simulator's wheel spin equation ``J dw/dt = tau - R_w F_x - tau_rr``
   with ``F_x = H - R`` and ``tau_rr = R_w R`` is the same thing written as ``tau - R_w H``.
 
-Force models (SYSTEM §6.2)
+Force models (design §6.2)
 --------------------------
 ``burckhardt`` (pavement)
     ``H = W [c1 (1 - exp(-c2 s)) - c3 s]``, ``R = C_rr W``.
@@ -35,7 +35,7 @@ Force models (SYSTEM §6.2)
     and wet-layer losses; 0 for the built-in classes) for Bekker classes, or ``C_rr W z(s) / z0`` for
     layer classes.
 
-Departures from SYSTEM §6.1 (recorded, with the reasons)
+Departures from design §6.1 (recorded, with the reasons)
 -------------------------------------------------------
 * ``compacted_dirt``: the Burckhardt-type curve (c1 0.9, c2 12, c3 0.3) with C_rr 0.03 has its
   zero of mu_net at s = 0.003, far below the 0.02-0.05 target; no Burckhardt curve with a physical
@@ -43,7 +43,7 @@ Departures from SYSTEM §6.1 (recorded, with the reasons)
   on a thin crust over a firm base, C_rr 0.03); its traction peak stays in 0.10-0.20.
 * All soil classes use Wong's hump-type shear curve (grass roots tear, gravel rolls over the firm
   base, loose soils dilate) instead of plain Janosi-Hanamoto, which on a 16 cm wheel has no interior
-  peak (SYSTEM §6.2 note); c, phi and the Bekker values of §6.1 are kept.
+  peak (design §6.2 note); c, phi and the Bekker values of §6.1 are kept.
 * Every soil has a *free slip* s_f: the slip taken up by the compressible top layer (vegetation mat,
   loose stones, soft crust or loose soil) before the firm layer is sheared (the "physiological free
   slip" of thesis §7.2.3). Without it, a steady slip of 12% with 6% motion resistance forces a K so
@@ -195,7 +195,7 @@ SPREAD_FIELDS: tuple[str, ...] = (
 
 
 def nominal_params(class_id: int | str) -> TerrainParams:
-    """Nominal parameters of a class (id or name), SYSTEM §6.1 with the calibrated values."""
+    """Nominal parameters of a class (id or name), design §6.1 with the calibrated values."""
     return _NOMINAL[_class_id(class_id)]
 
 
@@ -207,7 +207,7 @@ def all_nominal_params() -> tuple[TerrainParams, ...]:
 def sample_params(class_id: int | str, rng: np.random.Generator, spread: float = 0.15) -> TerrainParams:
     """One run's terrain realisation: each field of :data:`SPREAD_FIELDS` scaled by U(1-spread, 1+spread).
 
-    The spread is a fraction (0.15 = ±15%, SYSTEM §6.1 default). ``spread=0`` returns the nominal
+    The spread is a fraction (0.15 = ±15%, design §6.1 default). ``spread=0`` returns the nominal
     parameters. Classes overlap a little, as real soils do.
     """
     if not 0.0 <= spread < 1.0:

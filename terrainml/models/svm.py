@@ -1,4 +1,4 @@
-"""RBF SVM on window features (SYSTEM §9), a scikit-learn classifier on raw windows.
+"""RBF SVM on window features (design §9), a scikit-learn classifier on raw windows.
 
 :class:`SVMClassifier` takes the same input as the CNN (raw windows (n, C, T): a
 :class:`~terrainml.features.windows.Windows` or an array with ``channel_names``), computes the
@@ -6,7 +6,7 @@
 
     [feature selection] -> Pipeline(StandardScaler, SVC(kernel="rbf", class_weight="balanced"))
 
-* feature selection (``select_features=True``, beyond SYSTEM §9, the signal and feature
+* feature selection (``select_features=True``, beyond design §9, the signal and feature
   selection the classifier's authors studied): an ``ExtraTreesClassifier`` (seeded,
   class-balanced) is fitted once on the training windows and ``SelectFromModel`` keeps the
   features whose impurity importance is above the mean. An RBF kernel weighs every

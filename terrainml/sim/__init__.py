@@ -1,4 +1,4 @@
-"""Simulator of wheeled robots on the eight terrain classes: the embedded default (SYSTEM §6).
+"""Simulator of wheeled robots on the eight terrain classes: the embedded default (design §6).
 
 Physically grounded, fast (compiled kernel), seeded. Nothing in the estimation/learning chain
 imports this package; it writes logs through :mod:`terrainml.io` (ROS 2 MCAP) or run tables.

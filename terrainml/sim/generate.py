@@ -1,6 +1,6 @@
 """Generate simulated runs: one run, or a labelled dataset (K runs per class, joblib-parallel).
 
-Per-run seeds come from ``numpy.random.SeedSequence(seed).spawn(n)`` (SYSTEM §14), so a dataset is
+Per-run seeds come from ``numpy.random.SeedSequence(seed).spawn(n)`` (design §14), so a dataset is
 identical whatever ``n_jobs`` is.
 """
 

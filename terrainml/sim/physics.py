@@ -1,13 +1,31 @@
-"""Compiled physics kernel: planar rigid body + N wheels, wheel-terrain forces, PI wheel drives.
+"""Compiled physics kernel: planar rigid body + N wheels, wheel-terrain forces, PI wheel drives,
+grade, a towed cart and tool draft, sinkage and shear displacement as per-wheel states, battery power.
 
 Integration: semi-implicit (symplectic) Euler at ``dt`` (default 1 ms). The tyre/soil contact is
 stiff at low speed (dF/d(slip velocity) ~ k / v), so each contact force gets a linearly implicit
 correction (Rosenbrock-Euler with a per-contact diagonal Jacobian: wheel inertia J/R^2 and the
 wheel's share of the body mass; slope = max(local, secant to the predicted slip)): the fixed
 points (steady slip, steady turns) are those of the explicit model, only the stiff transient is
-damped. The force law's slip uses
-``max(|omega R|, |v_long|, 0.05 m/s)`` as denominator, and the lateral slip angle uses
-``max(|v_long|, 0.25 m/s)`` in its denominator (low-speed tyre regularisation).
+damped. The lateral slip angle uses ``max(|v_long|, 0.25 m/s)`` in its denominator (low-speed
+tyre regularisation).
+
+Mission physics (design §6, §6.2; parameters in :mod:`terrainml.sim.mission_physics`):
+
+* thrust from accumulated shear displacement: the tables are read at the state ``s_j = j / L``,
+  a first-order lag of the slip with time constant ``L / max(|omega R|, |v_long|)`` (soil passes
+  the contact length L at the wheel's surface speed): ``dj/dt = (omega R - v) - j max(..) / L``.
+  Steady state ``j = s L`` (today's curves); at standstill j holds, so no slip is singular at v = 0.
+  The longitudinal contact force is a state now (a spring in j), so only the lateral force keeps
+  the implicit correction.
+* sinkage: ``z = z_slip(s_j, W) + z_dig``, the dig-in state of ``DigParams``; climbing out of
+  the rut adds ``W z_dig / relax_m`` to the motion resistance; belly drag past the clearance.
+* grade: the layout cell under the body origin gives the surface gradient; gravity along the
+  surface acts on body and cart, ``m g cos(theta)`` loads the wheels, and the pitch / roll
+  moments of gravity, inertia and the hitch force shift load between the wheels.
+* towed cart: moves with the body along body x (its mass adds to the x inertia), rolling
+  resistance on the terrain under the hitch, a tongue load on the hitch; tool draft at the hitch.
+* battery: per wheel ``P_e = tau omega + (tau / k_t)^2 R_ph``; a driver draws ``P_e / eta_drv``
+  or returns ``eta_regen P_e`` when ``P_e < 0``; the bus sums the wheels.
 
 Inputs are packed: :class:`Vehicle` (robot and drive gains), :class:`Ground` (terrain tables
 and layout), :class:`SimState` (arrays below). :func:`run_substeps` takes them as plain tuples
@@ -19,11 +37,16 @@ drive torques, friction ellipse, body forces, implicit contact corrections, inte
 
 State layout (float64 arrays, mutated in place)
 -----------------------------------------------
-body  : [X, Y, psi, u, w, r, ax_cm, ay_cm, r_dot]  (CoM velocity u, w in body axes; ax/ay inertial
-        CoM acceleration in body axes; previous-step values used for load transfer)
-wheel : (7, N) rows omega, delta, integ (PI integrator, N m), omega_filt (drive's reported speed,
-        first-order lag), dist (m travelled, roughness), tau (motor torque), load (N)
-acc   : [energy_J, distance_m, time_s]
+body  : [X, Y, psi, u, w, r, ax_cm, ay_cm, r_dot, f_hitch]  (CoM velocity u, w in body axes;
+        ax/ay inertial CoM acceleration in body axes; previous-step values used for load transfer;
+        f_hitch: previous hitch force along body x, N, negative when the cart pulls back)
+wheel : (N_WROWS, N) rows omega, delta, integ (PI integrator, N m), omega_filt (drive's reported
+        speed, first-order lag), dist (m travelled, roughness), tau (motor torque), load (N),
+        s_j (shear-displacement slip j / L), z_dig (dig-in sinkage, m), z (total sinkage, m),
+        thrust (gross thrust H, N)
+acc   : ACC names: mechanical energy at the wheels, distance, time, battery energy (with
+        regeneration; without: only positive bus power), copper loss, slip work, drawbar work
+ext   : EXT names: settable between steps (cart mass, tongue share, hitch x y z, tool draft)
 
 Uses numba when installed (``pip install numba``); otherwise runs the same code as plain Python
 (slow, ~50x real time less). ``HAVE_NUMBA`` tells which.
@@ -39,16 +62,28 @@ import numpy as np
 from terrainml._numba import HAVE_NUMBA, njit  # noqa: F401  (HAVE_NUMBA re-exported)
 
 G = 9.81
-B_X, B_Y, B_PSI, B_U, B_W, B_R, B_AX, B_AY, B_RDOT = range(9)
-W_OMEGA, W_DELTA, W_INTEG, W_OFILT, W_DIST, W_TAU, W_LOAD = range(7)
-N_WROWS = 7
-# log columns (one row per logged substep)
-LOG_COLS = ("t", "x", "y", "psi", "vx", "vy", "r", "ax", "ay", "rdot", "az")
-L_T, L_X, L_Y, L_PSI, L_VX, L_VY, L_R, L_AX, L_AY, L_RDOT, L_AZ = range(11)
+B_X, B_Y, B_PSI, B_U, B_W, B_R, B_AX, B_AY, B_RDOT, B_FH = range(10)
+N_BODY = 10
+W_OMEGA, W_DELTA, W_INTEG, W_OFILT, W_DIST, W_TAU, W_LOAD, W_SJ, W_DIG, W_Z, W_H = range(11)
+N_WROWS = 11
+ACC = ("energy_mech_j", "distance_m", "time_s", "battery_j", "battery_noregen_j", "copper_loss_j",
+       "slip_work_j", "drawbar_work_j")
+A_EMECH, A_DIST, A_TIME, A_BATT, A_BATT_NR, A_CU, A_SLIPW, A_DPW = range(8)
+EXT = ("cart_mass_kg", "tongue_fraction", "hitch_x_m", "hitch_y_m", "hitch_z_m", "tool_draft_n")
+E_MC, E_TONGUE, E_HX, E_HY, E_HZ, E_DRAFT = range(6)
+# log columns (one row per logged substep): pitch / roll (rad) of the grade under the robot,
+# drawbar pull (N), hitch force (N, >= 0 when the cart and tool pull back), battery and
+# mechanical power (W)
+LOG_COLS = ("t", "x", "y", "psi", "vx", "vy", "r", "ax", "ay", "rdot", "az",
+            "pitch", "roll", "drawbar", "hitch", "p_batt", "p_mech")
+(L_T, L_X, L_Y, L_PSI, L_VX, L_VY, L_R, L_AX, L_AY, L_RDOT, L_AZ,
+ L_PITCH, L_ROLL, L_DP, L_HITCH, L_PBATT, L_PMECH) = range(17)
 # per-wheel log blocks (each N wide), after the body columns
-WLOG = ("omega", "omega_filt", "delta", "tau", "v_long", "v_lat", "load", "cell")
+WLOG = ("omega", "omega_filt", "delta", "tau", "v_long", "v_lat", "load", "cell",
+        "sinkage", "rut", "thrust", "slip_j")
 N_LOG_BODY = len(LOG_COLS)
-V_REG = 0.05   # m/s: slip denominator floor for the force law (low-speed regularisation)
+
+L_MIN = 0.01   # m: floor of the contact length of the shear-displacement state
 
 
 class Vehicle(NamedTuple):
@@ -72,6 +107,13 @@ class Vehicle(NamedTuple):
     steer_tau: float  # steering first-order approach (s)
     omega_lag_tau: float  # drive's reported-speed lag (s)
     dt: float  # substep (s)
+    kt: float  # torque constant at the wheel (N m / A)
+    r_ph: float  # equivalent phase resistance (ohm): copper loss (tau / kt)^2 r_ph
+    eta_drv: float  # driver efficiency (motoring)
+    eta_regen: float  # share of negative electrical power returned to the bus
+    clearance: float  # ground clearance (m): belly drag past it
+    belly_mu: float  # belly-on-soil drag coefficient and its ramp (m)
+    belly_ramp: float
 
 
 class Ground(NamedTuple):
@@ -92,6 +134,15 @@ class Ground(NamedTuple):
     lay_cell: float
     lay_ox: float
     lay_oy: float
+    grad_x: np.ndarray  # (cells,) surface gradient tan(slope) along world x, y
+    grad_y: np.ndarray
+    len_tab: np.ndarray  # (cells, loads) contact length at zero slip (m)
+    z_tab: np.ndarray  # (cells, loads, slips) slip sinkage z(s, W) (m)
+    free_slip: np.ndarray  # (cells,) s_f
+    dig_k: np.ndarray  # (cells,) kappa, relaxation length (m), cap (m) of the dig-in state
+    dig_relax: np.ndarray
+    dig_cap: np.ndarray
+    cart_crr: np.ndarray  # (cells,) cart rolling resistance coefficient on each cell
 
 
 class SimState(NamedTuple):
@@ -101,13 +152,14 @@ class SimState(NamedTuple):
     wheel: np.ndarray
     acc: np.ndarray
     log: np.ndarray
+    ext: np.ndarray
 
 
 # per-wheel work array of one substep, (N_CROWS, N): one row per quantity (a 2-D array rather
 # than a tuple of arrays: numba updates a reference count at every read of a tuple's array)
 (C_HH,       # longitudinal (traction) force (N): from the tables, friction-limited, then corrected
  C_HRAW,     # traction from the tables before the ellipse (N)
- C_KD,       # dH / d(slip velocity)
+ C_KD,       # unused (the longitudinal force is a state)
  C_RR,       # motion resistance (N)
  C_HMAX,     # traction peak at this load (N)
  C_FYL,      # lateral force (N)
@@ -118,12 +170,16 @@ class SimState(NamedTuple):
  C_VLAT,
  C_DDELTA,   # steering rate (rad/s)
  C_CELL,     # layout cell under the wheel (an integer, stored as float)
- C_DEN,      # slip denominator (m/s)
+ C_DEN,      # unused
  C_SLIP,
  C_LOADIDX,  # fractional load index of the tables
  C_FX,       # force in body axes (N)
- C_FY) = range(18)
-N_CROWS = 18
+ C_FY,
+ C_ZSLIP) = range(19)  # slip sinkage z(s_j, W) from the table (m)
+N_CROWS = 19
+# per-substep scalars (grade, hitch, powers)
+(S_GBX, S_GBY, S_GBZ, S_PITCH, S_ROLL, S_CELL0, S_HCELL, S_DP, S_HITCH, S_PB, S_PM) = range(11)
+N_SROWS = 11
 
 
 @njit(cache=True)
@@ -164,7 +220,7 @@ def _load_index(load_factor, load_grid):
 
 # Each step below loops over the wheels and first binds the arrays it uses to local names: an
 # array read from a tuple field inside a loop costs numba a reference-count update per read.
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _steering_rates(v, delta_cmd, wheel, ct):
     """Steering actuators: rate limit, dead band, first-order approach to the command."""
     for i in range(ct.shape[1]):
@@ -181,30 +237,64 @@ def _steering_rates(v, delta_cmd, wheel, ct):
 
 
 @njit(cache=True)
-def _kinematics_and_loads(v, g, body, wheel, cpsi, spsi, ct):
+def _cell_at(ox, oy, cell, nx, ny, px, py):
+    """Layout cell (flat index) of a world point, clamped to the grid (scalars: a Ground pack
+    passed to a call that is not inlined would be copied)."""
+    ix = min(max(int(math.floor((px - ox) / cell)), 0), nx - 1)
+    iy = min(max(int(math.floor((py - oy) / cell)), 0), ny - 1)
+    return ix * ny + iy
+
+
+@njit(cache=True, inline="always")
+def _grade(g, body, ext, cpsi, spsi, sc):
+    """Grade under the body origin: gravity along the surface in body axes (gbx, gby), normal
+    gravity gbz = g cos(theta), pitch / roll of the surface; the cell under the hitch."""
+    nx = g.lay_grid.shape[0]
+    ny = g.lay_grid.shape[1]
+    c = _cell_at(g.lay_ox, g.lay_oy, g.lay_cell, nx, ny, body[B_X], body[B_Y])
+    gx = g.grad_x[c]
+    gy = g.grad_y[c]
+    nrm = math.sqrt(1.0 + gx * gx + gy * gy)
+    # downhill acceleration along the surface, magnitude g sin(theta), world axes
+    agx = -G * gx / nrm
+    agy = -G * gy / nrm
+    sc[S_GBX] = cpsi * agx + spsi * agy
+    sc[S_GBY] = -spsi * agx + cpsi * agy
+    sc[S_GBZ] = G / nrm
+    sc[S_PITCH] = cpsi * gx + spsi * gy           # tangents; the log takes the angles
+    sc[S_ROLL] = -spsi * gx + cpsi * gy
+    sc[S_CELL0] = c
+    sc[S_HCELL] = _cell_at(g.lay_ox, g.lay_oy, g.lay_cell, nx, ny, body[B_X] + cpsi * ext[E_HX] - spsi * ext[E_HY],
+                           body[B_Y] + spsi * ext[E_HX] + cpsi * ext[E_HY])
+
+
+@njit(cache=True, inline="always")
+def _kinematics_and_loads(v, g, body, wheel, ext, cpsi, spsi, ct, sc):
     """Per wheel: layout cell under the contact, velocity along / across the wheel, and load:
-    static + load transfer (previous accelerations), scaled by the roughness's vertical
-    acceleration. Returns the wheels' mean vertical acceleration (m/s^2)."""
+    normal gravity plus the hitch's tongue load, load transfer from the pitch / roll moments of
+    gravity along the grade, the previous accelerations and the hitch force, scaled by the
+    roughness's vertical acceleration. Returns the wheels' mean vertical acceleration (m/s^2)."""
     wx, wy, load_pinv = v.wx, v.wy, v.load_pinv
-    rough_amp, rough_k, rough_phase, lay_grid = g.rough_amp, g.rough_k, g.rough_phase, g.lay_grid
+    rough_amp, rough_k, rough_phase = g.rough_amp, g.rough_k, g.rough_phase
+    ox, oy, cell = g.lay_ox, g.lay_oy, g.lay_cell
+    nx = g.lay_grid.shape[0]
+    ny = g.lay_grid.shape[1]
     n = wx.shape[0]
-    nx = lay_grid.shape[0]
-    ny = lay_grid.shape[1]
     u = body[B_U]
     w = body[B_W]
     r = body[B_R]
-    b1 = v.mass * G
-    b2 = v.mass * G * v.xc - v.mass * body[B_AX] * v.hcg
-    b3 = v.mass * G * v.yc - v.mass * body[B_AY] * v.hcg
+    m = v.mass
+    tongue = ext[E_TONGUE] * ext[E_MC] * sc[S_GBZ]
+    # sum N = m g_z + V;  sum N x = m g_z x_c - m (a_x - g_x) h + z_h F_hx + x_h V;  likewise y
+    b1 = m * sc[S_GBZ] + tongue
+    b2 = (m * sc[S_GBZ] * v.xc - m * (body[B_AX] - sc[S_GBX]) * v.hcg + ext[E_HZ] * body[B_FH]
+          + ext[E_HX] * tongue)
+    b3 = m * sc[S_GBZ] * v.yc - m * (body[B_AY] - sc[S_GBY]) * v.hcg + ext[E_HY] * tongue
     az_mean = 0.0
     for i in range(n):
         ld = load_pinv[i, 0] * b1 + load_pinv[i, 1] * b2 + load_pinv[i, 2] * b3
-        # contact-point world position -> layout cell (clamped to the grid)
-        px = body[B_X] + cpsi * wx[i] - spsi * wy[i]
-        py = body[B_Y] + spsi * wx[i] + cpsi * wy[i]
-        ix = min(max(int(math.floor((px - g.lay_ox) / g.lay_cell)), 0), nx - 1)
-        iy = min(max(int(math.floor((py - g.lay_oy) / g.lay_cell)), 0), ny - 1)
-        c = ix * ny + iy
+        c = _cell_at(ox, oy, cell, nx, ny, body[B_X] + cpsi * wx[i] - spsi * wy[i],
+                     body[B_Y] + spsi * wx[i] + cpsi * wy[i])
         ct[C_CELL, i] = c
         vxi = u - r * (wy[i] - v.yc)
         vyi = w + r * (wx[i] - v.xc)
@@ -232,31 +322,38 @@ def _kinematics_and_loads(v, g, body, wheel, cpsi, spsi, ct):
 
 @njit(cache=True, inline="always")
 def _longitudinal_forces(v, g, wheel, ct):
-    """Per wheel: traction from the tables at the wheel's slip and load, its slope against the
-    slip velocity, motion resistance and the traction peak at this load."""
-    h_tab, r_tab, hmax_tab, load_grid = g.h_tab, g.r_tab, g.hmax_tab, g.load_grid
+    """Per wheel: traction from the tables at the wheel's shear-displacement slip s_j and load,
+    motion resistance (plus the climb out of the dug rut and belly drag past the clearance) and the
+    traction peak at this load."""
+    h_tab, r_tab, hmax_tab, z_tab, load_grid = g.h_tab, g.r_tab, g.hmax_tab, g.z_tab, g.load_grid
     w_ref = g.w_ref
     n_load = h_tab.shape[1]
     n_slip = h_tab.shape[2]
     s_scale = (n_slip - 1) / 2.0
     for i in range(ct.shape[1]):
         c = int(ct[C_CELL, i])
-        vw = wheel[W_OMEGA, i] * v.rw
-        den = max(abs(vw), abs(ct[C_VLONG, i]), V_REG)
-        s = (vw - ct[C_VLONG, i]) / den
-        ct[C_DEN, i] = den
+        s = wheel[W_SJ, i]
         if s > 1.0:
             s = 1.0
         elif s < -1.0:
             s = -1.0
         lf = _load_index(wheel[W_LOAD, i] / w_ref, load_grid)
-        hv, hd = _interp_table(h_tab, c, lf, (s + 1.0) * s_scale, n_load, n_slip)
-        rv, rd = _interp_table(r_tab, c, lf, (s + 1.0) * s_scale, n_load, n_slip)
+        sf = (s + 1.0) * s_scale
+        hv, hd = _interp_table(h_tab, c, lf, sf, n_load, n_slip)
+        rv, rd = _interp_table(r_tab, c, lf, sf, n_load, n_slip)
+        zv, zd = _interp_table(z_tab, c, lf, sf, n_load, n_slip)
+        zdig = wheel[W_DIG, i]
+        # climbing out of the dug rut: lifting W by z_dig over the relaxation length
+        rv += wheel[W_LOAD, i] / w_ref * zdig / g.dig_relax[c]
+        ztot = zv + zdig
+        if ztot > v.clearance:
+            rv += v.belly_mu * wheel[W_LOAD, i] / w_ref * min((ztot - v.clearance) / v.belly_ramp, 1.0)
+        wheel[W_Z, i] = ztot
+        ct[C_ZSLIP, i] = zv
         ct[C_HH, i] = hv * w_ref
         ct[C_HRAW, i] = ct[C_HH, i]
         ct[C_SLIP, i] = s
         ct[C_LOADIDX, i] = lf
-        ct[C_KD, i] = hd * w_ref * s_scale / den          # dH / d(slip velocity)
         ct[C_RR, i] = rv * w_ref * math.tanh(ct[C_VLONG, i] / 0.02)
         il = int(lf)
         if il >= n_load - 1:
@@ -265,7 +362,7 @@ def _longitudinal_forces(v, g, wheel, ct):
         ct[C_HMAX, i] = (hmax_tab[c, il] * (1.0 - fl) + hmax_tab[c, il + 1] * fl) * w_ref
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _lateral_forces(g, wheel, ct):
     """Per wheel: lateral force from the slip angle (table per unit load) and its slope."""
     y_tab = g.y_tab
@@ -289,7 +386,7 @@ def _lateral_forces(g, wheel, ct):
         ct[C_KY, i] = -(y1 - y0) / g.alpha_step * ld * dalpha_dv     # -dF_y/dv_lat >= 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _drive_torques(v, wheel, omega_cmd):
     """PI wheel-speed drives with their current (torque) limit; the integrator holds while the
     output saturates and is clamped to the limit."""
@@ -310,7 +407,7 @@ def _drive_torques(v, wheel, omega_cmd):
         wheel[W_TAU, i] = tau
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _friction_ellipse(g, wheel, ct):
     """Combined slip: scale traction and lateral force back onto the friction ellipse."""
     y_tab = g.y_tab
@@ -324,7 +421,7 @@ def _friction_ellipse(g, wheel, ct):
                 ct[C_FYL, i] *= q
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _body_forces(v, ct):
     """Wheel forces in body axes (into rows C_FX, C_FY of ``ct``); returns their sum and their yaw
     moment about the centre of mass."""
@@ -344,50 +441,46 @@ def _body_forces(v, ct):
 
 @njit(cache=True, inline="always")
 def _implicit_corrections(v, g, wheel, ud, wd, rdot, ct):
-    """Linearly implicit correction of each contact force (module docstring), given the
-    explicit body accelerations ``ud, wd, rdot``."""
-    wx, wy, h_tab = v.wx, v.wy, g.h_tab
-    dt, rw, jw = v.dt, v.rw, v.jw
-    n_load = h_tab.shape[1]
-    n_slip = h_tab.shape[2]
-    s_scale = (n_slip - 1) / 2.0
+    """Linearly implicit correction of each lateral contact force (module docstring), given the
+    explicit body accelerations ``ud, wd, rdot``. The longitudinal force is a state (shear
+    displacement), so it needs none."""
+    wx, wy = v.wx, v.wy
+    dt = v.dt
     m_i = v.mass / wx.shape[0]
     for i in range(ct.shape[1]):
         dxi = wx[i] - v.xc
         dyi = wy[i] - v.yc
         aix = ud - rdot * dyi
         aiy = wd + rdot * dxi
-        omd = (wheel[W_TAU, i] - rw * ct[C_HH, i]) / jw
-        dvl = aix * ct[C_COS, i] + aiy * ct[C_SIN, i] + ct[C_VLAT, i] * ct[C_DDELTA, i]
         dvt = -aix * ct[C_SIN, i] + aiy * ct[C_COS, i] - ct[C_VLONG, i] * ct[C_DDELTA, i]
-        bl = rw * rw / jw + 1.0 / m_i
-        # slope for the implicit step: the larger of the local slope and the secant to the
-        # explicitly predicted slip (robust at the corners of free-slip dead zones)
-        ddel = dt * (rw * omd - dvl)
-        kdd = ct[C_KD, i]
-        if abs(ddel) > 1e-12:
-            s_pred = ct[C_SLIP, i] + ddel / ct[C_DEN, i]
-            if s_pred > 1.0:
-                s_pred = 1.0
-            elif s_pred < -1.0:
-                s_pred = -1.0
-            hp, _ = _interp_table(h_tab, int(ct[C_CELL, i]), ct[C_LOADIDX, i], (s_pred + 1.0) * s_scale, n_load, n_slip)
-            ksec = (hp * g.w_ref - ct[C_HRAW, i]) / ddel
-            if ksec > kdd:
-                kdd = ksec
-        if kdd > 0.0:
-            ct[C_HH, i] += kdd * ddel / (1.0 + kdd * dt * bl)
         bt = 1.0 / m_i + (dxi * dxi + dyi * dyi) / v.iz
         kyy = ct[C_KY, i]
         if kyy > 0.0:
             ct[C_FYL, i] -= kyy * dt * dvt / (1.0 + kyy * dt * bt)
 
 
-@njit(cache=True)
-def _integrate(v, body, wheel, acc, cpsi, spsi, ax_cm, ay_cm, rdot, ct):
+@njit(cache=True, inline="always")
+def _towed_x(v, g, body, ext, sfx, sc):
+    """CoM acceleration along body x with gravity along the grade and the towed cart (moving
+    with the body: its mass adds to the x inertia) and tool draft; returns it and the hitch force
+    on the robot along body x (N, negative when pulled back)."""
+    mc = ext[E_MC]
+    dirn = math.tanh(body[B_U] / 0.02)          # resistances oppose the motion (as the wheels')
+    rc = g.cart_crr[int(sc[S_HCELL])] * (1.0 - ext[E_TONGUE]) * mc * sc[S_GBZ] * dirn
+    draft = ext[E_DRAFT] * dirn
+    ax = (sfx + (v.mass + mc) * sc[S_GBX] - rc - draft) / (v.mass + mc)
+    return ax, -mc * (ax - sc[S_GBX]) - rc - draft
+
+
+@njit(cache=True, inline="always")
+def _integrate(v, g, body, wheel, acc, cpsi, spsi, ax_cm, ay_cm, rdot, f_hitch, ct, sc):
     """Semi-implicit Euler: velocities from the final forces, then pose, wheel speeds, steering,
-    distances and energy. Returns the origin velocity (body axes)."""
+    shear displacement and dig-in sinkage states, distances, energies and powers. Returns the
+    origin velocity (body axes)."""
     wx, wy = v.wx, v.wy
+    len_tab, z_tab = g.len_tab, g.z_tab
+    n_load = z_tab.shape[1]
+    s_mid = (z_tab.shape[2] - 1) / 2.0
     dt = v.dt
     u = body[B_U]
     w = body[B_W]
@@ -399,6 +492,7 @@ def _integrate(v, body, wheel, acc, cpsi, spsi, ax_cm, ay_cm, rdot, ct):
     body[B_AX] = ax_cm
     body[B_AY] = ay_cm
     body[B_RDOT] = rdot
+    body[B_FH] = f_hitch
     u2 = body[B_U]
     w2 = body[B_W]
     r2 = body[B_R]
@@ -408,23 +502,71 @@ def _integrate(v, body, wheel, acc, cpsi, spsi, ax_cm, ay_cm, rdot, ct):
     body[B_X] += dt * (cpsi * vxo - spsi * vyo)
     body[B_Y] += dt * (spsi * vxo + cpsi * vyo)
     body[B_PSI] = psi + dt * r2
+    p_bus = 0.0
+    p_mech = 0.0
+    p_cu = 0.0
+    p_slip = 0.0
+    dp = 0.0
     for i in range(wx.shape[0]):
         om = wheel[W_OMEGA, i]
-        om2 = om + dt * (wheel[W_TAU, i] - v.rw * ct[C_HH, i]) / v.jw
+        tau = wheel[W_TAU, i]
+        hh = ct[C_HH, i]
+        om2 = om + dt * (tau - v.rw * hh) / v.jw
         wheel[W_OMEGA, i] = om2
+        wheel[W_H, i] = hh
         wheel[W_DELTA, i] += dt * ct[C_DDELTA, i]
         wheel[W_OFILT, i] += dt / v.omega_lag_tau * (om2 - wheel[W_OFILT, i])
         vxi = u2 - r2 * (wy[i] - v.yc)
         vyi = w2 + r2 * (wx[i] - v.xc)
-        wheel[W_DIST, i] += dt * math.sqrt(vxi * vxi + vyi * vyi)
-        acc[0] += dt * wheel[W_TAU, i] * om2
-    acc[1] += dt * math.sqrt(vxo * vxo + vyo * vyo)
-    acc[2] += dt
+        speed = math.sqrt(vxi * vxi + vyi * vyi)
+        wheel[W_DIST, i] += dt * speed
+        # shear displacement j = s_j L: dj/dt = (omega R - v) - j max(|omega R|, |v|) / L, exact
+        # for the step (a first-order lag of the slip that holds still at standstill)
+        vw = om2 * v.rw
+        vl = vxi * ct[C_COS, i] + vyi * ct[C_SIN, i]
+        mx = max(abs(vw), abs(vl))
+        c = int(ct[C_CELL, i])
+        lf = ct[C_LOADIDX, i]
+        il = min(int(lf), n_load - 2)
+        fl = min(lf - il, 1.0)
+        length = max(len_tab[c, il] * (1.0 - fl) + len_tab[c, il + 1] * fl, L_MIN)
+        if mx > 1e-12:
+            f = -math.expm1(-mx * dt / length)
+            wheel[W_SJ, i] += f * ((vw - vl) / mx - wheel[W_SJ, i])
+        # dig-in sinkage: excavation ~ kappa z0 s'^2 while the firm layer shears, relaxation
+        # over dig_relax metres of travel (terrainml.sim.mission_physics.DigParams)
+        if g.dig_k[c] > 0.0:
+            sf = g.free_slip[c]
+            ssh = max(abs(wheel[W_SJ, i]) - sf, 0.0) / (1.0 - sf)
+            z0, _ = _interp_table(z_tab, c, lf, s_mid, n_load, z_tab.shape[2])
+            zd = wheel[W_DIG, i] + dt * (g.dig_k[c] * z0 * ssh * ssh * mx - wheel[W_DIG, i] * speed) / g.dig_relax[c]
+            wheel[W_DIG, i] = min(max(zd, 0.0), g.dig_cap[c])
+        pm = tau * om2
+        cur = tau / v.kt
+        pc = cur * cur * v.r_ph
+        pe = pm + pc
+        p_bus += pe / v.eta_drv if pe > 0.0 else pe * v.eta_regen
+        p_mech += pm
+        p_cu += pc
+        p_slip += abs(hh * (vw - vl))
+        dp += (hh - ct[C_RR, i]) * ct[C_COS, i]
+    acc[A_EMECH] += dt * p_mech
+    acc[A_DIST] += dt * math.sqrt(vxo * vxo + vyo * vyo)
+    acc[A_TIME] += dt
+    acc[A_BATT] += dt * p_bus
+    acc[A_BATT_NR] += dt * max(p_bus, 0.0)
+    acc[A_CU] += dt * p_cu
+    acc[A_SLIPW] += dt * p_slip
+    acc[A_DPW] += dt * (-f_hitch) * u2
+    sc[S_DP] = dp
+    sc[S_HITCH] = -f_hitch
+    sc[S_PB] = p_bus
+    sc[S_PM] = p_mech
     return vxo, vyo
 
 
-@njit(cache=True)
-def _log(v, st, row, vxo, vyo, ax_cm, ay_cm, rdot, az_mean, ct):
+@njit(cache=True, inline="always")
+def _log(v, st, row, vxo, vyo, ax_cm, ay_cm, rdot, az_mean, ct, sc):
     """Write the truth log row ``row`` (columns: LOG_COLS, then the WLOG blocks)."""
     body, wheel, log, wx, wy = st.body, st.wheel, st.log, v.wx, v.wy
     n = wx.shape[0]
@@ -443,6 +585,12 @@ def _log(v, st, row, vxo, vyo, ax_cm, ay_cm, rdot, az_mean, ct):
     log[row, L_AY] = ay_cm - rdot * v.xc + r2 * r2 * v.yc
     log[row, L_RDOT] = rdot
     log[row, L_AZ] = az_mean
+    log[row, L_PITCH] = math.atan(sc[S_PITCH])
+    log[row, L_ROLL] = math.atan(sc[S_ROLL])
+    log[row, L_DP] = sc[S_DP]
+    log[row, L_HITCH] = sc[S_HITCH]
+    log[row, L_PBATT] = sc[S_PB]
+    log[row, L_PMECH] = sc[S_PM]
     base = N_LOG_BODY
     for i in range(n):
         vxi = u2 - r2 * (wy[i] - v.yc)
@@ -456,6 +604,10 @@ def _log(v, st, row, vxo, vyo, ax_cm, ay_cm, rdot, az_mean, ct):
         log[row, base + 5 * n + i] = -vxi * math.sin(de) + vyi * math.cos(de)
         log[row, base + 6 * n + i] = wheel[W_LOAD, i]
         log[row, base + 7 * n + i] = int(ct[C_CELL, i])
+        log[row, base + 8 * n + i] = wheel[W_Z, i]
+        log[row, base + 9 * n + i] = wheel[W_Z, i]
+        log[row, base + 10 * n + i] = wheel[W_H, i]
+        log[row, base + 11 * n + i] = wheel[W_SJ, i]
 
 
 @njit(cache=True)
@@ -467,27 +619,29 @@ def run_substeps(vehicle, ground, state, n_sub, omega_cmd, delta_cmd, log_row, l
     and steering (rad) set-points.
     """
     v, g, st = Vehicle(*vehicle), Ground(*ground), SimState(*state)
-    body, wheel = st.body, st.wheel
+    body, wheel, ext = st.body, st.wheel, st.ext
     ct = np.empty((N_CROWS, v.wx.shape[0]))
+    sc = np.zeros(N_SROWS)
     for step in range(n_sub):
         cpsi = math.cos(body[B_PSI])
         spsi = math.sin(body[B_PSI])
+        _grade(g, body, ext, cpsi, spsi, sc)
         _steering_rates(v, delta_cmd, wheel, ct)
-        az_mean = _kinematics_and_loads(v, g, body, wheel, cpsi, spsi, ct)
+        az_mean = _kinematics_and_loads(v, g, body, wheel, ext, cpsi, spsi, ct, sc)
         _longitudinal_forces(v, g, wheel, ct)
         _lateral_forces(g, wheel, ct)
         _drive_torques(v, wheel, omega_cmd)
         _friction_ellipse(g, wheel, ct)
         sfx, sfy, mz = _body_forces(v, ct)  # explicit accelerations
-        ud = sfx / v.mass + body[B_R] * body[B_W]
-        wd = sfy / v.mass - body[B_R] * body[B_U]
+        ud = sfx / v.mass + sc[S_GBX] + body[B_R] * body[B_W]
+        wd = sfy / v.mass + sc[S_GBY] - body[B_R] * body[B_U]
         _implicit_corrections(v, g, wheel, ud, wd, mz / v.iz, ct)
         sfx, sfy, mz = _body_forces(v, ct)  # final forces
-        ax_cm = sfx / v.mass
-        ay_cm = sfy / v.mass
-        rdot = mz / v.iz
-        vxo, vyo = _integrate(v, body, wheel, st.acc, cpsi, spsi, ax_cm, ay_cm, rdot, ct)
+        ax_cm, f_hitch = _towed_x(v, g, body, ext, sfx, sc)
+        ay_cm = sfy / v.mass + sc[S_GBY]
+        rdot = (mz - (ext[E_HY] - v.yc) * f_hitch) / v.iz
+        vxo, vyo = _integrate(v, g, body, wheel, st.acc, cpsi, spsi, ax_cm, ay_cm, rdot, f_hitch, ct, sc)
         if (step + 1) % log_every == 0 and log_row < st.log.shape[0]:
-            _log(v, st, log_row, vxo, vyo, ax_cm, ay_cm, rdot, az_mean, ct)
+            _log(v, st, log_row, vxo, vyo, ax_cm, ay_cm, rdot, az_mean, ct, sc)
             log_row += 1
     return log_row

@@ -1,6 +1,6 @@
 """Slip plots of a simulated run, like thesis Fig. 7.2-7.4: true vs measured slip per wheel.
 
-"Measured" slip here is a simple kinematic estimate without the EKF: SYSTEM §7.1 slip from the raw
+"Measured" slip here is a simple kinematic estimate without the EKF: design §7.1 slip from the raw
 encoder speed (with the drive's 40 ms lag) and the wheel-centre longitudinal velocity computed from
 the camera (mount velocity minus the omega x r lever arm, camera yaw rate, EMA alpha = 0.2 as
 thesis §7.2.2) and the measured steering angles. It shows the transient artefacts the thesis

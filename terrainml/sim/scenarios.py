@@ -1,4 +1,4 @@
-"""Driving scenarios: body-twist commands over time plus the terrain layout (SYSTEM §6).
+"""Driving scenarios: body-twist commands over time plus the terrain layout (design §6).
 
 A :class:`Scenario` gives the commanded twist (vx, vy in body axes, yaw rate) as a function of time
 and, for path following, of the true pose. Open-loop scenarios are precomputed at 100 Hz with a

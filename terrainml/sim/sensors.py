@@ -1,4 +1,4 @@
-"""Sensor models of the simulated robot (SYSTEM §6): computed from the 200 Hz truth log.
+"""Sensor models of the simulated robot (design §6): computed from the 200 Hz truth log.
 
 Every random quantity is drawn once per run, up front, from the run's seed, and the models are pure
 functions of (truth rows, pre-drawn noise). So the sample a closed-loop controller gets online at

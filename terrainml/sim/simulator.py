@@ -8,9 +8,13 @@ Example
 >>> result.mean_true_slip(5.0, 10.0).round(2)          # doctest: +SKIP
 
 Closed loop: ``sim.run(controller=f)`` calls ``f(sample)`` every control tick (100 Hz) with the
-current *measured* sample (a dict of canonical run-table columns, SYSTEM §5, plus ``t_s``); ``f``
+current *measured* sample (a dict of canonical run-table columns, design §5, plus ``t_s``); ``f``
 returns per-wheel wheel-speed command offsets (rad/s, shape (N,)) that are added to the inverse
 kinematics' set-points (thesis eq. 8.3) or ``None``.
+
+Missions (issue 18; API in :mod:`terrainml.sim.mission_physics`): ``towed=TowedLoad(...)``,
+``tool_draft_n``, :meth:`Simulator.set_payload_kg`, :meth:`Simulator.set_tool_draft_n`, a graded
+layout (``TerrainLayout.with_grade``), battery energy and the new log columns.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import numpy as np
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.sim import physics as ph
 from terrainml.sim.control import DriveGains, _ik_kernel
+from terrainml.sim.mission_physics import BELLY_MU, BELLY_RAMP_M, TowedLoad, cart_crr_per_class, dig_params
 from terrainml.sim.scenarios import Scenario
 from terrainml.sim.sensors import LOG_RATE_HZ, SensorConfig, SensorModel
 from terrainml.sim.terrain import ALPHA_GRID, LOAD_FACTORS, TerrainRealisation, realise
@@ -51,6 +56,34 @@ class SimResult:
     stuck_events: int
     summary: dict = field(default_factory=dict)
 
+    @property
+    def battery_energy_j(self) -> float:
+        """Energy drawn from the battery (J), regeneration counted negative."""
+        return self.summary["battery_energy_j"]
+
+    @property
+    def battery_energy_noregen_j(self) -> float:
+        """Energy drawn from the battery (J) without regeneration (braking energy dumped)."""
+        return self.summary["battery_energy_noregen_j"]
+
+    @property
+    def copper_loss_j(self) -> float:
+        return self.summary["copper_loss_j"]
+
+    @property
+    def slip_work_j(self) -> float:
+        """Sum over wheels of the integral of |H (omega R - v_long)| dt (J)."""
+        return self.summary["slip_work_j"]
+
+    @property
+    def drawbar_work_j(self) -> float:
+        """Work done on the towed cart and tool: integral of hitch force x speed (J)."""
+        return self.summary["drawbar_work_j"]
+
+    def body_col(self, name: str) -> np.ndarray:
+        """(n_rows,) body log column by name (``terrainml.sim.physics.LOG_COLS``)."""
+        return self.log[:, ph.LOG_COLS.index(name)]
+
     # ------------------------------------------------------------------ truth views
     @property
     def n_wheels(self) -> int:
@@ -66,7 +99,7 @@ class SimResult:
         return self.log[:, ph.L_T]
 
     def true_slip(self) -> np.ndarray:
-        """(n_rows, N) SYSTEM §7.1 slip of true wheel speed vs true wheel-centre longitudinal velocity."""
+        """(n_rows, N) design §7.1 slip of true wheel speed vs true wheel-centre longitudinal velocity."""
         return slip_sae(self.wblock("omega") * self.robot.wheel_radius_m, self.wblock("v_long"))
 
     def wheel_long_accel(self) -> np.ndarray:
@@ -83,10 +116,10 @@ class SimResult:
         return ax * np.cos(d) + ay * np.sin(d)
 
     def true_states(self, rows: np.ndarray | None = None) -> np.ndarray:
-        """(n, N) SYSTEM §7.2 state codes from true acceleration (rows: default every 100 Hz row)."""
+        """(n, N) design §7.2 state codes from true acceleration (rows: default every 100 Hz row)."""
         rows = np.arange(0, len(self.log), 2) if rows is None else rows
         vl = self.wblock("v_long")[rows]
-        # the same manoeuvre filter the estimator applies (vibration out; SYSTEM §7.2 departure)
+        # the same manoeuvre filter the estimator applies (vibration out; design §7.2 departure)
         a_long = manoeuvre_accel(self.t_s[rows], self.wheel_long_accel()[rows])
         return wheel_states(self.t_s[rows], a_long * vl, vl)
 
@@ -107,14 +140,17 @@ class Simulator:
     scenario : what to drive where (:func:`terrainml.sim.scenarios.make_scenario`).
     robot : RobotSpec (reference robot if None).
     seed : int or ``numpy.random.SeedSequence``; everything random derives from it.
-    spread : terrain parameter spread around the class nominal (SYSTEM §6.1, ±15%).
+    spread : terrain parameter spread around the class nominal (design §6.1, ±15%).
     params : explicit TerrainParams per layout cell (overrides the draw; e.g. nominal for calibration).
     dt_s : physics step (s), at most 1/500.
+    towed : a cart pulled at a hitch (:class:`~terrainml.sim.mission_physics.TowedLoad`) or None.
+    tool_draft_n : draft of a soil-engaging tool at the hitch (N, opposes the motion).
     """
 
     def __init__(self, scenario: Scenario, robot: RobotSpec | str | None = None, seed=0, *,
                  spread: float = 0.15, params=None, dt_s: float = 0.001, gains: DriveGains = DriveGains(),
-                 sensor_config: SensorConfig = SensorConfig()):
+                 sensor_config: SensorConfig = SensorConfig(), towed: TowedLoad | None = None,
+                 tool_draft_n: float = 0.0):
         if dt_s > 1.0 / 500.0:
             raise ValueError(f"dt_s must be <= 0.002 s (>= 500 Hz), got {dt_s}")
         self.robot = load_robot(robot)
@@ -141,6 +177,12 @@ class Simulator:
         self.static_loads = np.array(rb.static_wheel_loads_n())
         lay = scenario.layout
         ter = self.terrain
+        motor = rb.motor_or_default
+        classes = lay.grid.reshape(-1).astype(np.int64)
+        digs = [dig_params(int(c)) for c in classes]
+        slope_x, slope_y = lay.slopes()
+        self.towed = towed
+        crr_cls = cart_crr_per_class(towed.crr if towed is not None else 0.0)
         # the physics kernel's packs, as plain tuples (see terrainml.sim.physics)
         self._vehicle = tuple(ph.Vehicle(
             wx=self.wx, wy=self.wy, xc=float(rb.com_x_m), yc=float(rb.com_y_m), mass=float(rb.mass_kg),
@@ -148,21 +190,37 @@ class Simulator:
             hcg=float(rb.com_height_m), load_pinv=np.ascontiguousarray(np.linalg.pinv(a)),
             kp=float(gains.kp_nms_per_rad), ki=float(gains.ki_nm_per_rad), tau_max=float(rb.max_wheel_torque_nm),
             steer_rate_max=float(rb.steering_rate_max_radps), steer_deadband=float(rb.steering_deadband_rad),
-            steer_tau=float(gains.steer_tau_s), omega_lag_tau=float(gains.omega_lag_tau_s), dt=self.dt))
+            steer_tau=float(gains.steer_tau_s), omega_lag_tau=float(gains.omega_lag_tau_s), dt=self.dt,
+            kt=float(rb.torque_constant_nm_per_a), r_ph=float(motor.phase_resistance_ohm),
+            eta_drv=float(motor.driver_efficiency), eta_regen=float(motor.regen_efficiency),
+            clearance=float(rb.ground_clearance_or_default_m), belly_mu=BELLY_MU, belly_ramp=BELLY_RAMP_M))
         self._ground = tuple(ph.Ground(
             h_tab=ter.h_coef, r_tab=ter.r_coef, y_tab=ter.y_coef, hmax_tab=ter.hmax_coef,
             w_ref=float(ter.load_ref_n), load_grid=LOAD_FACTORS, alpha_lo=float(ALPHA_GRID[0]),
             alpha_step=float(ALPHA_GRID[1] - ALPHA_GRID[0]), rough_amp=ter.rough_amp_m,
             rough_k=ter.rough_k_radpm, rough_phase=ter.rough_phase,
             lay_grid=np.ascontiguousarray(lay.grid.astype(np.int64)), lay_cell=float(lay.cell_m),
-            lay_ox=float(lay.origin_xy_m[0]), lay_oy=float(lay.origin_xy_m[1])))
+            lay_ox=float(lay.origin_xy_m[0]), lay_oy=float(lay.origin_xy_m[1]),
+            grad_x=np.tan(slope_x).reshape(-1), grad_y=np.tan(slope_y).reshape(-1),
+            len_tab=np.ascontiguousarray(ter.len_tab_m), z_tab=np.ascontiguousarray(ter.z_tab_m),
+            free_slip=np.array([p.free_slip for p in ter.params], float),
+            dig_k=np.array([d.kappa for d in digs]), dig_relax=np.array([d.relax_m for d in digs]),
+            dig_cap=np.array([d.cap_m for d in digs]), cart_crr=crr_cls[classes]))
         # state
-        self.body = np.zeros(9)
+        self.body = np.zeros(ph.N_BODY)
         self.wheel = np.zeros((ph.N_WROWS, n))
         self.wheel[ph.W_LOAD] = self.static_loads
-        self.acc = np.zeros(3)
+        self.acc = np.zeros(len(ph.ACC))
         self.log = np.zeros((self.n_rows, ph.N_LOG_BODY + len(ph.WLOG) * n))
-        self._state = tuple(ph.SimState(self.body, self.wheel, self.acc, self.log))
+        self.ext = np.zeros(len(ph.EXT))
+        if towed is not None:
+            self.ext[ph.E_TONGUE] = towed.tongue_fraction
+            self.ext[[ph.E_HX, ph.E_HY, ph.E_HZ]] = towed.hitch_xyz_m
+        else:
+            self.ext[[ph.E_HX, ph.E_HY]] = (rb.com_x_m, rb.com_y_m)
+        self.set_payload_kg(towed.payload_kg if towed is not None else 0.0)
+        self.set_tool_draft_n(tool_draft_n)
+        self._state = tuple(ph.SimState(self.body, self.wheel, self.acc, self.log, self.ext))
         self._init_log_row()
         self.log_row = 1
         self.tick = 0
@@ -174,12 +232,45 @@ class Simulator:
         self._stuck_flag = False
         self._mount = (rb.camera.x_m, rb.camera.y_m) if rb.camera is not None else (0.0, 0.0)
 
+    # ------------------------------------------------------------------ mission loads
+    @property
+    def payload_kg(self) -> float:
+        return self._payload_kg
+
+    def set_payload_kg(self, payload_kg: float) -> None:
+        """Cart payload (kg) from the next step on (needs ``towed``; 0 without one)."""
+        if payload_kg < 0:
+            raise ValueError(f"payload_kg must be >= 0, got {payload_kg}")
+        if self.towed is None and payload_kg != 0:
+            raise ValueError("set_payload_kg needs a towed load (Simulator(..., towed=TowedLoad(...)))")
+        self._payload_kg = float(payload_kg)
+        self.ext[ph.E_MC] = (self.towed.mass_kg if self.towed is not None else 0.0) + self._payload_kg
+
+    @property
+    def tool_draft_n(self) -> float:
+        return float(self.ext[ph.E_DRAFT])
+
+    def set_tool_draft_n(self, draft_n: float) -> None:
+        """Draft of a soil-engaging tool (N, >= 0) at the hitch, from the next step on."""
+        if not draft_n >= 0:
+            raise ValueError(f"tool_draft_n must be >= 0, got {draft_n}")
+        self.ext[ph.E_DRAFT] = float(draft_n)
+
     def _init_log_row(self) -> None:
         n = self.robot.n_wheels
         base = ph.N_LOG_BODY
         self.log[0, base + 6 * n: base + 7 * n] = self.static_loads
         self.log[0, base + 7 * n: base + 8 * n] = self.scenario.layout.cell_index(
             self.wx, self.wy)
+        z0 = self.terrain.z_tab_m[self.log[0, base + 7 * n: base + 8 * n].astype(int), :,
+                                  self.terrain.z_tab_m.shape[2] // 2]
+        lf = self.static_loads / self.terrain.load_ref_n
+        for i in range(n):                                  # static sinkage at the static load
+            zi = np.interp(lf[i], LOAD_FACTORS, z0[i])
+            self.log[0, base + 8 * n + i] = self.log[0, base + 9 * n + i] = zi
+            self.wheel[ph.W_Z, i] = zi
+        sx, _ = self.scenario.layout.grade_at(0.0, 0.0)
+        self.log[0, ph.L_PITCH] = float(sx)
 
     # ------------------------------------------------------------------ stepping
     @property
@@ -243,11 +334,16 @@ class Simulator:
 
     def result(self) -> SimResult:
         rows = self.log_row
+        a = self.acc
         return SimResult(self.robot, self.scenario, self.terrain, self.sensors, self.log[:rows].copy(),
                          self.cmd[:self.tick].copy(), self.omega_cmd[:self.tick].copy(), self.seed,
-                         float(self.acc[0]), float(self.acc[1]), int(self.stuck_events),
-                         {"energy_j": float(self.acc[0]), "distance_m": float(self.acc[1]),
-                          "stuck_events": int(self.stuck_events), "duration_s": float(self.acc[2])})
+                         float(a[ph.A_EMECH]), float(a[ph.A_DIST]), int(self.stuck_events),
+                         {"energy_j": float(a[ph.A_EMECH]), "distance_m": float(a[ph.A_DIST]),
+                          "stuck_events": int(self.stuck_events), "duration_s": float(a[ph.A_TIME]),
+                          "battery_energy_j": float(a[ph.A_BATT]),
+                          "battery_energy_noregen_j": float(a[ph.A_BATT_NR]),
+                          "copper_loss_j": float(a[ph.A_CU]), "slip_work_j": float(a[ph.A_SLIPW]),
+                          "drawbar_work_j": float(a[ph.A_DPW])})
 
 
 def sample_dict(sim_or_result, log: np.ndarray, rows: np.ndarray, robot: RobotSpec) -> dict:

@@ -1,4 +1,4 @@
-"""Per-run terrain realisations for the simulator: layouts, force tables, roughness (SYSTEM §6).
+"""Per-run terrain realisations for the simulator: layouts, force tables, roughness (design §6).
 
 Every force curve comes from :mod:`terrainml.lookup.terramechanics` (the one source of truth); this
 module only tabulates it, per terrain cell of a run, on a (load x slip) grid so the compiled physics
@@ -8,12 +8,14 @@ Layouts
 -------
 A :class:`TerrainLayout` is a grid of class ids over the ``world`` plane: one cell for a single-terrain
 run, a row of cells along x for a mixed-terrain course, 3 x 3 cells of 3 m for the 9 x 9 m patch map.
-Positions outside the grid take the nearest cell.
+Positions outside the grid take the nearest cell. Each cell may carry a surface slope
+(``slope_x_rad``, ``slope_y_rad``: the angle of the ground along world +x and +y, positive when it
+rises; design §6, issue 18); the physics reads the cell under the body origin.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -33,6 +35,28 @@ class TerrainLayout:
     grid: np.ndarray                      # (nx, ny) int class ids
     cell_m: float = 1e6
     origin_xy_m: tuple[float, float] = (-5e5, -5e5)
+    slope_x_rad: np.ndarray | float | None = None   # scalar or (nx, ny): ground angle along world x
+    slope_y_rad: np.ndarray | float | None = None   # ... along world y (rad, > 0 rising)
+
+    def slopes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(nx, ny) slope grids along world x and y (rad; zeros when none given)."""
+        out = []
+        for s in (self.slope_x_rad, self.slope_y_rad):
+            a = np.zeros(self.grid.shape) if s is None else np.broadcast_to(np.asarray(s, float), self.grid.shape)
+            if np.any(np.abs(a) >= np.pi / 2):
+                raise ValueError("TerrainLayout: slopes must be in (-pi/2, pi/2) rad")
+            out.append(np.array(a, dtype=float))
+        return out[0], out[1]
+
+    def with_grade(self, slope_x_rad=0.0, slope_y_rad=0.0) -> "TerrainLayout":
+        """A copy with slopes (scalar or (nx, ny) grids, rad) along world x and y."""
+        return replace(self, slope_x_rad=slope_x_rad, slope_y_rad=slope_y_rad)
+
+    def grade_at(self, x_m, y_m) -> tuple[np.ndarray, np.ndarray]:
+        """Slopes (rad) along world x and y of the cells under world points."""
+        sx, sy = self.slopes()
+        c = self.cell_index(x_m, y_m)
+        return sx.reshape(-1)[c], sy.reshape(-1)[c]
 
     @classmethod
     def uniform(cls, terrain: int | str) -> "TerrainLayout":
@@ -76,6 +100,8 @@ class TerrainRealisation:
     rough_phase: np.ndarray     # (n_wheels, N_ROUGH)
     load_ref_n: float
     extra: dict = field(default_factory=dict)
+    z_tab_m: np.ndarray | None = None        # (n_cells, n_loads, n_slip) slip sinkage z(s, W)
+    len_tab_m: np.ndarray | None = None      # (n_cells, n_loads) contact length at zero slip
 
     @property
     def cell_class(self) -> np.ndarray:
@@ -98,12 +124,16 @@ def realise(layout: TerrainLayout, robot, rng: np.random.Generator, spread: floa
     n_c = len(params)
     h = np.empty((n_c, len(loads), len(SLIP_GRID)))
     r = np.empty_like(h)
+    z = np.empty_like(h)
+    length = np.empty((n_c, len(loads)))
     y = np.empty((n_c, len(ALPHA_GRID)))
     for c, p in enumerate(params):
         lw = np.maximum(loads, 1e-6)[:, None]
         h[c] = tm.gross_thrust_n(p, lw, SLIP_GRID[None, :], robot) / w_ref
         r[c] = tm.motion_resistance_n(p, lw, SLIP_GRID[None, :], robot) / w_ref
         y[c] = tm.lateral_force_n(p, 1.0, ALPHA_GRID, robot)
+        z[c] = tm.sinkage_m(p, lw, SLIP_GRID[None, :], robot)
+        length[c] = tm.contact_length_m(p, z[c, :, len(SLIP_GRID) // 2], robot)
     h[:, 0, :] = 0.0
     r[:, 0, :] = 0.0
     hmax = np.max(np.abs(h), axis=2)
@@ -118,4 +148,5 @@ def realise(layout: TerrainLayout, robot, rng: np.random.Generator, spread: floa
         share = share / np.sqrt(np.sum(share ** 2) / 2.0)        # rms of sum of sines = rms_m
         amp[c] = p.roughness_rms_m * share
     phase = rng.uniform(0.0, 2 * np.pi, (robot.n_wheels, N_ROUGH))
-    return TerrainRealisation(layout, list(params), h, r, y, hmax, amp, k, phase, w_ref)
+    return TerrainRealisation(layout, list(params), h, r, y, hmax, amp, k, phase, w_ref,
+                              z_tab_m=z, len_tab_m=length)

@@ -1,4 +1,4 @@
-"""Slip maps (SYSTEM §13, the IRLS paper): per-patch robust slippage estimators merged across robots.
+"""Slip maps (design §13, the IRLS paper): per-patch robust slippage estimators merged across robots.
 
 - :mod:`terrainml.slipmap.irls`: :class:`IRLSRegressor` (polynomial features + statsmodels RLM) and
   local sufficient statistics.

@@ -1,4 +1,4 @@
-"""Fit a slip map from canonical run tables (SYSTEM §5) of a skid-steer robot.
+"""Fit a slip map from canonical run tables (design §5) of a skid-steer robot.
 
 Inputs per row: the left and right wheel speeds (mean of each side's ``wheel{i}_omega_radps``) and a
 reference body velocity, from the first source that is present and finite:

@@ -1,4 +1,4 @@
-"""Robust polynomial regression by IRLS (IRLS paper §II-B, SYSTEM §13).
+"""Robust polynomial regression by IRLS (IRLS paper §II-B, design §13).
 
 :class:`IRLSRegressor` is a scikit-learn-style estimator: inputs are scaled by a fixed
 ``input_scale`` (so that robots fitting separately share one feature space), expanded by
@@ -7,7 +7,7 @@ by statsmodels' :class:`~statsmodels.robust.robust_linear_model.RLM` (iterativel
 squares with a Huber or Tukey-bisquare norm). No hand-rolled solver.
 
 After RLM converges, the final IRLS weights ``w`` define the *local sufficient statistics*
-``A = X^T W X`` and ``b = X^T W y`` (SYSTEM §13). ``coef_`` is the weighted least-squares solution
+``A = X^T W X`` and ``b = X^T W y`` (design §13). ``coef_`` is the weighted least-squares solution
 under those final weights (one WLS step after RLM's last iteration, a change of the order of RLM's
 tolerance), so a single robot's estimate is exactly the solve of its own statistics, and the merge
 ``(sum A_k) theta = sum b_k`` of several robots equals the centralised weighted fit.
@@ -206,7 +206,7 @@ class IRLSRegressor(RegressorMixin, BaseEstimator):
         return polynomial_features(x, int(self.degree), float(self.input_scale)) @ self.coef_
 
     def sufficient_stats(self) -> SufficientStats:
-        """``A = X^T W X``, ``b = X^T W y`` with the final IRLS weights (SYSTEM §13)."""
+        """``A = X^T W X``, ``b = X^T W y`` with the final IRLS weights (design §13)."""
         check_is_fitted(self, "coef_")
         s = self._stats
         return SufficientStats(s.a.copy(), s.b.copy(), s.n, s.sum_w)

@@ -1,4 +1,4 @@
-"""A slip map: one robust slippage estimator per terrain class or map patch (SYSTEM §13).
+"""A slip map: one robust slippage estimator per terrain class or map patch (design §13).
 
 Each entry (``key``: a patch id such as ``"r1c2"`` or a class name) holds, for each target
 ``beta_left_mps``, ``beta_right_mps``, ``alpha_rad``, the local sufficient statistics
@@ -265,7 +265,7 @@ class SlipMap:
 def merge_maps(maps: Iterable[SlipMap], robot_id: str = "merged") -> SlipMap:
     """Exact merge of several robots' maps: per entry and target, sum the statistics.
 
-    The result's coefficients solve ``(sum_k A_k) theta = sum_k b_k`` (SYSTEM §13). Entries present
+    The result's coefficients solve ``(sum_k A_k) theta = sum_k b_k`` (design §13). Entries present
     in only some maps are taken from those.
     """
     maps = list(maps)

@@ -4,7 +4,7 @@ The IRLS paper drives its robots along "a closed trajectory with different radiu
 connecting a set of via-points with cubic splines" with a Lyapunov controller from its ref. [1].
 Here the path is a periodic cubic spline (``scipy.interpolate.CubicSpline``, ``bc_type="periodic"``)
 and the tracker is pure pursuit. The predicted lateral slip angle ``alpha`` enters the tracker's
-heading (SYSTEM §13): the robot's velocity points along ``theta + alpha``, so pure pursuit steers
+heading (design §13): the robot's velocity points along ``theta + alpha``, so pure pursuit steers
 that direction, not the body axis, towards the look-ahead point.
 """
 

@@ -1,6 +1,6 @@
-"""Where base-rate samples come from: a log file, UDP JSON datagrams, stdin JSON lines (SYSTEM §11).
+"""Where base-rate samples come from: a log file, UDP JSON datagrams, stdin JSON lines (design §11).
 
-A *sample* is a dict with ``t_s`` and canonical run-table column names (SYSTEM §5), e.g.
+A *sample* is a dict with ``t_s`` and canonical run-table column names (design §5), e.g.
 ``{"t_s": 1.23, "wheel1_omega_radps": 6.1, ..., "imu_ax_mps2": 0.02, ...}``; missing groups,
 ``null`` or non-finite values simply make that sensor group invalid for the tick.
 

@@ -1,4 +1,4 @@
-"""Per-wheel slip PID (SYSTEM §12) against thesis Table 8.1 and simple closed-loop behaviour."""
+"""Per-wheel slip PID (design §12) against thesis Table 8.1 and simple closed-loop behaviour."""
 
 from __future__ import annotations
 

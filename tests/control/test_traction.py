@@ -1,4 +1,4 @@
-"""SlipController: measured samples -> per-wheel corrections (SYSTEM §12), without the simulator."""
+"""SlipController: measured samples -> per-wheel corrections (design §12), without the simulator."""
 
 from __future__ import annotations
 

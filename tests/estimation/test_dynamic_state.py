@@ -1,4 +1,4 @@
-"""Manoeuvre filter of the dynamic state (SYSTEM §7.2 departure): float path = array path."""
+"""Manoeuvre filter of the dynamic state (design §7.2 departure): float path = array path."""
 
 
 def test_manoeuvre_filter_float_path_equals_array_path():

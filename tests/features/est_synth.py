@@ -42,5 +42,5 @@ def make_est(n: int = 1000, n_wheels: int = 3, speed_mps: float = 1.0, slip: flo
     return pd.DataFrame(d)
 
 
-# a sensor-level run table (canonical, SYSTEM §5) for the estimator -> windows chain
+# a sensor-level run table (canonical, design §5) for the estimator -> windows chain
 from synthetic_runs import CLASS_CURRENT_A, CLASS_SLIP, make_run_table  # noqa: E402,F401

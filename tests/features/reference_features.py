@@ -1,4 +1,4 @@
-"""Reference implementation of the window features (SYSTEM §8), for tests only.
+"""Reference implementation of the window features (design §8), for tests only.
 
 A straightforward per-channel transcription of the feature definitions with
 ``scipy.signal.welch`` and ``np.percentile``: the implementation ``terrainml.features.sets``
@@ -76,7 +76,7 @@ def _spectral(x: np.ndarray, rate_hz: float) -> dict[str, np.ndarray]:
 def reference_features(X: np.ndarray, channels: Sequence[str], rate_hz: float = 100.0,
                      torque_constant_nm_per_a: float = 2.0, wheel_radius_m: float = 0.165,
                      wheel_loads_n: Sequence[float] | None = None) -> tuple[np.ndarray, list[str]]:
-    """All features of SYSTEM §8 for raw windows.
+    """All features of design §8 for raw windows.
 
     Parameters
     ----------

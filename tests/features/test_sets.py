@@ -1,4 +1,4 @@
-"""Feature values against hand-computed truth (SYSTEM §8)."""
+"""Feature values against hand-computed truth (design §8)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Steady-window rules, channels, and offline/online parity (SYSTEM §8)."""
+"""Steady-window rules, channels, and offline/online parity (design §8)."""
 
 from __future__ import annotations
 

@@ -104,7 +104,7 @@ def test_chunked_parquet_equals_in_memory_table(awkward):
         else:
             assert (a[c].astype(str).to_numpy() == b[c].astype(str).to_numpy()).all(), c
             assert a[c].dtype.kind == b[c].dtype.kind or c == "run_id", c
-    assert a.attrs["terrainml"] == b.attrs["terrainml"]       # SYSTEM §5 metadata, warnings included
+    assert a.attrs["terrainml"] == b.attrs["terrainml"]       # design §5 metadata, warnings included
     assert rep.topics == mem.report.topics and rep.warnings == mem.report.warnings
     assert rep.valid_fraction == pytest.approx(mem.report.valid_fraction)
 

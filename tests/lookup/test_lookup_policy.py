@@ -1,4 +1,4 @@
-"""Serving policy and per-wheel sign logic (SYSTEM §10, thesis eq. 8.7-8.9, Table 8.1)."""
+"""Serving policy and per-wheel sign logic (design §10, thesis eq. 8.7-8.9, Table 8.1)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
-"""Desired-slip table (SYSTEM §10): rules, physics of each target, robot dependence, JSON.
+"""Desired-slip table (design §10): rules, physics of each target, robot dependence, JSON.
 
 Independent truth: the terramechanics force curves themselves (evaluated here on a finer grid
-than the table's), the analytic Burckhardt peak s* = ln(c1 c2 / c3) / c2 (SYSTEM §6.2: 0.16 on
+than the table's), the analytic Burckhardt peak s* = ln(c1 c2 / c3) / c2 (design §6.2: 0.16 on
 dry concrete), ``terramechanics.steady_slip`` (its own root finder), and thesis Table 8.1.
 """
 
@@ -52,7 +52,7 @@ def mu_net(cid, robot, s):
     return num / sum(loads)
 
 
-# ---------------------------------------------------------------- SYSTEM §10 rules, per class
+# ---------------------------------------------------------------- design §10 rules, per class
 @pytest.mark.parametrize("which", ["agrimaro", "husky"])
 @pytest.mark.parametrize("cid", CLASS_IDS, ids=TERRAIN_CLASSES)
 def test_rules_hold_for_every_class(cid, which, table, husky_table):

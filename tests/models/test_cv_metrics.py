@@ -1,4 +1,4 @@
-"""Grouped CV and metrics against independent truth (SYSTEM §9)."""
+"""Grouped CV and metrics against independent truth (design §9)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Simulator acceptance checks against independent ground truth (SYSTEM §6, issue 4).
+"""Simulator acceptance checks against independent ground truth (design §6, issue 4).
 
 Runs are short and shared through module fixtures; the whole file stays well inside its budget.
 """
@@ -20,7 +20,7 @@ from terrainml.sim.generate import simulate
 
 ROBOT = load_robot()
 W = ROBOT.static_wheel_loads_n()[0]
-TARGETS = {  # SYSTEM §6.1, steady slip at 1 m/s
+TARGETS = {  # design §6.1, steady slip at 1 m/s
     "pavement": (-0.01, 0.01), "compacted_dirt": (0.02, 0.05), "short_grass": (0.116, 0.135),
     "gravel_on_firm_soil": (0.122, 0.146), "tall_damp_grass": (0.16, 0.22), "tilled_loam": (0.17, 0.23),
     "dry_sand": (0.26, 0.34), "wet_mud": (0.35, 0.5),

@@ -1,4 +1,4 @@
-"""Terramechanics curves (SYSTEM §6.1-6.2): hand-worked values and the physical rules of §10."""
+"""Terramechanics curves (design §6.1-6.2): hand-worked values and the physical rules of §10."""
 
 import math
 
@@ -13,7 +13,7 @@ ROBOT = load_robot()
 W = ROBOT.static_wheel_loads_n()[0]
 S = np.linspace(0.0, 0.8, 1601)
 
-# SYSTEM §6.1 calibration targets (root of mu_net = 0 at the reference load)
+# design §6.1 calibration targets (root of mu_net = 0 at the reference load)
 TARGETS = {
     "pavement": (-0.01, 0.01), "compacted_dirt": (0.02, 0.05), "short_grass": (0.116, 0.135),
     "gravel_on_firm_soil": (0.122, 0.146), "tall_damp_grass": (0.16, 0.22), "tilled_loam": (0.17, 0.23),
@@ -32,7 +32,7 @@ def test_burckhardt_dry_concrete_by_hand():
     assert float(tm.gross_thrust_n(p, W, s, ROBOT)) == pytest.approx(mu * W, rel=1e-9)
     # braking by symmetry
     assert float(tm.gross_thrust_n(p, W, -s, ROBOT)) == pytest.approx(-mu * W, rel=1e-9)
-    # peak at ln(c1 c2 / c3) / c2 = 0.16 (SYSTEM §6.2)
+    # peak at ln(c1 c2 / c3) / c2 = 0.16 (design §6.2)
     mu_net = tm.net_traction_coefficient(p, W, S, ROBOT)
     assert S[np.argmax(mu_net)] == pytest.approx(0.16, abs=0.002)
     assert float(tm.motion_resistance_n(p, W, 0.0, ROBOT)) == pytest.approx(0.012 * W)
@@ -61,7 +61,7 @@ def test_steady_slip_non_decreasing_with_class_id():
 
 @pytest.mark.parametrize("name", TERRAIN_CLASSES)
 def test_lookup_rules_hold(name):
-    """SYSTEM §10: s_T >= s_S + 0.03, no target beyond 0.6, |braking| > traction magnitude."""
+    """design §10: s_T >= s_S + 0.03, no target beyond 0.6, |braking| > traction magnitude."""
     p = tm.nominal_params(name)
     mu = tm.net_traction_coefficient(p, W, S, ROBOT)
     i = int(np.argmax(mu))

@@ -1,4 +1,4 @@
-"""IRLS regressor, sufficient statistics and the exact merge (SYSTEM §13)."""
+"""IRLS regressor, sufficient statistics and the exact merge (design §13)."""
 
 import json
 

@@ -14,7 +14,7 @@ RATE_HZ = 100.0
 
 
 class FakeEstimator:
-    """EST row from a sample: body speed = cam_vx (held while invalid); slip per SYSTEM §7.1."""
+    """EST row from a sample: body speed = cam_vx (held while invalid); slip per design §7.1."""
 
     def __init__(self, robot, nan_at=()):
         self.robot = robot
