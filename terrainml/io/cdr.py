@@ -21,6 +21,7 @@ Decoded blocks are plain dicts of numpy arrays, keyed per message kind:
 
 from __future__ import annotations
 
+import functools
 import struct
 from dataclasses import dataclass
 
@@ -517,3 +518,84 @@ def encode_uint8(v: int) -> bytes:
     e = CdrEncoder()
     e.u8(int(v))
     return e.getvalue()
+
+
+# ----------------------------------------------------------------------------- block encoding
+# A block of messages of one type with the same frame ids and joint names shares one byte layout,
+# so it is encoded at once: one message of zeros from the per-message encoder above is the template
+# (every structural byte: lengths, strings, padding, zero covariances), :func:`layout` (the decoder's)
+# gives the byte offsets of its stamp and value fields, and the fields of all n rows are written
+# into an (n, length) copy of the template as column slices.
+@functools.lru_cache(maxsize=64)
+def _template_layout(kind: str, template: bytes, type_name: str) -> _Layout:
+    return layout(kind, template, type_name)
+
+
+def _block(kind: str, template: bytes, n: int, t_ns, values: dict, type_name: str = "") -> np.ndarray:
+    lay = _template_layout(kind, template, type_name)
+    out = np.empty((n, len(template)), np.uint8)
+    out[:] = np.frombuffer(template, np.uint8)
+    if lay.stamp is not None:
+        t = np.asarray(t_ns, np.int64).reshape(n)
+        sec = t // 1_000_000_000
+        if n and not (-2**31 <= sec.min() and sec.max() < 2**31):   # builtin_interfaces/Time: int32 sec
+            raise ValueError("header stamp out of the int32 seconds range")
+        s = lay.stamp
+        out[:, s:s + 4] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
+        out[:, s + 4:s + 8] = (t % 1_000_000_000).astype("<u4").view(np.uint8).reshape(n, 4)
+    for name, v in values.items():
+        off, dt, count = lay.fields[name]
+        width = np.dtype(dt).itemsize * count
+        col = np.ascontiguousarray(np.asarray(v, dt).reshape(n, count))
+        out[:, off:off + width] = col.view(np.uint8).reshape(n, width)
+    return out
+
+
+def _cols(v, n: int, k: int) -> np.ndarray:
+    """(n, k) float64 from (n, k), (n,) or a (k,) row repeated."""
+    a = np.asarray(v, np.float64)
+    return np.broadcast_to(a.reshape(n, k) if a.size == n * k else a, (n, k))
+
+
+def encode_imu_block(t_ns, frame_id: bytes, q_xyzw, gyro, accel) -> np.ndarray:
+    """n sensor_msgs/Imu as an (n, length) uint8 array (row i: the bytes of :func:`encode_imu`).
+
+    ``t_ns`` (n,) header stamps; ``q_xyzw`` (n, 4) or (4,); ``gyro``, ``accel`` (n, 3).
+    """
+    n = len(t_ns)
+    return _block("imu", encode_imu(0, frame_id, (0.0,) * 4, (0.0,) * 3, (0.0,) * 3), n, t_ns,
+                  {"orientation": _cols(q_xyzw, n, 4), "gyro": _cols(gyro, n, 3), "accel": _cols(accel, n, 3)})
+
+
+def encode_odometry_block(t_ns, frame_id: bytes, child_frame_id: bytes, position, q_xyzw, linear, angular,
+                          cov0=0.0) -> np.ndarray:
+    """n nav_msgs/Odometry (rows as :func:`encode_odometry`); vectors (n, 3)/(n, 4), ``cov0`` (n,) or scalar."""
+    n = len(t_ns)
+    z3 = (0.0,) * 3
+    return _block("odometry", encode_odometry(0, frame_id, child_frame_id, z3, (0.0,) * 4, z3, z3), n, t_ns,
+                  {"position": _cols(position, n, 3), "orientation": _cols(q_xyzw, n, 4),
+                   "linear": _cols(linear, n, 3), "angular": _cols(angular, n, 3), "cov0": _cols(cov0, n, 1)})
+
+
+def encode_joint_state_block(t_ns, frame_id: bytes, names: list[bytes], position=None, velocity=None,
+                             effort=None) -> np.ndarray:
+    """n sensor_msgs/JointState with the same ``names``; each field (n, len(names)), or None for an
+    empty sequence (rows as :func:`encode_joint_state`)."""
+    n, k = len(t_ns), len(names)
+    given = {f: _cols(v, n, k) for f, v in (("position", position), ("velocity", velocity), ("effort", effort))
+             if v is not None and k}
+    zeros = [(0.0,) * k if f in given else () for f in ("position", "velocity", "effort")]
+    return _block("joint_state", encode_joint_state(0, frame_id, names, *zeros), n, t_ns, given)
+
+
+def encode_twist_block(linear, angular) -> np.ndarray:
+    """n geometry_msgs/Twist from (n, 3) ``linear`` and ``angular`` (rows as :func:`encode_twist`)."""
+    n = len(linear)
+    return _block("twist", encode_twist((0.0,) * 3, (0.0,) * 3), n, None,
+                  {"linear": _cols(linear, n, 3), "angular": _cols(angular, n, 3)})
+
+
+def encode_uint8_block(values) -> np.ndarray:
+    """n std_msgs/UInt8 from integer ``values`` (n,) (low byte, as :func:`encode_uint8`)."""
+    v = np.asarray(values).astype(np.int64) & 0xFF
+    return _block("scalar", encode_uint8(0), len(v), None, {"data": v.reshape(-1, 1)}, "std_msgs/msg/UInt8")

@@ -18,10 +18,10 @@ the default topic map's messages, so a hand-made table round-trips.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -34,23 +34,22 @@ from scipy.spatial.transform import Rotation
 
 from terrainml.hashing import sha256_file
 from terrainml.io import t265, topics
-from terrainml.io.cells import Cells, arrow_cells, series_cells
 from terrainml.io.damage import damage_metadata
+from terrainml.io.dataset_spec import DatasetSpec, DatasetSpecError, RunFiles, load_dataset_spec
 from terrainml.io.ingest_engine import FileLog, IngestReport, MemoryLog, produce, scan_log
-from terrainml.io.ingest_signals import PREVIOUS_COLUMNS, Signal, assemble
+from terrainml.io.ingest_tables import Binding, TableFile, tables_to_run
 from terrainml.io.mcap_writer import RosMcapWriter
 from terrainml.io.readers import LogReadError, sniff_format
-from terrainml.io.resample import clean_times, gap_threshold_s
 from terrainml.io.topicmap import TopicMap, TopicMapError, load_topic_map
-from terrainml.robot import RobotSpec, RobotSpecError, check_wheel_count, load_robot
+from terrainml.robot import RobotSpec, RobotSpecError, load_robot
 from terrainml.schema import (DEFAULT_RATE_HZ, METADATA_KEY, VALID_GROUPS, SchemaError, column_map,
                               make_metadata, valid_column, validate_run_table, wheel_col,
                               write_run_parquet)
 
-__all__ = ["IngestReport", "IngestResult", "load_run", "ingest_to_parquet", "write_run_mcap"]
+__all__ = ["IngestReport", "IngestResult", "load_run", "load_dataset_run", "ingest_to_parquet", "write_run_mcap"]
 
 DEFAULT_CHUNK_S = 30.0
-LOG_FORMATS = ("mcap", "bag")
+LOG_FORMATS = ("mcap", "bag", "rosbag2")
 
 
 @dataclass
@@ -158,173 +157,35 @@ def _topic_map(topic_map, fmt: str) -> TopicMap | None:
 
 
 # ----------------------------------------------------------------------------- tables (CSV/Parquet)
-_WHEEL_COLUMN = re.compile(r"^wheel(\d+)_(omega_radps|steer_rad|current_a)$")
-
-
-class _TableColumns:
-    """The columns of a CSV (pandas, only empty cells as NA) or Parquet (Arrow) file under their
-    canonical names, read cell by cell (:mod:`terrainml.io.cells`)."""
-
-    def __init__(self, path: Path, fmt: str, renames: dict[str, str]):
-        if fmt == "csv":
-            self.df = pd.read_csv(path, keep_default_na=False, na_values=[""])
-            self.arrow = None
-            names = list(self.df.columns)
-        else:
-            self.arrow = pq.read_table(path)
-            self.df = None
-            names = self.arrow.column_names
-        self.source = {renames.get(n, n): n for n in names}   # canonical -> name in the file
-
-    @property
-    def names(self) -> list[str]:
-        return list(self.source)
-
-    def cells(self, name: str, boolean: bool = False) -> Cells:
-        src = self.source[name]
-        if self.arrow is not None:
-            return arrow_cells(self.arrow[src], boolean=boolean)
-        return series_cells(self.df[src], boolean=boolean)
-
-    def raw(self, name: str) -> pd.Series:
-        src = self.source[name]
-        return self.arrow[src].to_pandas() if self.arrow is not None else self.df[src]
-
-
-def _table_wheels(names: list[str]) -> int:
-    """Wheels a table has: the largest ``i`` of its ``wheel{i}_omega_radps/steer_rad/current_a``."""
-    return max([int(m.group(1)) for m in map(_WHEEL_COLUMN.match, names) if m] + [0])
-
-
-def _count_bad(path: Path, col: str, counts: dict[str, int], group: str, rep: IngestReport) -> None:
-    if counts:
-        rep.bad_cells[col] = counts
-        what = ", ".join(f"{n} {k.replace('_', '-')}" for k, n in counts.items())
-        rep.warnings.append(f"{path}: column '{col}': {sum(counts.values())} bad cell(s) ({what}); "
-                            + (f"group {group} invalid at those rows" if group in VALID_GROUPS
-                               else "value missing at those rows"))
-
-
 def _from_tabular(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap | None, rate_hz: float,
                   rep: IngestReport) -> pd.DataFrame | None:
-    """The canonical columns of a CSV/Parquet table resampled onto the base grid (None: error in ``rep``).
-
-    Cell by cell: an empty/null cell is no sample; a bad cell (unparseable, non-finite, wrongly
-    typed) is counted and makes its sensor group invalid at that row; a row the table flags
-    invalid (``{group}_valid`` false) stays invalid. Both are kept as NaN samples, so nothing is
-    interpolated or held across them.
-    """
-    table_opts = tmap.table if tmap is not None else {}
-    try:
-        cols = _TableColumns(path, fmt, dict(table_opts.get("columns") or {}))
-    except Exception as exc:  # noqa: BLE001 - parser errors of several types
-        rep.errors.append(f"{path}: not a readable {fmt.upper()} file ({exc})")
-        return None
-    tcol = table_opts.get("time_column", "t_s")
-    if tcol not in cols.names:
-        rep.errors.append(f"{path}: missing time column '{tcol}' (give a topic map with time_column "
-                          "and columns to map your file's names)")
-        return None
-    n_in_table = _table_wheels(cols.names)
-    if n_in_table:
-        check_wheel_count(robot, n_in_table, path)
-    tc = cols.cells(tcol)
-    _count_bad(path, tcol, tc.counts(), "time", rep)
-    t = tc.values * float(table_opts.get("time_scale", 1.0))
-    fin = np.isfinite(t)
-    if (~fin).any():
-        rep.warnings.append(f"{path}: column '{tcol}': {int((~fin).sum())} row(s) without a finite time dropped")
-    order, ooo, dup = clean_times(t[fin])
-    rows = np.flatnonzero(fin)[order]          # kept rows of the file, in time order
-    rep.topics["<table>"] = {"type": fmt, "mapped": True, "read": len(t), "decoded": len(rows), "corrupt": 0,
-                             "skipped": int((~fin).sum()), "out_of_order": ooo, "duplicates": dup, "non_finite": 0}
-    if ooo or dup:
-        rep.warnings.append(f"{path}: column '{tcol}': {ooo} out-of-order and {dup} duplicate time(s) "
-                            "(sorted, duplicates dropped)")
-    if len(rows) == 0:
-        rep.errors.append(f"{path}: no rows")
-        return None
-    t = t[rows]
-    t_s = t - t[0]
-    spec = column_map(robot.n_wheels)
-    names = [c for c in cols.names if c in spec and c not in ("t_s", "run_id", tcol) and spec[c].group != "validity"]
-    if "run_id" in cols.names:
-        run_ids = cols.raw("run_id").iloc[rows]
-        if run_ids.nunique() == 1:
-            rep.topics["<table>"]["run_id"] = str(run_ids.iloc[0])
-    n_file = len(tc.values)
-
-    def file_rows(kept: np.ndarray) -> np.ndarray:   # (n_file,) bool of the kept rows selected
-        m = np.zeros(n_file, bool)
-        m[rows[kept]] = True
-        return m
-
-    every = np.ones(len(rows), bool)
-    # rows each group may not use: flagged invalid by the table, or holding a bad cell
-    flagged: dict[str, np.ndarray] = {}
-    for g in VALID_GROUPS:
-        vcol = valid_column(g).name
-        if vcol in cols.names:
-            vc = cols.cells(vcol, boolean=True)
-            _count_bad(path, vcol, vc.counts(rows=file_rows(every)), g, rep)
-            flagged[g] = ~(vc.values[rows] == 1.0)
-    cells = {c: cols.cells(c) for c in names if not c.startswith("gt_state")}
-    unusable = {spec[c].group: flagged.get(spec[c].group, ~every).copy() for c in names}
-    for c, cl in cells.items():
-        g = spec[c].group   # cells on rows the table itself flags invalid are not counted
-        _count_bad(path, c, cl.counts(rows=file_rows(~flagged[g] if g in flagged else every)), g, rep)
-        unusable[g] |= cl.bad[rows]
-    signals = []
-    for col in names:
-        g = spec[col].group
-        if col.startswith("gt_state"):
-            codes = {**topics.WHEEL_STATE_CODES}
-            v = cols.raw(col).iloc[rows].map(lambda s: codes.get(str(s), np.nan)).to_numpy(float)
-            keep = np.isfinite(v)
-        else:
-            cl = cells[col]
-            v = cl.values[rows].copy()
-            if col == "terrain":
-                v = np.where(v < 0, np.nan, v)      # -1: unlabelled, a sample like any other
-            keep = ~cl.missing[rows] | unusable[g]   # empty cells on usable rows: no sample
-            if g in VALID_GROUPS:
-                v[unusable[g]] = np.nan
-            own = np.isfinite(cl.values[rows])
-            if not np.isfinite(v[keep]).any():
-                why = ("every cell bad" if cl.bad[rows].all() else "every cell empty" if cl.missing[rows].all()
-                       else f"every row flagged invalid by {g}_valid" if g in flagged and not own[~flagged[g]].any()
-                       else None)   # else: the group's bad cells in another column, reported there
-            if not np.isfinite(v[keep]).any() and why:
-                rep.warnings.append(f"{path}: column '{col}': no usable value in {len(rows)} row(s) ({why}); "
-                                    f"{'group ' + g + ' 0% valid' if g in VALID_GROUPS else 'column empty'}")
-        method = "previous" if col.endswith(PREVIOUS_COLUMNS) or col == "cam_confidence" else \
-            ("angle" if col.endswith("yaw_rad") else "linear")
-        ts = t_s[keep]
-        gap = np.inf if col == "terrain" or col.startswith("gt_state") else gap_threshold_s(ts, rate_hz)
-        signals.append(Signal(col, ts, v[keep], method, gap))
-    missing = [c.name for c in spec.values() if c.required and c.name not in cols.names]
-    if missing:
-        rep.warnings.append(f"{path}: column(s) {', '.join(missing)} missing (group marked invalid)")
-    if not signals:
-        rep.errors.append(f"{path}: no canonical column found (give a topic map with 'columns')")
-        return None
-    grid = np.arange(int(math.floor(t_s[-1] * rate_hz + 1e-6)) + 1) / rate_hz
-    return assemble(signals, grid, robot)
+    """A CSV/Parquet run table (canonical names, or a topic map's ``columns`` renames) resampled
+    onto the base grid by the tabular path (:mod:`terrainml.io.ingest_tables`)."""
+    opts = tmap.table if tmap is not None else {}
+    bindings = {canon: Binding(src) for src, canon in dict(opts.get("columns") or {}).items()}
+    tf = TableFile(path, fmt, time_column=opts.get("time_column", "t_s"),
+                   time_scale=float(opts.get("time_scale", 1.0)), bindings=bindings)
+    return tables_to_run([tf], robot, rate_hz, rep)
 
 
 # ----------------------------------------------------------------------------- public API
 def load_run(path: str | Path, *, robot: RobotSpec | str | Path | None = None,
              topic_map: TopicMap | str | Path | dict | None = None, rate_hz: float = DEFAULT_RATE_HZ,
-             progress: Callable[[int, int], None] | None = None) -> IngestResult:
+             progress: Callable[[int, int], None] | None = None,
+             dataset: DatasetSpec | str | Path | dict | None = None) -> IngestResult:
     """Ingest one log into the canonical run table.
 
     Parameters
     ----------
-    path : ``.mcap`` (ROS 2, CDR), ``.bag`` (ROS 1), ``.csv`` or ``.parquet``.
-    robot : RobotSpec, built-in name or YAML path (default: the reference robot).
+    path : ``.mcap`` (ROS 2, CDR), ``.bag`` (ROS 1), a ROS 2 bag folder, ``.csv`` or ``.parquet``;
+        with ``dataset``, any file of one run of that dataset (e.g. BorealTC's ``pro_00.csv``).
+    robot : RobotSpec, built-in name or YAML path (default: the reference robot, or the dataset
+        spec's robot).
     topic_map : TopicMap, built-in name (``default``, ``husky_robot_localization``), YAML path or dict.
     rate_hz : base rate of the output grid (Hz).
     progress : optional ``(done, total)`` callback.
+    dataset : a dataset spec (built-in name ``borealtc``, YAML path, dict): the run's files are
+        found and paired by it (:mod:`terrainml.io.dataset_spec`).
 
     Returns
     -------
@@ -332,6 +193,8 @@ def load_run(path: str | Path, *, robot: RobotSpec | str | Path | None = None,
     ``terrain`` from ``/terrain/label`` if present, ``gt_*`` from ``/sim/*``) and ``report``.
     """
     path = Path(path)
+    if dataset is not None:
+        return _load_dataset_file(path, dataset, robot, rate_hz)
     rep = IngestReport(source=str(path), rate_hz=float(rate_hz))
     path, robot_spec, ok = _open_input(path, robot, rate_hz, rep)
     if not ok:
@@ -372,14 +235,15 @@ def load_run(path: str | Path, *, robot: RobotSpec | str | Path | None = None,
 def ingest_to_parquet(path: str | Path, out: str | Path, *, robot: RobotSpec | str | Path | None = None,
                       topic_map: TopicMap | str | Path | dict | None = None, rate_hz: float = DEFAULT_RATE_HZ,
                       chunk_s: float = DEFAULT_CHUNK_S,
-                      progress: Callable[[int, int], None] | None = None) -> IngestReport:
+                      progress: Callable[[int, int], None] | None = None,
+                      dataset: DatasetSpec | str | Path | dict | None = None) -> IngestReport:
     """Ingest a log into a Parquet run table with memory bounded by ``chunk_s`` (not the log length).
 
     Parameters
     ----------
     path : ``.mcap`` (ROS 2) or ``.bag`` (ROS 1) streamed; ``.csv``/``.parquet`` via ``load_run``.
     out : output ``.parquet``; written only when a usable table resulted (else nothing is left).
-    robot, topic_map, rate_hz : as :func:`load_run`.
+    robot, topic_map, rate_hz, dataset : as :func:`load_run` (a dataset run goes through ``load_run``).
     chunk_s : seconds of base-rate ticks per chunk (one Parquet row group each).
     progress : optional ``(done, total)`` callback (two passes over the file's bytes).
 
@@ -390,6 +254,11 @@ def ingest_to_parquet(path: str | Path, out: str | Path, *, robot: RobotSpec | s
     ``write_run_parquet(load_run(...).table, out)`` read back, within float rounding.
     """
     path, out = Path(path), Path(out)
+    if dataset is not None:
+        res = load_run(path, robot=robot, rate_hz=rate_hz, dataset=dataset)
+        if res.report.usable:
+            write_run_parquet(res.table, out)
+        return res.report
     rep = IngestReport(source=str(path), rate_hz=float(rate_hz))
     path, robot_spec, ok = _open_input(path, robot, rate_hz, rep)
     if not ok:
@@ -423,6 +292,84 @@ def ingest_to_parquet(path: str | Path, out: str | Path, *, robot: RobotSpec | s
     return rep
 
 
+def load_dataset_run(spec: DatasetSpec, run: RunFiles, *, robot: RobotSpec | str | Path | None = None,
+                     rate_hz: float | None = None, label_names: list[str] | None = None) -> IngestResult:
+    """One run of a dataset (its files paired by ``spec``) into the canonical run table.
+
+    Parameters
+    ----------
+    spec, run : the dataset spec and one of its runs (:meth:`DatasetSpec.discover`, ``run_of``).
+    robot : default: the spec's robot (else the reference robot).
+    rate_hz : default: the spec's ``rate_hz`` (else 100 Hz).
+    label_names : the class names (ids are their order); default ``spec.label_names([run])``
+        (pass the whole dataset's, :func:`terrainml.io.dataset_runs.iter_dataset_runs`, so that
+        every run has the same ids).
+
+    Returns
+    -------
+    IngestResult: ``table`` with ``run_id`` from the spec's template, ``terrain`` (the run's label
+    on every row for folder/file labels; per row, held until the next label and never across a
+    hole, for column labels) and the class names in ``attrs["terrainml"]["classes"]``; errors
+    (a missing column or file, an unknown label) in ``report.errors``, naming the file and column.
+    """
+    rate_hz = float(rate_hz if rate_hz is not None else spec.rate_hz or DEFAULT_RATE_HZ)
+    rep = IngestReport(source=str(run.primary), rate_hz=rate_hz, format="dataset:" + spec.name)
+    try:
+        robot_spec = load_robot(robot if robot is not None else spec.robot)
+    except RobotSpecError as exc:
+        rep.errors.append(str(exc))
+        return IngestResult(_empty_table(load_robot(None)), rep)
+    try:
+        names = label_names if label_names is not None else spec.label_names([run])
+        label = spec.run_label(run)
+        files = spec.table_files(run, robot_spec, names)
+        df = tables_to_run(files, robot_spec, rate_hz, rep, span=spec.span if len(files) > 1 else "first",
+                           missing_steer_ok=True)
+    except (DatasetSpecError, RobotSpecError, SchemaError) as exc:
+        rep.errors.append(str(exc))
+        return IngestResult(_empty_table(robot_spec), rep)
+    if df is None or len(df) < 2:
+        if df is not None:
+            rep.errors.append(f"{run.primary}: fewer than two ticks of data")
+        return IngestResult(_empty_table(robot_spec), rep)
+    for col in spec.absent_columns(run, robot_spec):   # an optional file absent: its columns NaN
+        if col not in df:
+            df[col] = np.nan
+    if label is not None:   # a run-level label (folder, label file): true on every row
+        if names is None or label not in names:
+            rep.errors.append(f"{run.primary}: label {label!r} is not one of the label names {names}")
+            return IngestResult(_empty_table(robot_spec), rep)
+        df["terrain"] = np.full(len(df), names.index(label), dtype=np.int64)
+    df["run_id"] = run.run_id
+    try:
+        df = validate_run_table(df, robot_spec.n_wheels, source=str(run.primary))
+    except SchemaError as exc:
+        rep.errors.append(str(exc))
+        return IngestResult(_empty_table(robot_spec), rep)
+    tally = _Tally()
+    tally.add(df)
+    tally.finish(rep, run.primary)
+    meta = _run_metadata(run.primary, robot_spec, None, rate_hz, rep, run.run_id)
+    meta.update(dataset=spec.name, dataset_spec=spec.source_file, classes=names,
+                files={role: None if p is None else str(p) for role, p in run.files.items()})
+    df.attrs["terrainml"] = meta
+    return IngestResult(df, rep)
+
+
+def _load_dataset_file(path: Path, dataset, robot, rate_hz) -> IngestResult:
+    """``load_run(path, dataset=...)``: the run ``path`` belongs to, by the spec's patterns."""
+    rep = IngestReport(source=str(path), rate_hz=float(rate_hz))
+    try:
+        spec = load_dataset_spec(dataset)
+        run = spec.run_of(path)
+        # folder labels: the class list is the dataset's (every run gets the same ids)
+        names = spec.label_names(spec.discover(run.root)) if spec.label.source == "folder" else None
+    except DatasetSpecError as exc:
+        rep.errors.append(str(exc))
+        return IngestResult(_empty_table(load_robot(None)), rep)
+    return load_dataset_run(spec, run, robot=robot, rate_hz=rate_hz, label_names=names)
+
+
 def _open_input(path: Path, robot, rate_hz: float, rep: IngestReport) -> tuple[Path, RobotSpec, bool]:
     """Robot spec, rate check, ROS 2 bag folder and format sniffing (``rep.format``); errors go to
     ``rep.errors`` and give ``ok=False``."""
@@ -434,15 +381,14 @@ def _open_input(path: Path, robot, rate_hz: float, rep: IngestReport) -> tuple[P
     if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
         rep.errors.append(f"rate_hz must be a positive number, got {rate_hz!r}")
         return path, robot_spec, False
-    if path.is_dir():  # a ROS 2 bag folder (metadata.yaml + one .mcap): read its .mcap
+    if path.is_dir():  # a ROS 2 bag folder with one .mcap: our MCAP reader; else rosbags (.db3)
         inner = sorted(path.glob("*.mcap"))
         if len(inner) == 1:
             path = inner[0]
     try:
-        fmt = sniff_format(path) if path.is_file() else None
-        if fmt is None:
-            raise LogReadError(f"{path}: file not found" if not path.exists() else
-                               f"{path}: not a file (a ROS 2 bag folder must hold exactly one .mcap)")
+        if not path.exists():
+            raise LogReadError(f"{path}: file not found")
+        fmt = sniff_format(path)
     except LogReadError as exc:
         rep.errors.append(str(exc))
         return path, robot_spec, False
@@ -450,11 +396,19 @@ def _open_input(path: Path, robot, rate_hz: float, rep: IngestReport) -> tuple[P
     return path, robot_spec, True
 
 
+def _sha256(path: Path) -> str:
+    """sha256 of a file; of a bag folder, of its files' names and hashes (sorted)."""
+    if not path.is_dir():
+        return sha256_file(path)
+    return hashlib.sha256("".join(f"{p.name}:{sha256_file(p)}\n" for p in sorted(path.iterdir())
+                                  if p.is_file()).encode()).hexdigest()
+
+
 def _run_metadata(path: Path, robot_spec: RobotSpec, tmap: TopicMap | None, rate_hz: float,
                   rep: IngestReport, run_id: str) -> dict[str, Any]:
     """Design §5 table metadata of an ingested log."""
     return make_metadata(
-        robot_json=robot_spec.to_json(), source_file=str(path), source_sha256=sha256_file(path),
+        robot_json=robot_spec.to_json(), source_file=str(path), source_sha256=_sha256(path),
         topic_map=tmap.to_dict() if tmap is not None else None, rate_hz=float(rate_hz),
         skipped=rep.skipped_per_topic(), corrupt=rep.corrupt_per_topic(), run_id=run_id,
         warnings=list(rep.warnings), damage=damage_metadata(rep))

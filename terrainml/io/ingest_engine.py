@@ -28,7 +28,6 @@ one topic breaks ties between equal stamps by file order.
 
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,7 +38,7 @@ import pandas as pd
 
 from terrainml.io import cdr, t265
 from terrainml.io.ingest_signals import Signal, SourceFacts, assemble, joint_columns, last_hole_s, signals_for
-from terrainml.io.readers import ReadResult, read_bag, read_mcap
+from terrainml.io.readers import ReadResult, log_size, read_bag, read_mcap
 from terrainml.io.resample import _EPS, clean_times, gap_threshold_s
 from terrainml.io.topicmap import Source, TopicMap
 from terrainml.robot import RobotSpec, check_wheel_count
@@ -111,7 +110,7 @@ class FileLog:
 
     def __init__(self, path: Path, fmt: str, tmap: TopicMap, progress=None, passes: int = 2):
         self.path, self.fmt, self.tmap, self.progress = path, fmt, tmap, progress
-        self.size = max(os.path.getsize(path), 1)
+        self.size = max(log_size(path), 1)
         self.passes, self.done = passes, 0
         self.validate_crcs = True
         self.mismatched: dict[str, str] = {}

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from terrainml.io import cdr
-from terrainml.io.readers import LogReadError, ReadResult, read_bag, read_mcap, sniff_format
+from terrainml.io.readers import LogReadError, ReadResult, is_rosbag2, log_size, read_bag, read_mcap, sniff_format
 
 _US = 1000   # histogram resolution of intervals, ns
 
@@ -87,18 +87,20 @@ def _read(path: Path, fmt: str, wanted, on_times) -> ReadResult:
 
 
 def inspect_log(path: str | Path) -> dict[str, Any]:
-    """Summary of a ``.mcap`` or ``.bag`` log as a JSON-ready dict.
+    """Summary of a ``.mcap`` or ``.bag`` log, or a ROS 2 bag folder (``.db3`` or MCAP), as a JSON-ready dict.
 
     Raises
     ------
     LogReadError if the file is not a log at all.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise LogReadError(f"{path}: file not found")
+    if path.is_dir() and is_rosbag2(path) and len(list(path.glob("*.mcap"))) == 1:
+        path = next(path.glob("*.mcap"))   # a bag folder with one MCAP file: our MCAP reader
     fmt = sniff_format(path)
-    if fmt not in ("mcap", "bag"):
-        raise LogReadError(f"{path}: inspect reads ROS logs (.mcap, .bag); this is {fmt} "
+    if fmt not in ("mcap", "bag", "rosbag2"):
+        raise LogReadError(f"{path}: inspect reads ROS logs (.mcap, .bag, ROS 2 bag folders); this is {fmt} "
                            "(use `terrainml ingest` for tables)")
     stamps: dict[str, _Stamps] = {}
 
@@ -131,7 +133,7 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
             _timing(d, s.n, (st.last_ns - st.first_ns) * 1e-9, med, s.gaps(med), s.max_dt_ns * 1e-9)
         topics[topic] = d
     return {
-        "file": str(path), "format": fmt, "size_bytes": path.stat().st_size,
+        "file": str(path), "format": fmt, "size_bytes": log_size(path),
         "start_ns": t_first, "end_ns": t_last,
         "span_s": (t_last - t_first) * 1e-9 if t_first is not None else 0.0,
         "messages": sum(s.read for s in res.stats.values()),

@@ -35,6 +35,7 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, Schema
 from mcap.stream_reader import get_chunk_data_stream
 from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import Reader as Rosbag2Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.msg import normalize_msgtype
 
@@ -95,8 +96,25 @@ class ReadResult:
         return s
 
 
+def is_rosbag2(path: Path) -> bool:
+    """A ROS 2 bag folder: ``metadata.yaml`` beside its ``.db3`` or ``.mcap`` storage files."""
+    return path.is_dir() and (path / "metadata.yaml").is_file()
+
+
+def log_size(path: Path) -> int:
+    """Bytes of a log file, or of every file of a ROS 2 bag folder."""
+    if path.is_dir():
+        return sum(p.stat().st_size for p in path.iterdir() if p.is_file())
+    return os.path.getsize(path)
+
+
 def sniff_format(path: Path) -> str:
-    """'mcap', 'bag', 'csv', 'parquet' from the magic bytes (extension as a fallback)."""
+    """'mcap', 'bag', 'rosbag2' (a bag folder), 'csv', 'parquet' from the magic bytes (extension as a
+    fallback)."""
+    if path.is_dir():
+        if is_rosbag2(path):
+            return "rosbag2"
+        raise LogReadError(f"{path}: a folder but not a ROS 2 bag (no metadata.yaml)")
     try:
         with open(path, "rb") as f:
             head = f.read(16)
@@ -475,9 +493,10 @@ class _BagTopics:
 def read_bag(path: Path, wanted: Callable[[str, str], str | None], *, use_header_stamp: bool = True,
              on_times: OnTimes | None = None, progress: Callable[[int, int], None] | None = None,
              on_part: Callable[[str, dict], None] | None = None) -> ReadResult:
-    """Read a ROS 1 bag (or a ROS 2 bag folder) message by message.
+    """Read a ROS 1 bag, or a ROS 2 bag folder (``.db3`` or MCAP storage), message by message.
 
-    An indexed bag is read with rosbags' AnyReader (time order). A bag rosbags cannot open -- cut
+    A ROS 2 bag folder is read with ``rosbags.rosbag2.Reader``; an indexed ROS 1 bag with rosbags'
+    AnyReader (time order). A bag rosbags cannot open -- cut
     short, so its index is missing -- is read front to back by :func:`terrainml.io.ros1bag.scan_bag`
     (file order): every complete message before the cut is kept and what was lost is in
     ``ReadResult`` (``truncated``, ``unread_bytes``, ``missing_bytes``, ``incomplete_records``).
@@ -485,15 +504,18 @@ def read_bag(path: Path, wanted: Callable[[str, str], str | None], *, use_header
     ``on_part``/``on_times``: optional streaming consumers; see :func:`read_mcap`.
     """
     path = Path(path)
-    res = ReadResult(path=path, format="bag")
-    try:
-        reader = AnyReader([path])
-        reader.open()
-    except Exception as exc:  # noqa: BLE001 - rosbags raises several types
-        if path.is_file():
+    if path.is_dir():
+        res = ReadResult(path=path, format="rosbag2")
+        reader, deserialize = _open_rosbag2(path)
+    else:
+        res = ReadResult(path=path, format="bag")
+        try:
+            reader = AnyReader([path])
+            reader.open()
+        except Exception as exc:  # noqa: BLE001 - rosbags raises several types
             return _read_bag_without_index(path, wanted, use_header_stamp, on_times, progress, on_part, exc)
-        raise LogReadError(f"{path}: not a readable ROS bag ({exc})") from None
-    topics = _BagTopics(res, wanted, use_header_stamp, on_times, on_part, reader.deserialize)
+        deserialize = reader.deserialize
+    topics = _BagTopics(res, wanted, use_header_stamp, on_times, on_part, deserialize)
     try:
         conns = []
         for c in reader.connections:
@@ -525,6 +547,25 @@ def read_bag(path: Path, wanted: Callable[[str, str], str | None], *, use_header
     topics.flush_stamps()
     res.parts = topics.parts
     return res
+
+
+def _open_rosbag2(path: Path):
+    """A ROS 2 bag folder opened with ``rosbags.rosbag2.Reader`` (``.db3`` or MCAP storage), and a
+    CDR deserialiser: standard types from rosbags' latest ROS 2 store, others from the definitions
+    the bag carries."""
+    try:
+        reader = Rosbag2Reader(path)
+        reader.open()
+    except Exception as exc:  # noqa: BLE001 - rosbags raises several types
+        raise LogReadError(f"{path}: not a readable ROS 2 bag folder ({exc})") from None
+    typestore = get_typestore(Stores.LATEST)
+    for c in reader.connections:
+        if c.msgtype not in typestore.fielddefs and getattr(c.msgdef, "data", ""):
+            try:
+                typestore.register(get_types_from_msg(c.msgdef.data, c.msgtype))
+            except Exception:  # noqa: BLE001 - an unreadable definition: its messages count as corrupt
+                pass
+    return reader, typestore.deserialize_cdr
 
 
 def _read_bag_without_index(path: Path, wanted, use_header_stamp: bool, on_times: OnTimes | None,

@@ -1,4 +1,4 @@
-"""Resampling asynchronous samples onto the uniform base-rate grid (SYSTEM §5), vectorised.
+"""Resampling asynchronous samples onto the uniform base-rate grid (design §5), vectorised.
 
 Rules
 -----
@@ -10,7 +10,7 @@ Rules
   sample is not finite. Invalid ticks hold NaN.
 
 The gap threshold used by ingest is ``2 * max(base period, median source period)``: two base
-periods as SYSTEM §5 says for sensors at or above the base rate; for slower sensors (a 10 Hz wheel
+periods as design §5 says for sensors at or above the base rate; for slower sensors (a 10 Hz wheel
 odometry) their own spacing is not a gap (documented departure).
 """
 
@@ -33,11 +33,12 @@ def clean_times(t: np.ndarray) -> tuple[np.ndarray, int, int]:
     return order[keep], out_of_order, int(np.count_nonzero(~keep))
 
 
-def gap_threshold_s(t_src_s: np.ndarray, rate_hz: float) -> float:
+def gap_threshold_s(t_src_s: np.ndarray, rate_hz: float, periods: float = 2.0) -> float:
+    """``periods * max(base period, median source period)`` (s): the gap rule of design §5 (D2)."""
     base = 1.0 / rate_hz
     if len(t_src_s) < 2:
-        return 2.0 * base
-    return 2.0 * max(base, float(np.median(np.diff(t_src_s))))
+        return periods * base
+    return periods * max(base, float(np.median(np.diff(t_src_s))))
 
 
 def resample(t_src: np.ndarray, values: np.ndarray, grid: np.ndarray, *, method: str = "linear",

@@ -85,3 +85,31 @@ def test_any_sampling_rates_resampled_to_100hz(tmp_path):
     assert df["imu_yaw_rate_radps"].iloc[k] == pytest.approx(1.23)
     assert df["wheel4_omega_radps"].iloc[k] == pytest.approx((0.5 + 0.123) / 0.1651)
     assert df["imu_valid"].all() and df["wheels_valid"].all()
+
+
+def test_cli_ingest_one_run_with_the_builtin_spec(tmp_path):
+    from typer.testing import CliRunner
+
+    from terrainml.cli import app
+    from terrainml.schema import read_run_parquet
+
+    out = tmp_path / "ice03.parquet"
+    res = CliRunner().invoke(app, ["ingest", str(ROOT / "ICE" / "pro_03.csv"), "--format", "borealtc",
+                                   "--out", str(out), "-q"])
+    assert res.exit_code == 0, res.output
+    df = read_run_parquet(out)
+    meta = df.attrs["terrainml"]
+    assert meta["classes"] == ["ASPHALT", "FLOORING", "ICE", "SANDY_LOAM", "SNOW"]
+    assert meta["files"]["imu"].endswith("imu_03.csv")
+    assert (df["terrain"] == 2).all() and df["run_id"].iloc[0] == "ICE_03"
+    assert df["imu_valid"].mean() > 0.99
+
+
+def test_unknown_folder_label_is_an_error_naming_it(tmp_path):
+    from terrainml.io.dataset_runs import iter_dataset_runs
+    from terrainml.io.dataset_spec import DatasetSpecError, load_dataset_spec
+
+    spec = load_dataset_spec("borealtc")
+    spec.label = type(spec.label)(source="folder", names=("ASPHALT",))
+    with pytest.raises(DatasetSpecError, match=r"FLOORING/pro_00\.csv: label 'FLOORING' \(from the folder\)"):
+        list(iter_dataset_runs(spec, ROOT))
