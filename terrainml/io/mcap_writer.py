@@ -36,7 +36,7 @@ import struct
 import zlib
 from collections import defaultdict
 from pathlib import Path
-from typing import BinaryIO, Sequence
+from typing import BinaryIO
 
 import numpy as np
 import zstandard

@@ -1,12 +1,12 @@
 """Write a simulated run: ROS 2 MCAP through :class:`terrainml.io.mcap_writer.RosMcapWriter`, or the
-canonical run table (SYSTEM §5) directly (Parquet), for speed.
+canonical run table (design §5) directly (Parquet), for speed.
 
-MCAP topics (default topic map, SYSTEM §5): ``/imu`` (100 Hz, IMU axes), ``/camera/odom/sample``
+MCAP topics (default topic map, design §5): ``/imu`` (100 Hz, IMU axes), ``/camera/odom/sample``
 (200 Hz, T265 frames via :func:`terrainml.io.t265.body_to_t265_odometry`, confidence in
 pose covariance[0]), ``/wheels/joint_states`` and ``/wheels/motor_current`` (100 Hz), ``/cmd_vel``
 (100 Hz), ``/terrain/label`` (on change and every 1 s: class under the body origin), and truth:
 ``/sim/ground_truth`` (100 Hz, pose in world, twist in body), ``/sim/wheel_slip`` (100 Hz: position =
-true SYSTEM §7.1 slip, velocity = true wheel-centre longitudinal speed, effort = true wheel speed),
+true design §7.1 slip, velocity = true wheel-centre longitudinal speed, effort = true wheel speed),
 ``/sim/wheel_state`` (100 Hz, §7.2 state codes from true acceleration).
 """
 
@@ -53,8 +53,29 @@ def camera_messages(res: SimResult, rows: np.ndarray) -> dict[str, np.ndarray]:
     return msg
 
 
-def write_mcap(res: SimResult, path: str | Path, run_id: str | None = None) -> Path:
-    """Write the run as a ROS 2 MCAP with the default topic map (see module docstring)."""
+def label_rows(t_s: np.ndarray, label: np.ndarray, period_s: float = 1.0) -> np.ndarray:
+    """Rows of the ``/terrain/label`` messages: each change of class, and otherwise ``period_s`` after
+    the previous message (the rule a per-row loop applies: new class, or ``t - t_last >= period``)."""
+    change = np.flatnonzero(np.r_[True, label[1:] != label[:-1]])
+    rows: list[int] = []
+    for c in np.r_[change, len(t_s)]:
+        while rows:            # periodic repeats between the last message and the next change
+            r = rows[-1]
+            due = np.flatnonzero(t_s[r + 1:c] - t_s[r] >= period_s - 1e-9)
+            if not len(due):
+                break
+            rows.append(r + 1 + int(due[0]))
+        if c < len(t_s):
+            rows.append(int(c))
+    return np.asarray(rows, np.int64)
+
+
+def write_mcap(res: SimResult, path: str | Path, run_id: str | None = None, block_s: float = 2.0) -> Path:
+    """Write the run as a ROS 2 MCAP with the default topic map (see module docstring).
+
+    Messages are encoded ``block_s`` of simulated time at a time (one block per topic, one MCAP chunk
+    per block of time), the messages of each topic in time order.
+    """
     path = Path(path)
     run_id = run_id or path.stem
     rb = res.robot
@@ -66,49 +87,53 @@ def write_mcap(res: SimResult, path: str | Path, run_id: str | None = None) -> P
     _, gyro_b = res.sensors.imu(log, rows)
     gyro_b[:, 2] = meas["imu_yaw_rate_radps"]
     mount_rot = Rotation.from_euler("xyz", [rb.imu.roll_rad, rb.imu.pitch_rad, rb.imu.yaw_rad])
-    acc_i = mount_rot.inv().apply(acc_b)
-    gyro_i = mount_rot.inv().apply(gyro_b)
     yaw_imu = res.sensors.imu_yaw(log, len(log))[rows]
-    q_imu = (Rotation.from_euler("z", yaw_imu[:, None]) * mount_rot).as_quat()     # IMU axes -> world
-    omega = np.column_stack([meas[f"wheel{i}_omega_radps"] for i in range(1, n + 1)])
-    steer = np.column_stack([meas[f"wheel{i}_steer_rad"] for i in range(1, n + 1)])
-    cur = np.column_stack([meas[f"wheel{i}_current_a"] for i in range(1, n + 1)])
-    slip = res.true_slip()[rows]
-    v_long = res.wblock("v_long")[rows]
-    om_true = res.wblock("omega")[rows]
-    states = res.true_states(rows)
-    label = res.class_under_robot(rows)
-    cam_rows = np.arange(len(log))
-    cam = camera_messages(res, cam_rows) if rb.camera is not None else None
     t_all = log[:, ph.L_T]
     cmd = res.cmd
+    m = len(rows)
+    cmd_rows = cmd[np.minimum(np.arange(m), len(cmd) - 1)] if len(cmd) else np.zeros((m, 3))
+    gt = log[rows]
+    per_100hz = {   # (m, ...) columns of the 100 Hz messages, sliced per block below
+        "t": t_all[rows], "acc": mount_rot.inv().apply(acc_b), "gyro": mount_rot.inv().apply(gyro_b),
+        "q": (Rotation.from_euler("z", yaw_imu[:, None]) * mount_rot).as_quat(),     # IMU axes -> world
+        "omega": np.column_stack([meas[f"wheel{i}_omega_radps"] for i in range(1, n + 1)]),
+        "steer": np.column_stack([meas[f"wheel{i}_steer_rad"] for i in range(1, n + 1)]),
+        "cur": np.column_stack([meas[f"wheel{i}_current_a"] for i in range(1, n + 1)]),
+        "cmd": cmd_rows, "slip": res.true_slip()[rows], "v_long": res.wblock("v_long")[rows],
+        "om_true": res.wblock("omega")[rows], "states": res.true_states(rows),
+    }
+    label = res.class_under_robot(rows)
+    lab = label_rows(per_100hz["t"], label)
+    cam = camera_messages(res, np.arange(len(log))) if rb.camera is not None else None
+    step = max(int(round(block_s * 100.0)), 1)          # 100 Hz rows per block
     with RosMcapWriter(path, n, metadata=run_metadata(res, run_id)) as w:
-        last_label, last_label_t = None, -np.inf
-        for k in range(len(log)):
-            t = float(t_all[k])
-            if cam is not None:
-                w.write_camera_odom(t, cam["position_m"][k], cam["orientation_xyzw"][k], cam["linear_mps"][k],
-                                    cam["angular_radps"][k], confidence=float(cam["confidence"][k]))
-            if k % 2:
-                continue
-            j = k // 2
-            w.write_imu(t, acc_i[j], gyro_i[j], q_imu[j])
-            w.write_wheel_joints(t, omega[j], steer[j])
-            w.write_motor_current(t, cur[j])
-            c = cmd[min(j, len(cmd) - 1)] if len(cmd) else (0.0, 0.0, 0.0)
-            w.write_cmd_vel(t, c[0], c[1], c[2])
-            w.write_ground_truth(t, log[k, ph.L_X], log[k, ph.L_Y], log[k, ph.L_PSI], log[k, ph.L_VX],
-                                 log[k, ph.L_VY], log[k, ph.L_R])
-            w.write_wheel_slip(t, slip[j], v_long[j], om_true[j])
-            w.write_wheel_state(t, states[j])
-            if label[j] != last_label or t - last_label_t >= 1.0 - 1e-9:
-                w.write_terrain_label(t, int(label[j]))
-                last_label, last_label_t = label[j], t
+        for a in range(0, m, step):
+            b = min(a + step, m)
+            if cam is not None:       # the 200 Hz rows of this block: up to the next block's first
+                ka, kb = rows[a], (rows[b] if b < m else len(log))
+                c = {k: v[ka:kb] for k, v in cam.items()}
+                w.write_camera_odom(t_all[ka:kb], c["position_m"], c["orientation_xyzw"], c["linear_mps"],
+                                    c["angular_radps"], confidence=c["confidence"])
+            d = {k: v[a:b] for k, v in per_100hz.items()}
+            t = d["t"]
+            w.write_imu(t, d["acc"], d["gyro"], d["q"])
+            w.write_wheel_joints(t, d["omega"], d["steer"])
+            w.write_motor_current(t, d["cur"])
+            w.write_cmd_vel(t, d["cmd"][:, 0], d["cmd"][:, 1], d["cmd"][:, 2])
+            g = gt[a:b]
+            w.write_ground_truth(t, g[:, ph.L_X], g[:, ph.L_Y], g[:, ph.L_PSI], g[:, ph.L_VX], g[:, ph.L_VY],
+                                 g[:, ph.L_R])
+            w.write_wheel_slip(t, d["slip"], d["v_long"], d["om_true"])
+            w.write_wheel_state(t, d["states"])
+            la = lab[(lab >= a) & (lab < b)]
+            if len(la):
+                w.write_terrain_label(per_100hz["t"][la], label[la])
+            w.flush()
     return path
 
 
 def run_table(res: SimResult, run_id: str = "sim") -> pd.DataFrame:
-    """Canonical run table at 100 Hz (SYSTEM §5) straight from the simulator, with truth columns.
+    """Canonical run table at 100 Hz (design §5) straight from the simulator, with truth columns.
 
     Camera columns are the mount velocity in body axes (what ingest produces), ``cam_valid`` is
     confidence >= 2 (ingest's default), IMU yaw is integrated from the measured gyro.

@@ -135,7 +135,8 @@ def test_block_writes_equal_message_by_message_writes(tmp_path):
     om, st, cur = rng.normal(size=(n, k)), rng.normal(size=(n, k)), rng.normal(size=(n, k))
     cmd, gt = rng.normal(size=(n, 3)), rng.normal(size=(n, 6))
     states, labels = rng.integers(0, 4, (n, k)), rng.integers(0, 8, n)
-    pos, lin, ang, conf = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.uniform(0, 3, n)
+    pos, lin, ang = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    conf = rng.uniform(0, 3, n)
     one, block = tmp_path / "one.mcap", tmp_path / "block.mcap"
     with RosMcapWriter(one, k, chunk_size=8 * 1024) as w:
         for i in range(n):
