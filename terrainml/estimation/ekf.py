@@ -63,6 +63,7 @@ from terrainml.estimation._kernel import (I_AX, I_AY, I_PSI, I_R, I_VX, I_VY, I_
                                           N_BASE, EkfModel)
 from terrainml.angles import wrap_angle  # noqa: F401  (re-exported: the EKF's yaw convention)
 from terrainml.robot import RobotSpec
+from terrainml.schema import wheel_col
 
 NOMINAL_DT_S = 0.01  # tick length the per-tick Q values refer to (thesis: 100 Hz)
 
@@ -230,14 +231,14 @@ class PlanarModel:
         self.wheel_xy_m = np.array([[w.x_m, w.y_m] for w in robot.wheels], dtype=float)
         rows: list[MeasurementRow] = []
         for k in range(robot.n_wheels):
-            rows.append(MeasurementRow(f"wheel{k + 1}_omega", f"wheel{k + 1}_omega_radps", "wheels", "wheel", k))
+            rows.append(MeasurementRow(f"wheel{k + 1}_omega", wheel_col("omega", k + 1), "wheels", "wheel", k))
         rows += [MeasurementRow("imu_ax", "imu_ax_mps2", "imu", "imu_ax"),
                  MeasurementRow("imu_ay", "imu_ay_mps2", "imu", "imu_ay"),
                  MeasurementRow("imu_yaw_rate", "imu_yaw_rate_radps", "imu", "imu_rate")]
         if self.has_imu_yaw:
             rows.append(MeasurementRow("imu_yaw", "imu_yaw_rad", "imu", "imu_yaw", angle=True))
         for k in steerable:
-            rows.append(MeasurementRow(f"steer{k + 1}", f"wheel{k + 1}_steer_rad", "steer", "steer", k))
+            rows.append(MeasurementRow(f"steer{k + 1}", wheel_col("steer", k + 1), "steer", "steer", k))
         if robot.has_camera:
             rows += [MeasurementRow("cam_vx", "cam_vx_mps", "cam", "cam_vx"),
                      MeasurementRow("cam_vy", "cam_vy_mps", "cam", "cam_vy"),

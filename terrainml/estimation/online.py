@@ -31,7 +31,7 @@ from terrainml.estimation.dynamic_state import DWELL_S, MANOEUVRE_TAU_S, THETA_M
 from terrainml.estimation.ekf import Ekf, EkfPreset, PlanarModel, get_preset
 from terrainml.estimation.slip import DEAD_BAND_MPS
 from terrainml.robot import RobotSpec, load_robot
-from terrainml.schema import VALID_GROUPS, WHEEL_STATES
+from terrainml.schema import VALID_GROUPS, WHEEL_STATES, wheel_col
 
 PASS_WHEEL = ("omega_radps", "current_a", "steer_rad")
 PASS_BASE = ("imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2", "imu_yaw_rate_radps")
@@ -112,7 +112,7 @@ class OnlineEstimator:
         self.group_names = sorted(set(self.row_groups))
         self._is_wheel = np.array([r.kind == "wheel" for r in rows], dtype=bool)
         # wheel rows come first and read wheel{i}_omega_radps: the same values feed slip
-        assert self.row_columns[:N] == [f"wheel{i}_omega_radps" for i in range(1, N + 1)]
+        assert self.row_columns[:N] == [wheel_col("omega", i) for i in range(1, N + 1)]
         assert self._is_wheel[:N].all() and not self._is_wheel[N:].any()
         self._group_of_row = np.array([GROUPS.index(g) for g in self.row_groups], dtype=np.int64)
         # pre-filters (eq. 6.12): z_f = alpha z_f + (1 - alpha) z, per row

@@ -11,14 +11,15 @@ from matplotlib.figure import Figure  # no pyplot: no global figure state, no ba
 from terrainml.estimation.consistency import nis_band
 from terrainml.estimation.run import Diagnostics
 from terrainml.robot import RobotSpec
+from terrainml.schema import wheel_col
 
 
 def wheel_kinematics_twist(run: pd.DataFrame, robot: RobotSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Body twist (vx, vy, r) from the wheels alone (forward kinematics, least squares per tick;
     the "AgriMaRo FB" curve of thesis Fig. 6.1)."""
     N = robot.n_wheels
-    om = np.column_stack([run[f"wheel{i}_omega_radps"].to_numpy(float) for i in range(1, N + 1)])
-    d = np.column_stack([run[f"wheel{i}_steer_rad"].to_numpy(float) if robot.wheels[i - 1].steerable
+    om = np.column_stack([run[wheel_col("omega", i)].to_numpy(float) for i in range(1, N + 1)])
+    d = np.column_stack([run[wheel_col("steer", i)].to_numpy(float) if robot.wheels[i - 1].steerable
                          else np.zeros(len(run)) for i in range(1, N + 1)])
     x = np.array([w.x_m for w in robot.wheels])
     y = np.array([w.y_m for w in robot.wheels])

@@ -16,7 +16,7 @@ import pandas as pd
 from terrainml.estimation.ekf import EkfPreset
 from terrainml.estimation.online import OnlineEstimator, est_state_columns, passthrough_columns
 from terrainml.robot import RobotSpec, load_robot
-from terrainml.schema import WHEEL_STATES, infer_n_wheels, table_metadata
+from terrainml.schema import WHEEL_STATES, infer_n_wheels, table_metadata, wheel_col
 
 
 @dataclass
@@ -83,7 +83,7 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | str | None = N
     V = np.isfinite(Z)
     for k, g in enumerate(est.row_groups):
         V[:, k] &= gv[g]
-    omega = np.column_stack([table[f"wheel{i}_omega_radps"].to_numpy(dtype=float) for i in range(1, N + 1)])
+    omega = np.column_stack([table[wheel_col("omega", i)].to_numpy(dtype=float) for i in range(1, N + 1)])
     omega = np.where(gv["wheels"][:, None], omega, np.nan)
 
     out_x = np.empty((n, est.model.n))

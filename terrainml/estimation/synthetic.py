@@ -17,6 +17,7 @@ import pandas as pd
 
 from terrainml.angles import wrap_angle
 from terrainml.robot import RobotSpec, load_robot
+from terrainml.schema import wheel_col
 
 
 def wheel_speed_for_slip(v_long_mps, slip):
@@ -112,9 +113,9 @@ def kinematic_run(robot: RobotSpec | str | None = None, *, duration_s: float = 2
     cam = robot.camera
     df = pd.DataFrame({"t_s": t})
     for i in range(N):
-        df[f"wheel{i + 1}_omega_radps"] = omega_meas[:, i]
-        df[f"wheel{i + 1}_steer_rad"] = steer[:, i] + (rng.normal(0, 0.002, n) if robot.wheels[i].steerable else 0)
-        df[f"wheel{i + 1}_current_a"] = 5.0 * S[:, i] + rng.normal(0, 0.1, n)
+        df[wheel_col("omega", i + 1)] = omega_meas[:, i]
+        df[wheel_col("steer", i + 1)] = steer[:, i] + (rng.normal(0, 0.002, n) if robot.wheels[i].steerable else 0)
+        df[wheel_col("current", i + 1)] = 5.0 * S[:, i] + rng.normal(0, 0.1, n)
     df["imu_ax_mps2"] = ax + imu_acc_bias + rng.normal(0, imu_acc_noise, n)
     df["imu_ay_mps2"] = ay + rng.normal(0, imu_acc_noise, n)
     df["imu_az_mps2"] = 9.81 + rng.normal(0, imu_acc_noise, n)

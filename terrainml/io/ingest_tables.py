@@ -33,7 +33,7 @@ from terrainml.io.ingest_engine import IngestReport
 from terrainml.io.ingest_signals import PREVIOUS_COLUMNS, Signal, assemble
 from terrainml.io.resample import clean_times, gap_threshold_s
 from terrainml.robot import RobotSpec, check_wheel_count
-from terrainml.schema import VALID_GROUPS, column_map, valid_column
+from terrainml.schema import VALID_GROUPS, column_map, valid_column, wheel_col
 
 _WHEEL_COLUMN = re.compile(r"^wheel(\d+)_(omega_radps|steer_rad|current_a)$")
 SPANS = ("first", "overlap", "union")
@@ -338,7 +338,7 @@ def tables_to_run(files: list[TableFile], robot: RobotSpec, rate_hz: float, rep:
     signals = [replace(s, t_s=s.t_s - t0) for p in parts for s in p.signals]
     found = {c for p in parts for c in p.columns} | {f.time_column for f in files} | {"t_s"}
     spec = column_map(robot.n_wheels)
-    fixed = {f"wheel{i}_steer_rad" for i, w in enumerate(robot.wheels, start=1) if not w.steerable}
+    fixed = {wheel_col("steer", i) for i, w in enumerate(robot.wheels, start=1) if not w.steerable}
     missing = [c.name for c in spec.values() if c.required and c.name not in found
                and not (missing_steer_ok and c.name in fixed)]
     if missing:

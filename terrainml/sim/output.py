@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from terrainml.io import t265
 from terrainml.io.mcap_writer import RosMcapWriter
-from terrainml.schema import WHEEL_STATES, make_metadata, validate_run_table, write_run_parquet
+from terrainml.schema import WHEEL_STATES, make_metadata, validate_run_table, wheel_col, write_run_parquet
 from terrainml.sim import physics as ph
 from terrainml.sim.simulator import SimResult, sample_dict
 
@@ -96,9 +96,9 @@ def write_mcap(res: SimResult, path: str | Path, run_id: str | None = None, bloc
     per_100hz = {   # (m, ...) columns of the 100 Hz messages, sliced per block below
         "t": t_all[rows], "acc": mount_rot.inv().apply(acc_b), "gyro": mount_rot.inv().apply(gyro_b),
         "q": (Rotation.from_euler("z", yaw_imu[:, None]) * mount_rot).as_quat(),     # IMU axes -> world
-        "omega": np.column_stack([meas[f"wheel{i}_omega_radps"] for i in range(1, n + 1)]),
-        "steer": np.column_stack([meas[f"wheel{i}_steer_rad"] for i in range(1, n + 1)]),
-        "cur": np.column_stack([meas[f"wheel{i}_current_a"] for i in range(1, n + 1)]),
+        "omega": np.column_stack([meas[wheel_col("omega", i)] for i in range(1, n + 1)]),
+        "steer": np.column_stack([meas[wheel_col("steer", i)] for i in range(1, n + 1)]),
+        "cur": np.column_stack([meas[wheel_col("current", i)] for i in range(1, n + 1)]),
         "cmd": cmd_rows, "slip": res.true_slip()[rows], "v_long": res.wblock("v_long")[rows],
         "om_true": res.wblock("omega")[rows], "states": res.true_states(rows),
     }
@@ -150,7 +150,7 @@ def run_table(res: SimResult, run_id: str = "sim") -> pd.DataFrame:
     if len(cmd):
         data["cmd_vx_mps"], data["cmd_vy_mps"], data["cmd_yaw_rate_radps"] = cmd[idx, 0], cmd[idx, 1], cmd[idx, 2]
         for i in range(n):
-            data[f"wheel{i + 1}_cmd_omega_radps"] = res.omega_cmd[idx, i]
+            data[wheel_col("cmd_omega", i + 1)] = res.omega_cmd[idx, i]
     data["terrain"] = res.class_under_robot(rows).astype(np.int64)
     data["run_id"] = np.full(m, run_id, dtype=object)
     data["gt_vx_mps"], data["gt_vy_mps"] = log[rows, ph.L_VX], log[rows, ph.L_VY]

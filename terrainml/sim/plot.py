@@ -22,6 +22,7 @@ from scipy.signal import lfilter  # noqa: E402
 from terrainml.io.ingest import load_run  # noqa: E402
 from terrainml.robot import load_robot  # noqa: E402
 from terrainml.sim.truth import slip_sae  # noqa: E402
+from terrainml.schema import wheel_col
 
 
 def _ema(x: np.ndarray, alpha: float) -> np.ndarray:
@@ -40,9 +41,9 @@ def measured_slip(table: pd.DataFrame, robot) -> np.ndarray:
     vy = vmy - r * cam.x_m
     out = []
     for i, w in enumerate(robot.wheels, start=1):
-        d = table[f"wheel{i}_steer_rad"].to_numpy()
+        d = table[wheel_col("steer", i)].to_numpy()
         v_long = (vx - r * w.y_m) * np.cos(d) + (vy + r * w.x_m) * np.sin(d)
-        v_ang = table[f"wheel{i}_omega_radps"].to_numpy() * robot.wheel_radius_m
+        v_ang = table[wheel_col("omega", i)].to_numpy() * robot.wheel_radius_m
         out.append(slip_sae(v_ang, v_long))
     return np.column_stack(out)
 

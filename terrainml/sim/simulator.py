@@ -34,6 +34,7 @@ from terrainml.sim.sensors import LOG_RATE_HZ, SensorConfig, SensorModel
 from terrainml.sim.terrain import ALPHA_GRID, LOAD_FACTORS, TerrainRealisation, realise
 from terrainml.estimation.dynamic_state import manoeuvre_accel
 from terrainml.sim.truth import slip_sae, wheel_states
+from terrainml.schema import wheel_col
 
 CONTROL_RATE_HZ = 100.0
 Controller = Callable[[dict], "np.ndarray | None"]
@@ -356,9 +357,9 @@ def sample_dict(sim_or_result, log: np.ndarray, rows: np.ndarray, robot: RobotSp
     st = sens.steer(log, rows, n)
     cur = sens.current(log, rows, n, robot.torque_constant_nm_per_a)
     for i in range(n):
-        out[f"wheel{i + 1}_omega_radps"] = om[:, i]
-        out[f"wheel{i + 1}_steer_rad"] = st[:, i]
-        out[f"wheel{i + 1}_current_a"] = cur[:, i]
+        out[wheel_col("omega", i + 1)] = om[:, i]
+        out[wheel_col("steer", i + 1)] = st[:, i]
+        out[wheel_col("current", i + 1)] = cur[:, i]
     acc, gyro = sens.imu(log, rows)
     out["imu_ax_mps2"], out["imu_ay_mps2"], out["imu_az_mps2"] = acc[:, 0], acc[:, 1], acc[:, 2]
     out["imu_yaw_rate_radps"] = gyro[:, 2]

@@ -23,6 +23,7 @@ import pandas as pd
 from terrainml.classes import class_name
 from terrainml.slipmap.kinematics import lateral_slip_angle_rad, longitudinal_slippage_mps, side_geometry
 from terrainml.slipmap.slipmap import SlipMap, SlipMapConfig
+from terrainml.schema import wheel_col
 
 
 class SlipFitError(ValueError):
@@ -39,10 +40,10 @@ def slip_samples(table: pd.DataFrame, robot, *, min_speed_mps: float = 0.05, sou
     """
     left, right, track_m = side_geometry(robot)
     for i in left + right:
-        if f"wheel{i}_omega_radps" not in table.columns:
+        if wheel_col("omega", i) not in table.columns:
             raise SlipFitError(f"{source}: missing column 'wheel{i}_omega_radps'")
-    wl = table[[f"wheel{i}_omega_radps" for i in left]].to_numpy(float).mean(axis=1)
-    wr = table[[f"wheel{i}_omega_radps" for i in right]].to_numpy(float).mean(axis=1)
+    wl = table[[wheel_col("omega", i) for i in left]].to_numpy(float).mean(axis=1)
+    wr = table[[wheel_col("omega", i) for i in right]].to_numpy(float).mean(axis=1)
     if all(c in table.columns for c in ("gt_vx_mps", "gt_vy_mps", "gt_yaw_rate_radps")) and \
             np.isfinite(table["gt_vx_mps"].to_numpy(float)).any():
         vx, vy, r = (table[c].to_numpy(float) for c in ("gt_vx_mps", "gt_vy_mps", "gt_yaw_rate_radps"))
