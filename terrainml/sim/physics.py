@@ -540,7 +540,9 @@ def _integrate(v, g, body, wheel, acc, cpsi, spsi, ax_cm, ay_cm, rdot, f_hitch, 
             ssh = max(abs(wheel[W_SJ, i]) - sf, 0.0) / (1.0 - sf)
             z0, _ = _interp_table(z_tab, c, lf, s_mid, n_load, z_tab.shape[2])
             zd = wheel[W_DIG, i] + dt * (g.dig_k[c] * z0 * ssh * ssh * mx - wheel[W_DIG, i] * speed) / g.dig_relax[c]
-            wheel[W_DIG, i] = min(max(zd, 0.0), g.dig_cap[c])
+            # a wheel cannot dig deeper than its own radius (the hub meets the ground; belly drag
+            # has long taken over): without this bound a stalled wheel on loose sand digs without end
+            wheel[W_DIG, i] = min(max(zd, 0.0), g.dig_cap[c], v.rw)
         pm = tau * om2
         cur = tau / v.kt
         pc = cur * cur * v.r_ph

@@ -148,3 +148,17 @@ def test_towed_cart_adds_inertia_and_grade_load():
     assert res.wblock("load")[-1].sum() == pytest.approx(ROBOT.weight_n + 0.1 * 40.0 * 9.81, rel=0.02)
     sim.set_payload_kg(20.0)
     assert sim.ext[ph.E_MC] == 60.0
+
+
+def test_a_stalled_wheel_never_digs_deeper_than_its_radius():
+    """No control, dry sand, a cart the soil cannot pull: the wheels spin in place for 25 s. The
+    dug depth stays bounded by the wheel radius and the state stays finite (it used to diverge)."""
+    robot = load_robot()
+    sim = Simulator(straight("dry_sand", 1.0, 25.0), robot, seed=5001,
+                    towed=TowedLoad(mass_kg=80.0, crr=0.15, hitch_xyz_m=(-0.3, -0.25, 0.3)))
+    res = sim.run()
+    assert np.isfinite(res.log).all()
+    dig = res.wblock("sinkage") - res.wblock("sinkage").min(axis=0)
+    assert res.wblock("sinkage").max() <= robot.wheel_radius_m + 0.1   # dig <= R plus the static sinkage
+    assert dig.max() > 0.05                      # it does dig in: the stall is real
+    assert abs(res.body_col("x")[-1]) < 1.0       # and the robot stays stuck
