@@ -1,0 +1,342 @@
+"""Traction-control policies for the mission suite, all with one interface (design §12; issue 20).
+
+Every controller is a callable ``ctrl(sample) -> offsets or None``, like
+:class:`terrainml.control.traction.SlipController`: ``sample`` is one measured sample (canonical
+run-table columns, design §5, plus ``t_s`` and the low-level set-points
+``wheel{i}_cmd_omega_radps`` from the robot's own inverse kinematics, as
+:func:`terrainml.experiments.closed_loop.closed_loop_hook` builds it); the return value is the
+per-wheel offset (rad/s, shape (N,)) added to those set-points, or None for no correction.
+Attributes ``n_ticks`` and ``n_fallback`` count ticks and ticks served from the fallback.
+
+Policies (factories at the bottom; the mission registry maps CLI names onto them):
+
+========================  ==========================================================================
+``none``                  :func:`no_control`: None (no hook at all).
+``fixed``                 :func:`fixed_cap`: the slip limiter at 0.1 (traction) / -0.1 (braking).
+``accel-limit``           :class:`AccelLimitController`: the wheel-speed command may rise no faster
+                          than ``k mu* g`` (``mu*`` the class's net-traction peak, ``k`` 0.8): a
+                          terrain-aware acceleration limit, no slip feedback.
+``current-limit``         :class:`CurrentLimitController`: the wheel-speed command is lowered while
+                          the motor current exceeds ``mu_H* W_i R / k_t`` (the class's gross
+                          thrust peak at the wheel's static load).
+``terrain-aware``         :func:`terrain_aware`: the slip limiter at the target the online
+                          predictor serves (class target; the class-free safe cap on fallback),
+                          refined online (:mod:`terrainml.control.cap_refiner`).
+``oracle``                :func:`oracle`: the same, with the true class (a perfect classifier).
+``oracle-cap``            :func:`oracle_cap`: the limiter capped at the true traction peak of the
+                          terrain draw under each wheel (simulator truth, passed in as a callable;
+                          the control package never imports the simulator): the upper bound.
+========================  ==========================================================================
+
+Targets (design §12): in traction the cap is the class's traction-peak slip s_T whatever the
+demand. Under low demand (cruise, gentle ramps) the soil pins the slip below the peak and the cap
+does not bind, so nothing is served *below* the peak: a cap at the steady slip s_S slows the
+robot on any soil softer than nominal (design D35). Braking wheels get the floor s_B.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from terrainml.classes import TERRAIN_CLASSES
+from terrainml.control.cap_refiner import CapRefiner, CapRefinerConfig, thrust_peak_offset
+from terrainml.control.slip_limiter import SlipLimiter, SlipLimiterConfig
+from terrainml.estimation.online import OnlineEstimator
+from terrainml.lookup import terramechanics as tm
+from terrainml.lookup.table import DesiredSlipTable
+from terrainml.robot import RobotSpec
+from terrainml.stream.predictor import Predictor
+
+__all__ = ["AccelLimitController", "CurrentLimitController", "LimiterController", "fixed_cap",
+           "no_control", "oracle", "oracle_cap", "terrain_aware"]
+
+_SLIP = np.linspace(0.0, 0.99, 991)
+
+
+def _nominal_params(name: str):
+    return tm.nominal_params(name) if name in TERRAIN_CLASSES else None
+
+
+class _ClassCurves:
+    """Per class (by name): traction and braking targets, thrust-peak offset, peak coefficients."""
+
+    def __init__(self, robot: RobotSpec, table: Any, refiner_cfg: CapRefinerConfig) -> None:
+        self.robot = robot
+        self.table = table
+        self.cfg = refiner_cfg
+        self.w_mean = float(np.mean(robot.static_wheel_loads_n()))
+        self._cache: dict[int, tuple[float, float, float, float, float]] = {}
+
+    def get(self, cid: int) -> tuple[float, float, float, float, float]:
+        """(s_T, s_B, thrust-peak offset, mu_net peak, gross-thrust peak H/W) of class ``cid``."""
+        if cid not in self._cache:
+            s_t = float(self.table.target(cid, "traction"))
+            s_b = float(self.table.target(cid, "braking"))
+            name = self.table.class_name(cid) if hasattr(self.table, "class_name") else TERRAIN_CLASSES[cid]
+            p = _nominal_params(name)
+            if p is None:
+                self._cache[cid] = (s_t, s_b, math.nan, math.nan, math.nan)
+            else:
+                h = tm.gross_thrust_n(p, self.w_mean, _SLIP, self.robot)
+                mu = tm.net_traction_coefficient(p, self.w_mean, _SLIP, self.robot)
+                self._cache[cid] = (s_t, s_b, thrust_peak_offset(_SLIP, h, s_t, self.cfg),
+                                    float(np.max(mu)), float(np.max(h)) / self.w_mean)
+        return self._cache[cid]
+
+
+class _Measured:
+    """Wheel speeds, set-points and currents of one sample as (N,) arrays."""
+
+    def __init__(self, n: int) -> None:
+        self.om = [f"wheel{i}_omega_radps" for i in range(1, n + 1)]
+        self.cmd = [f"wheel{i}_cmd_omega_radps" for i in range(1, n + 1)]
+        self.cur = [f"wheel{i}_current_a" for i in range(1, n + 1)]
+
+    @staticmethod
+    def _arr(sample: dict, keys: list[str]) -> np.ndarray:
+        return np.array([sample.get(k, math.nan) for k in keys], dtype=float)
+
+    def read(self, sample: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        cmd = self._arr(sample, self.cmd)
+        if not np.all(np.isfinite(cmd)):
+            missing = [k for k, v in zip(self.cmd, cmd) if not np.isfinite(v)]
+            raise ValueError(f"sample lacks column {missing[0]!r}: the limiter needs the "
+                             "low-level wheel-speed set-points")
+        return self._arr(sample, self.om), cmd, self._arr(sample, self.cur)
+
+
+class LimiterController:
+    """The slip limiter with a per-tick target source and optional online refinement.
+
+    Parameters
+    ----------
+    robot : RobotSpec.
+    targets : ``targets(ctrl, sample) -> (s_T (N,), s_B (N,), class id or None)``: the served
+        traction cap and braking floor per wheel, and the class whose nominal curve the refiner
+        may use (None: serve unrefined, e.g. the safe cap on fallback).
+    refine : refine the traction cap online (:class:`~terrainml.control.cap_refiner.CapRefiner`).
+    limiter : :class:`SlipLimiterConfig` (default: the robot's wheel radius, defaults otherwise).
+    refiner : :class:`CapRefinerConfig`.
+    table : desired-slip table (default ``DesiredSlipTable.build(robot)``).
+    predictor : a :class:`~terrainml.stream.predictor.Predictor` stepping the estimator (the
+        served policy); otherwise an :class:`OnlineEstimator` gives the wheel-centre speeds.
+    preset : EKF preset of the online estimator.
+    """
+
+    def __init__(self, robot: RobotSpec, targets: Callable[["LimiterController", dict], tuple],
+                 *, refine: bool = False, limiter: SlipLimiterConfig | None = None,
+                 refiner: CapRefinerConfig | None = None, table: Any = None,
+                 predictor: Predictor | None = None, preset: str = "robust") -> None:
+        self.robot = robot
+        n = robot.n_wheels
+        self.targets = targets
+        self.table = table if table is not None else (
+            predictor.table if predictor is not None else DesiredSlipTable.build(robot))
+        self.limiter = SlipLimiter(n, limiter or SlipLimiterConfig(wheel_radius_m=robot.wheel_radius_m))
+        self.refiner = CapRefiner(n, refiner) if refine else None
+        self.curves = _ClassCurves(robot, self.table, refiner or CapRefinerConfig())
+        self.predictor = predictor
+        self.estimator = None if predictor is not None else OnlineEstimator(robot, preset,
+                                                                             has_imu_yaw=False)
+        self.msg: Any = None        # the predictor's message of this tick
+        self._io = _Measured(n)
+        self._vkeys = [f"v_long{i}_mps" for i in range(1, n + 1)]
+        self._t_prev: float | None = None
+        self._v = np.zeros(n)
+        self.n_ticks = 0
+        self.n_fallback = 0
+        self.last_cap = np.full(n, np.nan)
+        # per-tick record for analysis: (t, cap, slip_shear, offset) when a list
+        self.trace: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] | None = None
+
+    def _wheel_speeds(self, sample: dict) -> np.ndarray:
+        """Estimated wheel-centre speed along each wheel (m/s); the last good one when unhealthy."""
+        if self.predictor is not None:
+            self.msg = self.predictor.step(sample)
+            v = np.asarray(getattr(self.predictor.estimator, "v_long", self._v), dtype=float)
+            if self.msg is not None and self.msg.fallback:
+                self.n_fallback += 1
+        else:
+            row = self.estimator.step(sample)  # type: ignore[union-attr]
+            v = np.array([row.get(k, math.nan) for k in self._vkeys], dtype=float)
+        self._v = np.where(np.isfinite(v), v, self._v)
+        return self._v
+
+    def __call__(self, sample: dict) -> np.ndarray:
+        s = dict(sample)
+        conf = s.get("cam_confidence")
+        if conf is not None and "cam_valid" not in s:
+            s["cam_valid"] = bool(np.isfinite(conf) and conf >= 2)  # as ingest does
+        t = float(s["t_s"])
+        dt = 0.01 if self._t_prev is None else t - self._t_prev
+        self._t_prev = t
+        self.n_ticks += 1
+        om, cmd, cur = self._io.read(s)
+        v = self._wheel_speeds(s)
+        s_t, s_b, cid = self.targets(self, s)
+        s_t = np.asarray(s_t, dtype=float)
+        if self.refiner is not None:
+            off = self.curves.get(cid)[2] if cid is not None else math.nan
+            s_t = self.refiner.cap(s_t, off)
+        out = self.limiter.step_pair(om, cmd, v, s_t, s_b, dt)
+        if self.refiner is not None:
+            rw = self.robot.wheel_radius_m
+            d = np.where(cmd < 0.0, -1.0, 1.0)
+            thrust = d * cur * self.robot.torque_constant_nm_per_a / rw
+            self.refiner.update(d * out.slip_shear, thrust, np.abs(om) * rw * max(dt, 0.0), dt)
+        self.last_cap = s_t
+        if self.trace is not None:
+            self.trace.append((t, np.array(s_t), out.slip_shear.copy(), out.offset_radps.copy()))
+        return out.offset_radps
+
+
+# ------------------------------------------------------------------ target sources
+def _class_targets(ctrl: LimiterController, cid: int) -> tuple[np.ndarray, np.ndarray, int]:
+    s_t, s_b = ctrl.curves.get(int(cid))[:2]
+    n = ctrl.robot.n_wheels
+    return np.full(n, s_t), np.full(n, s_b), int(cid)
+
+
+def _served_targets(ctrl: LimiterController, sample: dict):
+    """The predictor's class; on fallback the class-free safe cap (design §10), unrefined."""
+    n = ctrl.robot.n_wheels
+    pred = ctrl.predictor
+    msg = ctrl.msg
+    if msg is None or msg.fallback or msg.terrain_class < 0:
+        names = getattr(pred, "class_names", None) or None
+        try:
+            cap = ctrl.table.safe_cap(names)
+            return np.full(n, cap.traction), np.full(n, cap.braking), None
+        except Exception:  # noqa: BLE001 - a table without safe_cap: the predictor's own cap
+            s = pred.safe_cap_traction()  # type: ignore[union-attr]
+            return np.full(n, s), np.full(n, -s), None
+    return _class_targets(ctrl, msg.terrain_class)
+
+
+# ------------------------------------------------------------------ factories
+def no_control(robot: RobotSpec) -> None:
+    """No traction control: no hook at all."""
+    return None
+
+
+def fixed_cap(robot: RobotSpec, value: float = 0.1, **kw: Any) -> LimiterController:
+    """The slip limiter at a fixed ``value`` (traction) and ``-value`` (braking), any terrain."""
+    n = robot.n_wheels
+    return LimiterController(robot, lambda c, s: (np.full(n, value), np.full(n, -value), None), **kw)
+
+
+def oracle(robot: RobotSpec, class_lookup: Callable[[float], int], *, refine: bool = True,
+           **kw: Any) -> LimiterController:
+    """The limiter at the true class's targets (``class_lookup(t_s) -> class id``), refined."""
+    return LimiterController(robot, lambda c, s: _class_targets(c, class_lookup(float(s["t_s"]))),
+                             refine=refine, **kw)
+
+
+def terrain_aware(robot: RobotSpec, model: str | Path | None = None, *,
+                  predictor: Predictor | None = None, refine: bool = True,
+                  preset: str | None = None, **kw: Any) -> LimiterController:
+    """The limiter at the target the online predictor serves from ``model`` (or ``predictor``)."""
+    if predictor is None:
+        if model is None:
+            raise ValueError("terrain_aware needs a model folder or a Predictor")
+        predictor = Predictor.from_model_dir(model, robot=robot, preset=preset)
+    return LimiterController(robot, _served_targets, refine=refine, predictor=predictor, **kw)
+
+
+def oracle_cap(robot: RobotSpec, peak_per_wheel: Callable[[], Sequence[float]],
+               class_lookup: Callable[[float], int], **kw: Any) -> LimiterController:
+    """The limiter capped at the true traction-peak slip under each wheel (``peak_per_wheel()``,
+    simulator truth); braking floors from the true class's table row. Never refined."""
+    def targets(ctrl: LimiterController, sample: dict):
+        _, s_b, _ = _class_targets(ctrl, class_lookup(float(sample["t_s"])))
+        return np.asarray(peak_per_wheel(), dtype=float), s_b, None
+    return LimiterController(robot, targets, refine=False, **kw)
+
+
+class _CommandShaper:
+    """Shared plumbing of the two non-slip baselines: class lookup, set-points, tick counting."""
+
+    def __init__(self, robot: RobotSpec, class_lookup: Callable[[float], int],
+                 table: Any = None) -> None:
+        self.robot = robot
+        self.class_lookup = class_lookup
+        self.table = table if table is not None else DesiredSlipTable.build(robot)
+        self.curves = _ClassCurves(robot, self.table, CapRefinerConfig())
+        self._io = _Measured(robot.n_wheels)
+        self._t_prev: float | None = None
+        self.n_ticks = 0
+        self.n_fallback = 0
+
+    def _tick(self, sample: dict):
+        t = float(sample["t_s"])
+        dt = 0.01 if self._t_prev is None else t - self._t_prev
+        self._t_prev = t
+        self.n_ticks += 1
+        return t, max(dt, 0.0), *self._io.read(sample)
+
+
+class AccelLimitController(_CommandShaper):
+    """Terrain-aware acceleration limit: each wheel's speed command rises at most ``k mu* g / R``
+    rad/s per second (``mu*`` the served class's nominal net-traction peak); decreases pass.
+
+    Parameters
+    ----------
+    robot, class_lookup, table : as :func:`oracle`.
+    k : share of ``mu* g`` the body may be asked to accelerate with (*assumption*: 0.8).
+    """
+
+    def __init__(self, robot: RobotSpec, class_lookup: Callable[[float], int], *,
+                 k: float = 0.8, table: Any = None) -> None:
+        super().__init__(robot, class_lookup, table)
+        self.k = float(k)
+        self._out: np.ndarray | None = None
+
+    def __call__(self, sample: dict) -> np.ndarray:
+        t, dt, om, cmd, _ = self._tick(sample)
+        mu = self.curves.get(int(self.class_lookup(t)))[3]
+        step = self.k * max(mu, 0.05) * 9.81 / self.robot.wheel_radius_m * dt
+        prev = om if self._out is None else self._out
+        # rise towards the command at the limit; any decrease in magnitude passes at once
+        up = np.abs(cmd) > np.abs(prev)
+        out = np.where(up, prev + np.clip(cmd - prev, -step, step), cmd)
+        out = np.where(np.sign(out) * np.sign(cmd) < 0, 0.0, out)
+        self._out = out
+        return out - cmd
+
+
+class CurrentLimitController(_CommandShaper):
+    """Current limit at ``mu_H* W_i R / k_t`` per wheel (``mu_H*`` the served class's gross-thrust
+    peak over load, ``W_i`` the static load): while ``|i|`` exceeds it the speed command is pulled
+    down by an integrator (``gain`` rad/s per A s), which drains at ``release_radps2`` below it.
+
+    The limit uses the *gross* thrust peak (what the motor current measures); the net-traction peak
+    ``mu*`` would leave the wheel short of the rolling resistance it must also overcome.
+    """
+
+    def __init__(self, robot: RobotSpec, class_lookup: Callable[[float], int], *,
+                 gain: float = 20.0, release_radps2: float = 6.0, table: Any = None) -> None:
+        super().__init__(robot, class_lookup, table)
+        self.gain = float(gain)
+        self.release = float(release_radps2)
+        self.loads = np.asarray(robot.static_wheel_loads_n(), dtype=float)
+        self.offset = np.zeros(robot.n_wheels)
+
+    def limit_a(self, cid: int) -> np.ndarray:
+        """(N,) current limit per wheel, A."""
+        mu_h = self.curves.get(int(cid))[4]
+        return mu_h * self.loads * self.robot.wheel_radius_m / self.robot.torque_constant_nm_per_a
+
+    def __call__(self, sample: dict) -> np.ndarray:
+        t, dt, om, cmd, cur = self._tick(sample)
+        lim = self.limit_a(int(self.class_lookup(t)))
+        d = np.where(cmd < 0.0, -1.0, 1.0)
+        excess = np.nan_to_num(np.abs(cur) - lim)
+        mag = d * self.offset                        # <= 0: how much the command is lowered
+        mag = np.where(excess > 0, mag - self.gain * excess * dt, np.minimum(mag + self.release * dt, 0.0))
+        mag = np.maximum(mag, -np.abs(cmd))          # never reverse the wheel
+        self.offset = d * mag
+        return self.offset
