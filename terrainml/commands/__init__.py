@@ -4,4 +4,4 @@ Keeping each area's commands in its own module lets ``cli.py`` stay a short tabl
 """
 
 AREAS = ("io_cmds", "sim_cmds", "estimation_cmds", "lookup_cmds", "dataset_cmds", "model_cmds",
-         "stream_cmds", "control_cmds", "slipmap_cmds", "borealtc_cmds")
+         "stream_cmds", "control_cmds", "mission_cmds", "slipmap_cmds", "borealtc_cmds")
