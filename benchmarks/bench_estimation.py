@@ -178,7 +178,8 @@ def _accuracy_section(quick: bool) -> str:
     src = "simulator (`terrainml.sim`)" if _sim_available() else \
         "exact-truth kinematic runs (`terrainml.estimation.synthetic`; simulator not available)"
     lines = [f"### Straight runs at 1 m/s, {len(seeds)} seeds per class, source: {src}\n",
-             "| class | true mid-run slip (wheel 1) | steady slip MAE thesis | steady slip MAE robust | ratio thesis/robust | "
+             "| class | true mid-run slip (wheel 1) | steady slip MAE thesis | steady slip MAE robust "
+             "| ratio thesis/robust | "
              "vel RMSE thesis [m/s] | vel RMSE robust [m/s] | median NIS/dof thesis | median NIS/dof robust | "
              "state agreement vs gt_state (robust) | shortest state [s] |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -196,7 +197,8 @@ def _accuracy_section(quick: bool) -> str:
             true_slip.setdefault(cid, []).append(float(np.nanmedian(gts[len(gts) // 3: 2 * len(gts) // 3])))
         a = {k: np.nanmean(np.array(v), axis=0) for k, v in acc.items()}
         ratio = a["thesis"][0] / a["robust"][0] if a["robust"][0] > 0 else float("inf")
-        lines.append(f"| {cid} {name} | {np.mean(true_slip[cid]):.3f} | {a['thesis'][0]:.4f} | {a['robust'][0]:.4f} | {ratio:.1f} | "
+        lines.append(f"| {cid} {name} | {np.mean(true_slip[cid]):.3f} | {a['thesis'][0]:.4f} "
+                     f"| {a['robust'][0]:.4f} | {ratio:.1f} | "
                      f"{a['thesis'][1]:.4f} | {a['robust'][1]:.4f} | {a['thesis'][2]:.2f} | {a['robust'][2]:.2f} | "
                      f"{a['robust'][3]:.2f} | {np.min([v[4] for v in acc['robust']]):.2f} |")
     lines += ["", "### Mixed scenarios (robust vs thesis)\n",

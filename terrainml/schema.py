@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 SCHEMA_VERSION = "1.0"
 DEFAULT_RATE_HZ = 100.0
@@ -231,9 +233,6 @@ def make_metadata(*, robot_json: str | None = None, source_file: str | None = No
 
 def write_run_parquet(df: pd.DataFrame, path: str | Path, metadata: dict[str, Any] | None = None) -> Path:
     """Write a validated run table to Parquet with the terrainml key-value metadata."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = dict(table_metadata(df))
@@ -250,8 +249,6 @@ def write_run_parquet(df: pd.DataFrame, path: str | Path, metadata: dict[str, An
 
 def read_run_parquet(path: str | Path, *, validate: bool = True) -> pd.DataFrame:
     """Read a run table written by :func:`write_run_parquet` (metadata in ``df.attrs['terrainml']``)."""
-    import pyarrow.parquet as pq
-
     path = Path(path)
     if not path.is_file():
         raise SchemaError(f"{path}: file not found")

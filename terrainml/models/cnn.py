@@ -1,4 +1,4 @@
-"""1-D convolutional terrain classifier on raw windows (SYSTEM §8-9), scikit-learn style.
+"""1-D convolutional terrain classifier on raw windows (design §8-9), scikit-learn style.
 
 The input is a stack of raw windows ``X`` of shape ``(n_windows, n_channels, n_timesteps)``
 (for the reference robot: channels ``slip_1..N, current_1..N, vx, vy, r, imu_ax, imu_ay,
@@ -25,9 +25,9 @@ Training (``CNNClassifier.fit``):
   ``StratifiedGroupKFold`` (``round(1 / validation_fraction)`` folds) over the ``groups`` given
   to ``fit``, so no run is in both parts and every class with enough runs is validated; with
   fewer runs than folds a seeded ``GroupShuffleSplit``. A class whose runs all fall into the
-  validation part is moved back to training (it could not be learned otherwise). *Departure from the brief*: the brief
-  names ``GroupShuffleSplit``; the stratified grouped split is preferred because a random
-  group split of ~15 runs regularly leaves a class out of the validation set;
+  validation part is moved back to training (it could not be learned otherwise).
+  *Departure from the design (§9)*: the design names ``GroupShuffleSplit``; the stratified
+  grouped split is preferred because a random group split of ~15 runs regularly leaves a class out of the validation set;
 * light augmentation of each training batch (in standardised units): a per-window,
   per-channel gain ``1 + gain_std * N(0, 1)``, additive Gaussian noise ``noise_std`` and a
   time shift of up to ``max_shift`` samples with edge replication;

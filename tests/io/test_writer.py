@@ -31,7 +31,8 @@ def test_encoders_match_the_reference_encoder():
     cov[0] = 2.0
     ref = _dynamic("nav_msgs/msg/Odometry", {
         "header": {**hdr, "frame_id": "odom"}, "child_frame_id": "camera_pose_frame",
-        "pose": {"pose": {"position": {"x": 1.0, "y": 2.0, "z": 3.0}, "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
+        "pose": {"pose": {"position": {"x": 1.0, "y": 2.0, "z": 3.0},
+                          "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}},
                  "covariance": cov},
         "twist": {"twist": {"linear": {"x": 4.0, "y": 5.0, "z": 6.0}, "angular": {"x": 7.0, "y": 8.0, "z": 9.0}},
                   "covariance": [0.0] * 36}})
