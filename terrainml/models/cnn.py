@@ -27,7 +27,8 @@ Training (``CNNClassifier.fit``):
   fewer runs than folds a seeded ``GroupShuffleSplit``. A class whose runs all fall into the
   validation part is moved back to training (it could not be learned otherwise).
   *Departure from the design (§9)*: the design names ``GroupShuffleSplit``; the stratified
-  grouped split is preferred because a random group split of ~15 runs regularly leaves a class out of the validation set;
+  grouped split is preferred because a random group split of ~15 runs regularly leaves a class
+  out of the validation set;
 * light augmentation of each training batch (in standardised units): a per-window,
   per-channel gain ``1 + gain_std * N(0, 1)``, additive Gaussian noise ``noise_std`` and a
   time shift of up to ``max_shift`` samples with edge replication;
