@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from terrainml._yaml_checks import read_yaml_file
+
 
 class RobotSpecError(ValueError):
     """A robot spec file is missing a field or has an invalid value (the message names it)."""
@@ -171,12 +173,7 @@ class RobotSpec:
     @classmethod
     def from_yaml(cls, path: str | Path) -> "RobotSpec":
         path = Path(path)
-        if not path.is_file():
-            raise RobotSpecError(f"{path}: robot spec file not found")
-        try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            raise RobotSpecError(f"{path}: not valid YAML: {exc}") from None
+        data = read_yaml_file(path, RobotSpecError, f"{path}: robot spec file not found")
         return _parse_spec(data, str(path))
 
 

@@ -1,5 +1,7 @@
 """The CLI helpers written once (``terrainml.commands._common``): refusals are one ``error:`` line
-naming the file, exit code 2, no traceback; outputs and ``--n-jobs`` are checked before the work.
+naming the file, exit code 2, no traceback; outputs and ``--n-jobs`` are checked before the work,
+by the helpers and by the commands that use them (``ingest``, ``train``, ``evaluate``, ``dataset
+build``, ``evaluate-protocol``); ``dataset build`` says which runs are damaged.
 
 The tests run as root in CI, and root ignores permission bits, so an unwritable output is made
 in ways that fail for root too: a path below a regular file, and a path inside ``/proc``.
@@ -154,3 +156,130 @@ def test_open_dataset_refuses_a_run_table(tmp_path, capsys):
     assert not is_windows_file(path) and not is_windows_file(tmp_path / "missing.parquet")
     err = _refused(capsys, open_dataset, path)
     assert str(path) in err and "not a terrainml windows file" in err
+
+
+# ----------------------------------------------------------------- commands check outputs first
+# Each command is given an output below a regular file (unwritable for root too) and must refuse
+# it, naming it, before its long work starts: the work function is replaced by a recorder.
+def _blocked(tmp_path: Path) -> Path:
+    blocker = tmp_path / "blocker"
+    blocker.write_text("a file, not a folder")
+    return blocker
+
+
+def _invoke(args: list[str]):
+    from typer.testing import CliRunner
+
+    from terrainml.cli import app
+
+    return CliRunner().invoke(app, args)
+
+
+def _refused_cli(args: list[str], *named: object) -> str:
+    r = _invoke(args)
+    assert r.exit_code == 2, r.output
+    assert "Traceback" not in r.output and r.output.startswith("error: ")
+    for n in named:
+        assert str(n) in r.output, r.output
+    return r.output
+
+
+@pytest.fixture
+def never_reached(monkeypatch):
+    """``never_reached(module, name)`` swaps a command's long work for a recorder; the
+    test fails if the command reached it instead of refusing first."""
+    calls = []
+
+    def stub(module, name: str) -> None:
+        monkeypatch.setattr(module, name, lambda *a, **k: calls.append(name))
+
+    yield stub
+    assert calls == [], f"the command reached {calls} before refusing"
+
+
+@pytest.fixture
+def run_parquet(tmp_path) -> Path:
+    return write_run_parquet(kinematic_run(duration_s=1.0), tmp_path / "run.parquet")
+
+
+def test_ingest_refuses_an_unwritable_output_before_reading(tmp_path, run_parquet, never_reached):
+    import terrainml.io.ingest as ingest_mod
+
+    never_reached(ingest_mod, "ingest_to_parquet")
+    out = _blocked(tmp_path) / "run.parquet"
+    _refused_cli(["ingest", str(run_parquet), "--out", str(out)], out, "is not a folder")
+
+
+def test_train_refuses_an_unwritable_output_folder_before_loading_data(tmp_path, run_parquet, never_reached):
+    import terrainml.commands.model_cmds as model_cmds
+
+    never_reached(model_cmds, "_load_data")
+    out = _blocked(tmp_path) / "runs" / "svm"
+    _refused_cli(["train", "--data", str(tmp_path), "--out", str(out)], out, "output folder")
+    _refused_cli(["train", "--data", str(tmp_path), "--out", str(tmp_path / "ok"), "--n-jobs", "0"], "--n-jobs")
+
+
+def test_evaluate_refuses_an_unwritable_output_before_reading_the_model(tmp_path, never_reached):
+    # today's failure: a traceback after all the work; now a refusal before the manifest is read
+    import terrainml.models.artifacts as artifacts_mod
+
+    never_reached(artifacts_mod, "read_manifest")
+    out = _blocked(tmp_path) / "eval.json"
+    _refused_cli(["evaluate", str(tmp_path / "runs" / "svm"), "--data", str(tmp_path), "--out", str(out)],
+                 out, "is not a folder")
+    _refused_cli(["evaluate", str(tmp_path / "runs" / "svm"), "--data", str(tmp_path), "-j", "-3"], "got -3")
+
+
+def test_dataset_build_refuses_an_unwritable_output_before_building(tmp_path, never_reached):
+    import terrainml.commands.dataset_cmds as dataset_cmds
+
+    never_reached(dataset_cmds, "build_with_progress")
+    out = _blocked(tmp_path) / "windows.parquet"
+    _refused_cli(["dataset", "build", str(tmp_path), "--out", str(out)], out, "is not a folder")
+    _refused_cli(["dataset", "build", str(tmp_path), "--out", str(tmp_path / "w.parquet"), "-j", "0"], "--n-jobs")
+
+
+def test_evaluate_protocol_refuses_bad_robot_jobs_and_output_before_reading(tmp_path, never_reached):
+    import terrainml.experiments.borealtc as borealtc_mod
+
+    never_reached(borealtc_mod, "load_protocol_data")
+    out = _blocked(tmp_path) / "r.json"
+    _refused_cli(["evaluate-protocol", str(tmp_path), "--json", str(out)], out, "is not a folder")
+    _refused_cli(["evaluate-protocol", str(tmp_path), "-j", "0"], "--n-jobs")
+    _refused_cli(["evaluate-protocol", str(tmp_path), "--robot", str(tmp_path / "nope.yaml")], "nope.yaml")
+
+
+def test_dataset_show_refuses_a_run_table_naming_it(run_parquet):
+    _refused_cli(["dataset", "show", str(run_parquet)], run_parquet, "not a terrainml windows file")
+
+
+# ----------------------------------------------------------------- damage reaches dataset build
+def test_dataset_build_per_run_status_and_summary_carry_damage(tmp_path):
+    """A log with bad cells is kept (its windows are usable) but its status says what it lost."""
+    from synthetic_runs import make_run_table
+    from terrainml.pipeline.dataset import build_dataset
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    make_run_table(0, "clean", 1, duration_s=6.0).to_csv(logs / "clean.csv", index=False)
+    damaged = make_run_table(2, "damaged", 2, duration_s=6.0).astype(object)
+    damaged.loc[100, "wheel1_omega_radps"] = "abc"   # unparseable
+    damaged.loc[200, "imu_ax_mps2"] = "inf"          # non-finite
+    damaged.loc[201, "imu_ax_mps2"] = "n/a"          # unparseable
+    damaged.to_csv(logs / "damaged.csv", index=False)
+
+    ds = build_dataset(logs, "agrimaro")
+    runs = ds.runs.set_index("source")
+    assert runs.loc["clean.csv", "status"] == "ok" and runs.loc["clean.csv", "message"] == ""
+    assert runs.loc["damaged.csv", "status"] == "damaged"
+    msg = runs.loc["damaged.csv", "message"]
+    assert "3 bad cell(s)" in msg and "imu_ax_mps2 2" in msg and "wheel1_omega_radps 1" in msg
+    assert runs.loc["damaged.csv", "n_kept"] > 0   # still used: damage is said, not fatal
+
+    out = tmp_path / "w.parquet"
+    r = _invoke(["dataset", "build", str(logs), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    text = " ".join(r.output.split())
+    assert "warning: damaged.csv: damaged: 3 bad cell(s)" in text
+    assert "clean.csv:" not in text   # a clean log gets no warning
+    assert "from 2 logs (1 damaged)" in text and is_windows_file(out)

@@ -14,14 +14,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-console = Console(stderr=True, soft_wrap=True)
+from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail, open_robot
 
 PROTOCOLS = ("a", "b", "both")
-
-
-def _fail(msg: str) -> None:
-    console.print(f"[red]error:[/] {msg}", highlight=False)
-    raise typer.Exit(2)
 
 
 def evaluate_protocol_cmd(
@@ -54,33 +49,32 @@ def evaluate_protocol_cmd(
 
     from terrainml.experiments.borealtc import MODELS, load_protocol_data, run_protocol
     from terrainml.io.borealtc import BorealTCError
-    from terrainml.robot import RobotSpecError, load_robot
 
     if protocol not in PROTOCOLS:
-        _fail(f"--protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
+        fail(f"--protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
     names = [m.strip() for m in models.split(",") if m.strip()]
     bad = [m for m in names if not all(q in MODELS for q in m.split("+"))]
     if bad or not names:
-        _fail(f"--models: unknown {bad or models!r}; choose from {', '.join(MODELS)}")
+        fail(f"--models: unknown {bad or models!r}; choose from {', '.join(MODELS)}")
     if not (window_s > 0 and chunk_s >= window_s):
-        _fail(f"--window-s {window_s} must be > 0 and not longer than --chunk-s {chunk_s}")
-    if per_chunk < 1 or folds < 2 or n_jobs == 0:
-        _fail("--windows-per-chunk must be >= 1, --folds >= 2 and --n-jobs not 0")
-    try:
-        rb = load_robot(robot)
-    except (RobotSpecError, OSError, ValueError) as exc:
-        _fail(f"--robot {robot}: {exc}")
+        fail(f"--window-s {window_s} must be > 0 and not longer than --chunk-s {chunk_s}")
+    if per_chunk < 1 or folds < 2:
+        fail("--windows-per-chunk must be >= 1 and --folds >= 2")
+    check_n_jobs(n_jobs)
+    rb = open_robot(robot)
+    if out_json is not None:
+        check_output_writable(out_json)
     try:
         data = load_protocol_data(source, rb, chunk_s=chunk_s, window_s=window_s, max_windows_per_chunk=per_chunk)
     except (BorealTCError, ValueError) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     W, chunks = data.windows, data.chunks
     if not quiet:
         console.print(f"{source}: {data.report.runs} runs, classes {data.report.classes}; runs without IMU "
                       f"(no chunk): {chunks.runs_without_chunks or 'none'}; {len(chunks)} chunks, {len(W)} windows",
                       highlight=False)
     if len(set(W.meta["terrain"])) < 2:
-        _fail(f"{source}: need at least two terrain classes with chunks")
+        fail(f"{source}: need at least two terrain classes with chunks")
     results = {}
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=console, transient=True, disable=quiet) as progress:
@@ -96,7 +90,7 @@ def evaluate_protocol_cmd(
                 res = run_protocol(data, p, names, n_splits=folds, seed=seed_a if p == "a" else seed_b,
                                    quick=quick, n_jobs=n_jobs, progress=tick)
             except ValueError as exc:
-                _fail(f"{source}: protocol ({p}): {exc}")
+                fail(f"{source}: protocol ({p}): {exc}")
             results.update({(p, m): r for m, r in res.items()})
     for (p, m), res in results.items():
         t = Table(title=f"protocol ({p}) {m}: accuracy {100 * res.accuracy:.2f}%, balanced "
@@ -122,7 +116,7 @@ def evaluate_protocol_cmd(
         try:
             out_json.write_text(json.dumps(payload, indent=2))
         except OSError as exc:
-            _fail(f"{out_json}: cannot write ({exc})")
+            fail(f"{out_json}: cannot write ({exc})")
         if not quiet:
             console.print(f"[green]wrote[/] {out_json}", highlight=False)
 

@@ -10,22 +10,18 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
-console = Console(stderr=True, soft_wrap=True)
+from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail, open_dataset, open_robot
 
 dataset_app = typer.Typer(help="Build window datasets (steady 2 s windows) from logs.", no_args_is_help=True)
 
 
-def _fail(msg: str) -> None:
-    console.print(f"[red]error:[/] {msg}", highlight=False)
-    raise typer.Exit(2)
-
-
 def rejection_table(ds) -> Table:
     """A rich table of the per-rule rejection counts and per-run status."""
-    t = Table(title="steady-window rules (SYSTEM §8): windows rejected", title_justify="left")
+    name = getattr(getattr(ds, "spec", None), "name", "steady")
+    unit = "chunks (n_kept: windows)" if getattr(getattr(ds, "spec", None), "chunk_s", None) else "windows"
+    t = Table(title=f"window rules of the '{name}' spec (design §8): {unit} rejected", title_justify="left")
     t.add_column("rule")
     t.add_column("windows", justify="right")
     for k, v in ds.counts.items():
@@ -33,30 +29,84 @@ def rejection_table(ds) -> Table:
     return t
 
 
+def class_table(ds) -> Table:
+    """A rich table of what each class kept and which rule rejected the rest (with hints)."""
+    t = Table(title="per class: candidates (windows; chunks for --windows chunks), kept windows, rejections",
+              title_justify="left")
+    rep = ds.class_report
+    if rep is None or not len(rep):
+        return t
+    rules = [c for c in rep.columns if c not in ("class_id", "class", "runs", "candidates", "kept",
+                                                 "kept_share", "hint") and rep[c].sum() > 0]
+    for c in ["class", "runs", "candidates", "kept", "passed", *rules]:
+        t.add_column(c, justify="left" if c == "class" else "right")
+    for r in rep.to_dict(orient="records"):
+        t.add_row(str(r["class"]), str(r["runs"]), str(r["candidates"]), str(r["kept"]),
+                  f"{r['kept_share']:.0%}", *[str(r[c]) for c in rules])
+    return t
+
+
+def print_class_report(ds) -> None:
+    """The per-class table, then one warning with a hint per class that lost most of its data."""
+    console.print(class_table(ds))
+    rep = ds.class_report
+    for r in ([] if rep is None or not len(rep) else rep.to_dict(orient="records")):
+        if r.get("hint"):
+            console.print(f"[yellow]warning:[/] class {r['class']}: {r['hint']}", highlight=False)
+
+
+def window_spec_from_options(windows: str, window_s: Optional[float] = None, hop_s: Optional[float] = None,
+                             channels: Optional[str] = None):
+    """The named window spec with the command line's overrides (ValueError names a bad value)."""
+    from terrainml.features.windows import window_spec
+
+    over = {}
+    if window_s is not None:
+        over["window_s"] = window_s
+        over["hop_s"] = hop_s if hop_s is not None else window_s
+    elif hop_s is not None:
+        over["hop_s"] = hop_s
+    if channels:
+        over["channels"] = tuple(c.strip() for c in channels.split(",") if c.strip())
+    return window_spec(windows, **over)
+
+
+def parse_sensors(sensors: Optional[str]) -> Optional[list]:
+    """``wheels,currents`` -> ["wheels", "currents"]; None stays None (every group)."""
+    if sensors is None:
+        return None
+    return [g.strip() for g in sensors.split(",") if g.strip()]
+
+
 def build_with_progress(source: Path, *, robot: Optional[str], preset: str, n_jobs: int,
-                        dask_address: Optional[str], fmt: str, quiet: bool = False, spec=None):
-    """Build a Dataset from a folder of logs (or BorealTC layout) with a rich progress bar."""
+                        dask_address: Optional[str], fmt: str, quiet: bool = False, spec=None,
+                        sensors: Optional[list] = None):
+    """Build a Dataset from a folder of logs (or BorealTC layout) with a rich progress bar.
+
+    ``sensors`` restricts the window channels to those sensor groups (``--sensors``).
+    """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from terrainml.pipeline.dataset import build_dataset, build_from_tables, find_logs
-    from terrainml.robot import load_robot
 
     if fmt == "borealtc":
         from terrainml.io.borealtc import load_borealtc
 
-        rb = load_robot(robot or "husky")
+        rb = open_robot(robot or "husky")
+        spec = _restrict(spec, rb, sensors)
         tables, rep = load_borealtc(source, robot=rb)
         if not quiet:
             console.print(f"BorealTC: {rep.runs} runs, classes {rep.classes}; runs without IMU "
                           f"(wheel channels invalid, their windows rejected): {len(rep.runs_without_imu)}; "
                           f"skipped: {len(rep.skipped)}", highlight=False)
         if not tables:
-            _fail(f"{source}: no BorealTC runs read ({rep.skipped})")
+            fail(f"{source}: no BorealTC runs read ({rep.skipped})")
         return build_from_tables(tables, rb, preset, spec, n_jobs=n_jobs)
     if fmt != "auto":
-        _fail(f"unknown --format {fmt!r}; expected auto or borealtc")
+        fail(f"unknown --format {fmt!r}; expected auto or borealtc")
     paths = find_logs(source)
-    rb = load_robot(robot)
+    rb = open_robot(robot)
+    spec = _restrict(spec, rb, sensors)
     with Progress(TextColumn("[bold]dataset[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), console=console, transient=True, disable=quiet) as progress:
         task = progress.add_task(str(source), total=len(paths))
@@ -65,6 +115,22 @@ def build_with_progress(source: Path, *, robot: Optional[str], preset: str, n_jo
             progress.update(task, completed=done, total=total, description=name)
 
         return build_dataset(paths, rb, preset, spec, n_jobs=n_jobs, dask_address=dask_address, progress=cb)
+
+
+def _restrict(spec, robot, sensors):
+    """``spec`` with its channels restricted to the sensor groups (unchanged when None)."""
+    from dataclasses import replace
+
+    from terrainml.features.windows import WindowSpec
+    from terrainml.pipeline.dataset import dataset_channels
+
+    if sensors is None:
+        return spec
+    spec = spec or WindowSpec()
+    try:
+        return replace(spec, channels=dataset_channels(robot, spec, sensors))
+    except ValueError as exc:
+        fail(str(exc))
 
 
 def build(
@@ -79,7 +145,12 @@ def build(
     robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec YAML or built-in name "
                                         "(agrimaro, husky). Default: agrimaro (husky for borealtc)."),
     fmt: str = typer.Option("auto", "--format", help="auto (logs) or borealtc (<CLASS>/pro_XX.csv layout)."),
-    window_s: float = typer.Option(2.0, "--window-s", help="Window length (s)."),
+    windows: str = typer.Option("steady", "--windows", help="Window spec: steady (design §8 rules), chunks "
+                                "(the BorealTC authors' 1.7 s windows in 5 s chunks), state (any moving "
+                                "wheel state), or another name of terrainml.features.windows.WINDOW_SPECS."),
+    sensors: Optional[str] = typer.Option(None, "--sensors", help="Sensor groups to use, e.g. wheels,currents "
+                                          "(of wheels, currents, imu, cam; default: all the data has)."),
+    window_s: Optional[float] = typer.Option(None, "--window-s", help="Window length (s); default: the spec's."),
     hop_s: Optional[float] = typer.Option(None, "--hop-s", help="Offline hop (s); default = window length."),
     channels: Optional[str] = typer.Option(None, "--channels", help="Comma-separated channels to keep, e.g. "
                                            "current_1,current_2,vx,vy,r (default: all the robot has)."),
@@ -91,34 +162,38 @@ def build(
 
     Example (cluster): ``terrainml dataset build logs/ --out w.parquet --dask-address tcp://10.0.0.5:8786``
     """
-    from terrainml.features.windows import WindowSpec
     from terrainml.pipeline.dataset import DatasetError, write_windows
 
     try:
-        spec = WindowSpec(window_s=window_s, hop_s=hop_s if hop_s is not None else window_s,
-                          channels=None if not channels else tuple(c.strip() for c in channels.split(",") if c.strip()))
+        spec = window_spec_from_options(windows, window_s, hop_s, channels)
     except ValueError as exc:
-        _fail(str(exc))
+        fail(str(exc))
+    check_n_jobs(n_jobs)
+    check_output_writable(out)
     try:
         ds = build_with_progress(source, robot=robot, preset=preset, n_jobs=n_jobs,
-                                 dask_address=dask_address, fmt=fmt, quiet=quiet, spec=spec)
+                                 dask_address=dask_address, fmt=fmt, quiet=quiet, spec=spec,
+                                 sensors=parse_sensors(sensors))
         bad = ds.runs[ds.runs["status"] != "ok"] if len(ds.runs) else ds.runs
         for row in bad.itertuples():
             console.print(f"[yellow]warning:[/] {row.source}: {row.status}: {row.message}", highlight=False)
         if len(ds.windows) == 0:
             if not quiet:
                 console.print(rejection_table(ds))
-            _fail(f"{source}: no steady labelled windows; nothing written")
+            fail(f"{source}: no steady labelled windows; nothing written")
         write_windows(ds, out)
     except typer.Exit:
         raise
     except DatasetError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-        _fail(f"{source}: {type(exc).__name__}: {exc}")
+        fail(f"{source}: {type(exc).__name__}: {exc}")
     if not quiet:
         console.print(rejection_table(ds))
-        console.print(f"[green]wrote[/] {out}: {len(ds.windows)} windows from {len(ds.runs)} logs, "
+        print_class_report(ds)
+        n_damaged = int((ds.runs["status"] == "damaged").sum()) if len(ds.runs) else 0
+        console.print(f"[green]wrote[/] {out}: {len(ds.windows)} windows from {len(ds.runs)} logs "
+                      f"({n_damaged} damaged), "
                       f"channels {list(ds.windows.channels)}, classes {ds.class_names}; "
                       f"fingerprint {ds.fingerprint[:16]}", highlight=False)
 
@@ -128,12 +203,7 @@ def show(path: Path = typer.Argument(..., help="Windows file written by `dataset
 
     Example: ``terrainml dataset show data/windows.parquet``
     """
-    from terrainml.pipeline.dataset import DatasetError, read_windows
-
-    try:
-        ds = read_windows(path)
-    except DatasetError as exc:
-        _fail(str(exc))
+    ds = open_dataset(path)
     w = ds.windows
     t = Table(title=f"{path}: {len(w)} windows, {len(set(w.groups))} runs", title_justify="left")
     t.add_column("class")

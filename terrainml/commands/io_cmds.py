@@ -14,7 +14,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-console = Console(stderr=True, soft_wrap=True)
+from terrainml.commands._common import check_output_writable, console, fail
 
 
 def _progress_callback(progress, task):
@@ -24,15 +24,19 @@ def _progress_callback(progress, task):
 
 
 def ingest(
-    log: Path = typer.Argument(..., help="Log to ingest: .mcap (ROS 2), .bag (ROS 1), .csv or .parquet."),
+    log: Path = typer.Argument(..., help="Log to ingest: .mcap (ROS 2), .bag (ROS 1), a ROS 2 bag folder, "
+                               ".csv or .parquet (with --format: one file of a dataset run)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output run table (.parquet)."),
     topics: Optional[str] = typer.Option(None, "--topics", help="Topic map YAML (or built-in name: default, "
-                                         "husky_robot_localization). Default: the SYSTEM §5 map."),
+                                         "husky_robot_localization). Default: the design §5 map."),
     rate_hz: float = typer.Option(100.0, "--rate-hz", help="Base rate of the output table (Hz)."),
     robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec YAML or built-in name "
                                         "(agrimaro, husky). Default: agrimaro."),
     chunk_s: float = typer.Option(30.0, "--chunk-s", help="Seconds of log resampled and written at a time "
                                   "(one Parquet row group each); bounds memory for long MCAP/bag logs."),
+    fmt: Optional[str] = typer.Option(None, "--format", help="Dataset spec: a built-in name (borealtc) or "
+                                      "SPEC.yaml; LOG is then one file of a run (e.g. pro_00.csv) and the "
+                                      "run's other files are paired by the spec. Default: LOG is the whole log."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
     """Ingest a log into the canonical run table (Parquet), streaming in time chunks.
@@ -44,18 +48,21 @@ def ingest(
 
     Example (real Husky bag): ``terrainml ingest test1.bag --out husky.parquet --robot husky
     --topics husky_robot_localization``
+
+    Example (dataset spec): ``terrainml ingest borealtc/ICE/pro_03.csv --format borealtc --out ice03.parquet``
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from terrainml.io.damage import damage_summary
     from terrainml.io.ingest import ingest_to_parquet
 
+    check_output_writable(out)
     try:
         with Progress(TextColumn("[bold]ingest[/] {task.description}"), BarColumn(), TimeRemainingColumn(),
                       console=console, transient=True, disable=quiet) as progress:
             task = progress.add_task(str(log), total=None)
             rep = ingest_to_parquet(log, out, robot=robot, topic_map=topics, rate_hz=rate_hz, chunk_s=chunk_s,
-                                    progress=_progress_callback(progress, task))
+                                    progress=_progress_callback(progress, task), dataset=fmt)
         for w in rep.warnings:
             if not quiet:
                 console.print(f"[yellow]warning:[/] {w}", highlight=False, soft_wrap=True)
@@ -67,8 +74,7 @@ def ingest(
     except typer.Exit:
         raise
     except Exception as exc:  # noqa: BLE001 - last line of defence: a message, never a traceback
-        console.print(f"[red]error:[/] {log}: {type(exc).__name__}: {exc}", highlight=False, soft_wrap=True)
-        raise typer.Exit(2)
+        fail(f"{log}: {type(exc).__name__}: {exc}")
     if not quiet:
         console.print(f"[green]wrote[/] {out}: {rep.rows} rows, {rep.span_s:.1f} s at {rep.rate_hz:g} Hz; valid "
                       + ", ".join(f"{g} {f:.0%}" for g, f in rep.valid_fraction.items()),
@@ -79,7 +85,8 @@ def ingest(
 
 
 def inspect(
-    log: Path = typer.Argument(..., help="Log to inspect: .mcap (ROS 2) or .bag (ROS 1)."),
+    log: Path = typer.Argument(..., help="Log to inspect: .mcap (ROS 2), .bag (ROS 1) or a ROS 2 bag folder "
+                               "(metadata.yaml with .db3 or .mcap files)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON on stdout."),
 ) -> None:
     """Topics, types, counts, rates, time span, gaps (> 2 periods), corrupt/skipped counts of a log.
@@ -92,11 +99,9 @@ def inspect(
     try:
         info = inspect_log(log)
     except LogReadError as exc:
-        console.print(f"[red]error:[/] {exc}", highlight=False, soft_wrap=True)
-        raise typer.Exit(2)
+        fail(str(exc))
     except Exception as exc:  # noqa: BLE001
-        console.print(f"[red]error:[/] {log}: {type(exc).__name__}: {exc}", highlight=False, soft_wrap=True)
-        raise typer.Exit(2)
+        fail(f"{log}: {type(exc).__name__}: {exc}")
     if as_json:
         print(json.dumps(info, indent=2))
     else:

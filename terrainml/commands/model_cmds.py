@@ -1,44 +1,40 @@
-"""CLI commands of the models area: ``terrainml train`` and ``terrainml evaluate``.
+"""CLI commands of the models area: ``terrainml train``, ``terrainml evaluate`` and
+``terrainml model keygen|sign|verify`` (signed model folders, :mod:`terrainml.models.signing`).
 
 Exit codes: 0 on success, 2 when the data or the model folder is unusable (message names the
-file); never a traceback.
+file); never a traceback. Outputs and ``--n-jobs`` are checked before any long work.
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
+from typing import List, Optional
 
 import typer
-from rich.console import Console
 from rich.table import Table
 
-console = Console(stderr=True, soft_wrap=True)
+from terrainml.commands._common import (check_n_jobs, check_output_writable, console, fail, is_windows_file,
+                                        open_dataset)
 
+model_app = typer.Typer(help="Sign model folders and check their signatures (ed25519).", no_args_is_help=True)
 
-def _fail(msg: str) -> None:
-    console.print(f"[red]error:[/] {msg}", highlight=False)
-    raise typer.Exit(2)
+_TRUSTED_KEY_HELP = ("Public key (KEY.pub from `terrainml model keygen`); the model folder must be signed by "
+                     "it (`terrainml model sign`), else it is refused. Repeat for several.")
 
 
 def _load_data(data: Path, *, robot, preset: str, n_jobs: int, dask_address, fmt: str, spec=None,
-               quiet: bool = False):
+               quiet: bool = False, sensors=None):
     """A Dataset from a windows Parquet or (built first) a folder of logs."""
-    from terrainml.pipeline.dataset import read_windows
-
-    if data.is_file() and data.suffix == ".parquet":
-        import pyarrow.parquet as pq
-
-        md = pq.read_schema(data).metadata or {}
-        if b"terrainml_windows" in md:
-            return read_windows(data)
-    from terrainml.commands.dataset_cmds import build_with_progress, rejection_table
+    if is_windows_file(data):
+        return open_dataset(data)
+    from terrainml.commands.dataset_cmds import build_with_progress, print_class_report, rejection_table
 
     ds = build_with_progress(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=dask_address,
-                             fmt=fmt, quiet=quiet, spec=spec)
+                             fmt=fmt, quiet=quiet, spec=spec, sensors=sensors)
     if not quiet:
         console.print(rejection_table(ds))
+        print_class_report(ds)
     return ds
 
 
@@ -46,7 +42,13 @@ def train(
     data: Path = typer.Option(..., "--data", "-d", help="Windows Parquet (from `dataset build`) or a folder "
                               "of logs (the dataset is built first)."),
     out: Path = typer.Option(..., "--out", "-o", help="Model folder to create, e.g. runs/NAME."),
-    model: str = typer.Option("svm", "--model", "-m", help="svm, cnn or all."),
+    model: str = typer.Option("svm", "--model", "-m", help="svm, cnn, hgb, all (svm and cnn), an average "
+                              "such as svm+hgb, or several comma-separated."),
+    windows: str = typer.Option("steady", "--windows", help="Window spec when --data is a folder: steady, "
+                                "chunks (BorealTC authors' windows), state."),
+    sensors: Optional[str] = typer.Option(None, "--sensors", help="Sensor groups the model may use, e.g. "
+                                          "wheels,currents (of wheels, currents, imu, cam; default all). "
+                                          "The served model checks health only on these."),
     folds: int = typer.Option(5, "--folds", help="Outer grouped CV folds (by run)."),
     seed: int = typer.Option(0, "--seed", help="Seed of folds and models."),
     n_jobs: int = typer.Option(1, "--n-jobs", "-j", help="Parallel jobs (folds; logs when building)."),
@@ -64,29 +66,40 @@ def train(
 
     Example (from logs, both models): ``terrainml train --data data/sim --model all --out runs/all``
     """
-    from terrainml.pipeline.train import MODEL_KINDS
+    from terrainml.commands.dataset_cmds import parse_sensors, window_spec_from_options
+    from terrainml.pipeline.train import parse_models
     from terrainml.pipeline.train import train as do_train
 
-    kinds = list(MODEL_KINDS) if model == "all" else [m.strip() for m in model.split(",")]
-    for k in kinds:
-        if k not in MODEL_KINDS:
-            _fail(f"unknown --model {k!r}; expected svm, cnn or all")
+    try:
+        kinds = parse_models(model)
+        spec = window_spec_from_options(windows)
+    except ValueError as exc:
+        fail(f"--model/--windows: {exc}")
     if folds < 2:
-        _fail("--folds must be >= 2")
+        fail("--folds must be >= 2")
+    check_n_jobs(n_jobs)
+    check_output_writable(out, folder=True)
     try:
         ds = _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=dask_address,
-                        fmt=fmt, quiet=quiet)
+                        fmt=fmt, quiet=quiet, spec=spec, sensors=parse_sensors(sensors))
+        if sensors is not None and is_windows_file(data):
+            _check_sensors(ds, parse_sensors(sensors))
         from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
         with Progress(SpinnerColumn(), TextColumn("[bold]train[/] {task.description}"), TimeElapsedColumn(),
                       console=console, transient=True, disable=quiet) as progress:
             task = progress.add_task("", total=None)
+            def say(msg: str) -> None:
+                if msg.startswith("warning:"):
+                    console.print(f"[yellow]warning:[/]{msg[len('warning:'):]}", highlight=False)
+                progress.update(task, description=msg)
+
             res = do_train(ds, out, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=ablation,
-                           progress=lambda msg: progress.update(task, description=msg))
+                           progress=say)
     except typer.Exit:
         raise
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-        _fail(f"{data}: {type(exc).__name__}: {exc}")
+        fail(f"{data}: {type(exc).__name__}: {exc}")
     if not quiet:
         t = Table(title=f"grouped {res.n_folds}-fold CV ({res.dataset_summary['n_runs']} runs, "
                         f"{res.dataset_summary['n_windows']} windows)", title_justify="left")
@@ -104,6 +117,14 @@ def train(
                       highlight=False)
 
 
+def _check_sensors(ds, sensors) -> None:
+    """A windows file already has its channels: refuse ``--sensors`` that it does not match."""
+    extra = [g for g in ds.sensors if g not in sensors]
+    if extra:
+        fail(f"the windows use sensor groups {ds.sensors}, not only {sensors}; rebuild them with "
+             f"`terrainml dataset build ... --sensors {','.join(sensors)}`")
+
+
 def evaluate(
     model_dir: Path = typer.Argument(..., help="Model folder written by `terrainml train`."),
     data: Path = typer.Option(..., "--data", "-d", help="Windows Parquet or folder of logs to score on."),
@@ -113,16 +134,28 @@ def evaluate(
     n_jobs: int = typer.Option(1, "--n-jobs", "-j", help="Parallel jobs when building from logs."),
     dask_address: Optional[str] = typer.Option(None, "--dask-address", help="Dask scheduler for building."),
     fmt: str = typer.Option("auto", "--format", help="auto or borealtc (when --data is a folder)."),
+    trusted_key: Optional[List[Path]] = typer.Option(None, "--trusted-key", help=_TRUSTED_KEY_HELP),
+    class_map: Optional[str] = typer.Option(None, "--class-map", help="Data class = model class, e.g. "
+                                            "CONCRETE=ASPHALT,...: classes are matched by name; a data class "
+                                            "the model lacks is refused unless mapped here."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
-    """Score a saved model (verified on load) on other data.
+    """Score a saved model (verified on load) on other data; classes matched by name.
 
     Example: ``terrainml evaluate runs/svm --data data/sim_seed2 --out runs/svm/eval_seed2.json``
+
+    Example (signed models only): ``terrainml evaluate runs/svm --data data/sim_seed2 --trusted-key release.pub``
     """
     from terrainml.models.artifacts import ArtifactError, read_manifest
+    from terrainml.models.signing import SignatureError, verify_artifact_signature
     from terrainml.pipeline.train import evaluate as do_eval
 
+    check_n_jobs(n_jobs)
+    if out is not None:
+        check_output_writable(out)
     try:
+        if trusted_key:  # origin before anything else is read
+            verify_artifact_signature(model_dir, trusted_key)
         manifest = read_manifest(model_dir)
         from terrainml.features.windows import WindowSpec
         from terrainml.robot import RobotSpec
@@ -131,13 +164,15 @@ def evaluate(
         spec = WindowSpec.from_dict(manifest["window_spec"])
         ds = _load_data(data, robot=rb, preset=manifest.get("preset", "robust"), n_jobs=n_jobs,
                         dask_address=dask_address, fmt=fmt, spec=spec, quiet=quiet)
-        m = do_eval(model_dir, ds, model)
-    except ArtifactError as exc:
-        _fail(str(exc))
+        from terrainml.pipeline.train import parse_class_map
+
+        m = do_eval(model_dir, ds, model, class_map=parse_class_map(class_map))
     except typer.Exit:
         raise
+    except (ArtifactError, SignatureError) as exc:  # the message names the file or folder
+        fail(str(exc))
     except Exception as exc:  # noqa: BLE001
-        _fail(f"{type(exc).__name__}: {exc}")
+        fail(f"{type(exc).__name__}: {exc}")
     from terrainml.models.artifacts import json_safe
 
     text = json.dumps(json_safe(m), indent=2, sort_keys=True) + "\n"
@@ -154,7 +189,73 @@ def evaluate(
                       + (f"; [green]wrote[/] {out}" if out else ""), highlight=False)
 
 
+@model_app.command("keygen")
+def keygen(out: Path = typer.Option(..., "--out", "-o", help="Private key file to create (PEM); the public "
+                                    "key goes to OUT.pub.")) -> None:
+    """Create an ed25519 key pair for signing model folders: OUT (private, mode 0600) and OUT.pub.
+
+    Example: ``terrainml model keygen --out keys/release`` (keep keys/release secret; ship keys/release.pub)
+    """
+    from terrainml.models.signing import generate_keypair, key_fingerprint, load_public_key, public_key_path
+
+    for p in (out, public_key_path(out)):
+        if p.exists():
+            fail(f"{p}: already exists; not overwriting a key")
+        check_output_writable(p)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        priv, pub = generate_keypair(out)
+    except OSError as exc:
+        fail(f"{out}: cannot write the key ({exc})")
+    console.print(f"[green]wrote[/] {priv} (private: keep it secret) and {pub} (public: give it to "
+                  f"`--trusted-key`); fingerprint {key_fingerprint(load_public_key(pub))[:16]}", highlight=False)
+
+
+@model_app.command("sign")
+def sign(
+    model_dir: Path = typer.Argument(..., help="Model folder written by `terrainml train`."),
+    key: Path = typer.Option(..., "--key", "-k", help="Private key (PEM) from `terrainml model keygen`."),
+) -> None:
+    """Verify a model folder (every file's sha256), then sign its manifest (manifest.sig).
+
+    Example: ``terrainml model sign runs/svm --key keys/release``
+    """
+    from terrainml.models.artifacts import ArtifactError, verify_artifact
+    from terrainml.models.signing import SignatureError, sign_artifact
+
+    try:
+        verify_artifact(model_dir)   # never sign a folder whose files no longer match its manifest
+        path = sign_artifact(model_dir, key)
+    except (ArtifactError, SignatureError) as exc:
+        fail(str(exc))
+    except OSError as exc:
+        fail(f"{model_dir}: cannot write the signature ({exc})")
+    console.print(f"[green]signed[/] {model_dir}: wrote {path}", highlight=False)
+
+
+@model_app.command("verify")
+def verify(
+    model_dir: Path = typer.Argument(..., help="Model folder."),
+    trusted_key: List[Path] = typer.Option(..., "--trusted-key", help=_TRUSTED_KEY_HELP),
+) -> None:
+    """Check a model folder's files and its signature by one of the trusted keys (exit 2 if not).
+
+    Example: ``terrainml model verify runs/svm --trusted-key keys/release.pub``
+    """
+    from terrainml.models.artifacts import ArtifactError, verify_artifact
+    from terrainml.models.signing import SignatureError, verify_artifact_signature
+
+    try:
+        fp = verify_artifact_signature(model_dir, trusted_key)
+        verify_artifact(model_dir)
+    except (ArtifactError, SignatureError) as exc:
+        fail(str(exc))
+    console.print(f"[green]ok[/] {model_dir}: files match the manifest, signed by trusted key {fp[:16]}",
+                  highlight=False)
+
+
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the top-level app."""
     app.command("train")(train)
     app.command("evaluate")(evaluate)
+    app.add_typer(model_app, name="model")

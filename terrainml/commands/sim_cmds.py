@@ -25,7 +25,7 @@ def generate(
                              "with --runs-per-class."),
     terrain: Optional[str] = typer.Option(None, "--terrain", help="Terrain class name or id (one run)."),
     scenario: str = typer.Option("straight", "--scenario", help="straight, omni, arc, reversal, "
-                                 "stop_and_go, mixed, patch_map (one run)."),
+                                 "stop_and_go, mixed, patch_map, course_stop_and_go (one run)."),
     speed_mps: float = typer.Option(1.0, "--speed-mps", help="Cruise speed (m/s)."),
     duration_s: Optional[float] = typer.Option(None, "--duration-s", help="Run length (s). One run: "
                                                "default 30; dataset: default 60-120 drawn per run."),
@@ -71,7 +71,7 @@ def generate(
         return
     if scenario not in SCENARIOS:
         fail(f"--scenario: unknown scenario {scenario!r}; expected one of: {', '.join(SCENARIOS)}")
-    if scenario not in ("mixed", "patch_map"):
+    if scenario not in ("mixed", "patch_map", "course_stop_and_go"):
         if terrain is None:
             fail("--terrain is required for one run (or give --runs-per-class for a dataset)")
         try:

@@ -1,4 +1,4 @@
-"""CLI of the stream area: ``terrainml predict`` (SYSTEM §11, §15)."""
+"""CLI of the stream area: ``terrainml predict`` (design §11, §15)."""
 
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ Examples:
 
   terrainml predict --model runs/svm --source runs/demo/course.mcap --realtime --sink foxglove://127.0.0.1:8765
 
+  terrainml predict --model runs/svm --trusted-key keys/release.pub --source - --sink stdout
+
   (live view: in Foxglove, open connection -> Foxglove WebSocket -> ws://127.0.0.1:8765)
 """
 
@@ -27,7 +29,7 @@ def register(app: typer.Typer) -> None:
 
     @app.command(help="Serve per-wheel desired slip, one JSON message per base-rate tick.\n\n"
                       "Samples (canonical column names + t_s) come from a log, UDP datagrams or "
-                      "stdin; each tick emits a DesiredSlip (SYSTEM §11) to every sink. Logs and "
+                      "stdin; each tick emits a DesiredSlip (design §11) to every sink. Logs and "
                       "the end-of-stream summary go to stderr.\n" + _EXAMPLE)
     def predict(
         model: Path = typer.Option(..., "--model", help="Trained model folder (runs/NAME)."),
@@ -50,12 +52,16 @@ def register(app: typer.Typer) -> None:
         reanchor_after: int = typer.Option(
             5, "--reanchor-after", min=1,
             help="Clock policy: consistent samples on a new timeline before the stream re-anchors."),
+        trusted_key: Optional[List[Path]] = typer.Option(
+            None, "--trusted-key",
+            help="Public key (KEY.pub from `terrainml model keygen`); the model must be signed by it "
+                 "(`terrainml model sign`), else it is refused. Repeat for several."),
     ) -> None:
         from terrainml.stream.runner import run_predict
 
         code = run_predict(model=model, source=source, sinks=list(sink), realtime=realtime,
                            robot=robot, preset=preset, idle_timeout_s=idle_timeout_s,
                            verbose=verbose, max_clock_gap_s=max_clock_gap_s,
-                           reanchor_after=reanchor_after)
+                           reanchor_after=reanchor_after, trusted_keys=trusted_key or None)
         if code:
             raise typer.Exit(code)

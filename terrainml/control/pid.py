@@ -59,6 +59,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from terrainml.control._wheels import per_wheel
+
 __all__ = ["MODES", "PIDStep", "SlipPID", "SlipPIDConfig", "wheel_speed_for_slip"]
 
 MODES = ("track", "limit")
@@ -186,12 +188,7 @@ class SlipPID:
         self._out_prev[idx] = 0.0
 
     def _vec(self, x, name: str) -> np.ndarray:
-        a = np.asarray(x, dtype=float)
-        if a.ndim == 0:
-            a = np.full(self.n_wheels, float(a))
-        if a.shape != (self.n_wheels,):
-            raise ValueError(f"{name}: expected shape ({self.n_wheels},), got {a.shape}")
-        return a
+        return per_wheel(x, self.n_wheels, name)
 
     def _bounds(self, s_des: np.ndarray, dt: float, dt_ok: bool,
                 one_sided: bool) -> tuple[np.ndarray, np.ndarray]:

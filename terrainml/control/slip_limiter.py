@@ -51,6 +51,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from terrainml.control._wheels import per_wheel
+
 __all__ = ["LimiterStep", "SlipLimiter", "SlipLimiterConfig", "regularised_slip"]
 
 
@@ -176,12 +178,7 @@ class SlipLimiter:
         self.slip_shear[:] = 0.0
 
     def _vec(self, x, name: str) -> np.ndarray:
-        a = np.asarray(x, dtype=float)
-        if a.ndim == 0:
-            a = np.full(self.n_wheels, float(a))
-        if a.shape != (self.n_wheels,):
-            raise ValueError(f"{name}: expected shape ({self.n_wheels},), got {a.shape}")
-        return a
+        return per_wheel(x, self.n_wheels, name)
 
     def step(self, omega_meas_radps, omega_cmd_radps, v_wheel_mps, slip_target,
              dt_s: float) -> LimiterStep:

@@ -1,8 +1,8 @@
-"""Traction controller: measured sample -> per-wheel wheel-speed corrections (SYSTEM §12).
+"""Traction controller: measured sample -> per-wheel wheel-speed corrections (design §12).
 
 :class:`SlipController` is what runs on the robot (or in the simulator's closed-loop hook, see
 :mod:`terrainml.experiments.closed_loop`): every control tick (100 Hz) it takes one measured sample (the
-canonical run-table columns of SYSTEM §5 plus ``t_s``), estimates slip, wheel states and
+canonical run-table columns of design §5 plus ``t_s``), estimates slip, wheel states and
 wheel-centre speeds with the online estimator, picks the desired slip per wheel and returns the
 slip PID's output ``PID_out`` (rad/s, shape (N,)), to be added to the low-level wheel-speed
 set-points: ``omega_cmd = omega_low_level + PID_out`` (eq. 8.3). It knows nothing about the
@@ -20,25 +20,26 @@ Policies
 
 In ``steady`` and ``idle`` wheel states the controller's threshold is, by default
 (``steady_target="peak"``), the served class's *traction* target (the peak of net traction), not
-the steady target s_S (steady) or 0 (idle) of SYSTEM §10 (``steady_target="served"``). Reasons
+the steady target s_S (steady) or 0 (idle) of design §10 (``steady_target="served"``). Reasons
 (measured, docs/control.md): s_S is the slip at which the nominal soil just carries the cruise; a
 run whose soil is softer than nominal needs more, so a controller held at s_S slows the robot (up
 to -7% speed on wet mud) without saving energy, while slip beyond the traction peak is never
 useful. And the dynamic-state estimator reports ``idle`` for ~0.3 s after a start (its manoeuvre
 filter and dwell), exactly when a hard start spins the wheels up; a moving wheel (the PID's enable
-rule) in ``idle`` is capped at the peak too. Departure from SYSTEM §10/§12, recorded.
+rule) in ``idle`` is capped at the peak too. Departure from design §10/§12, recorded.
 
-While the predictor serves its fallback row (no classification yet, stale, or estimator
-unhealthy) the controller releases the wheels (``on_fallback="release"``, PID_out = 0) instead of
-limiting the slip to the fallback row's targets (``"serve"``). Reason (measured): the fallback row
-is the least aggressive class (pavement, traction target 0.16); on soft soil a limiter held there
-stalls the robot, a stalled robot never yields a steady window, so no classification ever arrives
-and the fallback never ends (100% fallback, -75% speed on dry sand and wet mud). For a slip
-*limiter* the least aggressive action is no limit. Departure from SYSTEM §10, recorded.
+While the predictor serves its fallback (no class: none yet, stale, uncertain, or estimator
+unhealthy) it serves the class-free **safe cap** of design §10 (the largest traction-peak slip of
+the model's classes, the most negative braking target), and the controller follows it
+(``on_fallback="serve"``, the default): no known class is stalled by the cap and no wheel runs
+away past it. Steady and idle moving wheels are capped at the safe cap's traction target, as
+they are at the served class's peak otherwise (D35). ``on_fallback="release"`` (PID_out = 0) is
+the former behaviour (departure D36, retired: it existed because the fallback used to be the
+least aggressive row, pavement, which stalled the robot on soft soil; design §12).
 
 Measured slip, wheel states and v_long always come from the online estimator. The low-level
 set-points ``omega_low_level`` are read from the sample's optional ``wheel{i}_cmd_omega_radps``
-columns (SYSTEM §5); the PID's feed-forward (``SlipPIDConfig.wheel_radius_m``) needs them.
+columns (design §5); the PID's feed-forward (``SlipPIDConfig.wheel_radius_m``) needs them.
 """
 
 from __future__ import annotations
@@ -82,6 +83,16 @@ def tuned_config(robot: RobotSpec, **overrides: Any) -> SlipPIDConfig:
 
 
 @dataclass
+class _CapAsTable:
+    """The safe cap's traction target as a one-class table (for ``_steady_at_peak``)."""
+
+    traction: float
+
+    def target(self, class_id: int, state: str) -> float:
+        return self.traction
+
+
+@dataclass
 class FixedTargetTable:
     """``target(c, state)``: ``value`` in traction and steady, ``-value`` in braking, any class."""
 
@@ -107,17 +118,17 @@ class SlipController:
     pid : SlipPIDConfig (default :func:`tuned_config`).
     preset : EKF preset.
     table : desired-slip table for the oracle policy (default ``DesiredSlipTable.build(robot)``).
-    on_fallback : with a model, what to do while the predictor serves its fallback row:
-        ``"release"`` (default: no correction, the wheels follow the low-level command) or
-        ``"serve"`` (control towards the fallback row's targets, SYSTEM §10 literally).
+    on_fallback : with a model, what to do while the predictor serves its fallback:
+        ``"serve"`` (default: limit the slip to the served safe cap, design §10) or
+        ``"release"`` (no correction, the wheels follow the low-level command; the former D36).
     steady_target : ``"peak"`` (default: the class's traction target also in steady and idle
-        states) or ``"served"`` (the served targets of SYSTEM §10: s_S when steady, 0 when idle).
+        states) or ``"served"`` (the served targets of design §10: s_S when steady, 0 when idle).
     """
 
     def __init__(self, robot: RobotSpec, policy: str, *, model: str | Path | None = None,
                  true_class: int | None = None, class_lookup: Callable[[float], int] | None = None,
                  pid: SlipPIDConfig | None = None, preset: str = "robust", table: Any = None,
-                 steady_target: str = "peak", on_fallback: str = "release"):
+                 steady_target: str = "peak", on_fallback: str = "serve"):
         if policy not in POLICIES:
             raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
         if steady_target not in STEADY_TARGETS:
@@ -215,8 +226,12 @@ class SlipController:
                 self.pid.reset()
                 self._trace(t, s_des, s_meas, np.zeros(n))
                 return np.zeros(n)
-            s_des = self._steady_at_peak(s_des, msg.wheel_state, v_long, msg.terrain_class,
-                                         self.predictor.table)
+            if msg.fallback:  # the safe cap: steady and idle moving wheels at its traction target
+                s_des = self._steady_at_peak(s_des, msg.wheel_state, v_long, 0,
+                                             _CapAsTable(self.predictor.safe_cap_traction()))
+            else:
+                s_des = self._steady_at_peak(s_des, msg.wheel_state, v_long, msg.terrain_class,
+                                             self.predictor.table)
             x = est.ekf.x
             ok = msg.estimator_ok
         else:

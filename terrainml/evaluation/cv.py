@@ -24,7 +24,7 @@ import pandas as pd
 from joblib import Parallel, delayed
 
 from terrainml.evaluation.folds import check_groups_not_split, grouped_folds
-from terrainml.evaluation.metrics import classification_metrics, summarise_folds
+from terrainml.evaluation.metrics import classification_metrics, is_ordered, summarise_folds
 
 __all__ = ["cross_validate", "CVResult", "average_results"]
 
@@ -115,12 +115,15 @@ def _assemble(folds, y, classes, class_names, y_pred, proba, fold_info: Sequence
     ``fold_info`` holds per fold the entries added to its metrics (times, groups, parameters)."""
     fold_of = np.full(len(y), -1, dtype=np.int64)
     fold_metrics = []
+    ordered = is_ordered(class_names)  # adjacent-class accuracy only for an ordered class set
     for k, (_, te) in enumerate(folds):
         fold_of[te] = k
-        m = classification_metrics(y[te], y_pred[te], None if proba is None else proba[te], classes, table)
+        m = classification_metrics(y[te], y_pred[te], None if proba is None else proba[te], classes, table,
+                                   ordered=ordered)
         fold_metrics.append({**m, "fold": k, **fold_info[k]})
     done = fold_of >= 0
-    pooled = classification_metrics(y[done], y_pred[done], None if proba is None else proba[done], classes, table)
+    pooled = classification_metrics(y[done], y_pred[done], None if proba is None else proba[done], classes, table,
+                                     ordered=ordered)
     names = list(class_names) if class_names is not None else [str(c) for c in classes.tolist()]
     return CVResult(list(folds), fold_of, y, y_pred, proba, classes, names, fold_metrics,
                     summarise_folds(fold_metrics), pooled, name)

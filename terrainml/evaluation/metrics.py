@@ -1,4 +1,4 @@
-"""Classification metrics of SYSTEM §9, including what a mistake costs the controller.
+"""Classification metrics of design §9, including what a mistake costs the controller.
 
 * accuracy, balanced accuracy, macro-F1, confusion matrix (rows true, columns predicted, in the
   order of ``classes``), per-class recall;
@@ -24,8 +24,10 @@ import numpy as np
 from sklearn.metrics import (accuracy_score, balanced_accuracy_score, confusion_matrix, f1_score,
                              recall_score)
 
+from terrainml.classes import TERRAIN_CLASSES
+
 __all__ = ["classification_metrics", "expected_calibration_error", "desired_slip_errors",
-           "latency_per_window_ms", "summarise_folds", "TARGET_STATES"]
+           "latency_per_window_ms", "summarise_folds", "TARGET_STATES", "is_ordered"]
 
 TARGET_STATES = ("traction", "braking", "steady")
 
@@ -78,8 +80,20 @@ def desired_slip_errors(y_true, y_pred, table: Any, states: Sequence[str] = TARG
     return out
 
 
+def is_ordered(class_names: Sequence[str] | None) -> bool:
+    """Whether a class set has a physical order (adjacent-class accuracy means something).
+
+    Our eight classes are ordered stiff to soft (design §6.1), and so is any subset of them in
+    id order; another dataset's class set (e.g. BorealTC's, sorted by name) is not. ``None``
+    (classes known by id only) counts as ours.
+    """
+    if class_names is None:
+        return True
+    return all(str(n) in TERRAIN_CLASSES for n in class_names)
+
+
 def classification_metrics(y_true, y_pred, proba: np.ndarray | None, classes: Sequence,
-                           table: Any = None) -> dict[str, Any]:
+                           table: Any = None, ordered: bool = True) -> dict[str, Any]:
     """All per-set metrics as a JSON-friendly dict.
 
     Parameters
@@ -88,6 +102,8 @@ def classification_metrics(y_true, y_pred, proba: np.ndarray | None, classes: Se
     proba : ndarray (n, K) or None, probabilities (columns in ``classes`` order) for the ECE.
     classes : sequence (K,), the model's classes in their physical order.
     table : desired-slip table or None.
+    ordered : whether ``classes`` have a physical order (:func:`is_ordered`); False reports
+        ``adjacent_accuracy`` as NaN (n/a) rather than a figure without meaning.
 
     Returns
     -------
@@ -112,7 +128,7 @@ def classification_metrics(y_true, y_pred, proba: np.ndarray | None, classes: Se
     out["macro_f1"] = float(f1_score(y_true, y_pred, labels=labels_present, average="macro", zero_division=0))
     ti = np.array([index.get(c, -10) for c in y_true.tolist()])
     pi = np.array([index.get(c, 10 ** 6) for c in y_pred.tolist()])
-    out["adjacent_accuracy"] = float(np.mean(np.abs(pi - ti) <= 1))
+    out["adjacent_accuracy"] = float(np.mean(np.abs(pi - ti) <= 1)) if ordered else float("nan")
     out["ece"] = expected_calibration_error(y_true, proba, classes) if proba is not None else float("nan")
     if table is not None:
         try:

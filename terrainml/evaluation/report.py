@@ -77,14 +77,23 @@ def write_report(out: str | Path, result: Any) -> dict:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     names = list(result.class_names)
+    served = result.models[result.default_model]["cv"].summary
+    excluded = list(result.dataset_summary.get("excluded_classes") or [])
+    # top level: the served model's CV balanced accuracy, and the classes left out of it (named)
     doc: dict[str, Any] = {"dataset": result.dataset_summary, "folds": result.n_folds, "seed": result.seed,
-                           "default_model": result.default_model, "models": {}, "ablation": None}
+                           "default_model": result.default_model, "models": {}, "ablation": None,
+                           "balanced_accuracy": served["balanced_accuracy"]["mean"],
+                           "balanced_accuracy_std": served["balanced_accuracy"]["std"],
+                           "excluded_classes": excluded}
     md = [f"# Training report: {out.name}", "",
           f"Dataset: {result.dataset_summary['n_runs']} runs, {result.dataset_summary['n_windows']} windows, "
           f"{len(names)} classes ({', '.join(names)}); robot `{result.dataset_summary['robot']}`; "
           f"training-data fingerprint `{result.dataset_summary['fingerprint'][:16]}…`.", "",
           f"Grouped {result.n_folds}-fold cross-validation by run (StratifiedGroupKFold, seed "
           f"{result.seed}); no run is in two folds. Served model: **{result.default_model}**.", ""]
+    for e in excluded:
+        md += [f"**Warning:** class `{e['class']}` has {e['runs']} run(s): {e['reason']}. Record another "
+               "run of it to measure it.", ""]
     # side-by-side summary
     header = ["metric (CV mean ± std)"] + list(result.models)
     rows = [[label] + [_pm(result.models[m]["cv"].summary, key) for m in result.models]
@@ -98,7 +107,8 @@ def write_report(out: str | Path, result: Any) -> dict:
         cv = r["cv"]
         frame = cv.per_fold_frame()
         frame.to_csv(out / f"folds_{name}.csv", index=False)
-        png = plot_confusion(np.asarray(cv.pooled["confusion_matrix"]), names, out / f"confusion_{name}.png",
+        png = plot_confusion(np.asarray(cv.pooled["confusion_matrix"]), list(cv.class_names),
+                             out / f"confusion_{name}.png",
                              f"{name}: out-of-fold confusion (balanced acc. "
                              f"{cv.pooled['balanced_accuracy']:.3f})")
         doc["models"][name] = {"summary": cv.summary, "per_fold": frame.to_dict(orient="records"),
@@ -108,12 +118,13 @@ def write_report(out: str | Path, result: Any) -> dict:
                markdown_table(["fold", "windows", "runs", "bal. acc.", "acc.", "macro-F1", "adjacent",
                                "slip err.", "ECE", "fit s"],
                               [[int(f.fold), int(f.n_windows), int(f.n_test_groups), f"{f.balanced_accuracy:.3f}",
-                                f"{f.accuracy:.3f}", f"{f.macro_f1:.3f}", f"{f.adjacent_accuracy:.3f}",
+                                f"{f.accuracy:.3f}", f"{f.macro_f1:.3f}", _num(f.adjacent_accuracy, 3),
                                 _num(f.desired_slip_error_mean, 4), f"{f.ece:.3f}", f"{f.fit_time_s:.1f}"]
                                for f in frame.itertuples()]), "",
                "Per-class recall (pooled out-of-fold): " + ", ".join(
-                   f"{k} {v:.2f}" for k, v in zip(names, [cv.pooled["recall_per_class"].get(str(c), float('nan'))
-                                                          for c in cv.classes])), "",
+                   f"{k} {v:.2f}" for k, v in zip(cv.class_names,
+                                                  [cv.pooled["recall_per_class"].get(str(c), float('nan'))
+                                                   for c in cv.classes])), "",
                f"![confusion {name}]({png.name})", ""]
         if r.get("params"):
             md += [f"Chosen hyper-parameters (final fit): `{json.dumps(json_safe(r['params']))}`", ""]

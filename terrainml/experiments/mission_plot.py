@@ -21,6 +21,7 @@ matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from terrainml._figures import save_figure  # noqa: E402
 from terrainml.experiments.mission_metrics import SPIN_SLIP  # noqa: E402
 
 __all__ = ["load_traces", "plot_mission", "plot_policies"]
@@ -77,12 +78,7 @@ def plot_mission(row: dict[str, Any], trace: dict[str, np.ndarray], out_png: str
     ax2.set_ylabel("sinkage, mm")
     ax2.set_xlabel("distance travelled, m (slip, sinkage); x, m (route)")
     ax2.legend(fontsize=7, ncol=4)
-    fig.tight_layout()
-    out = Path(out_png)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out_png)
 
 
 def plot_policies(reports: list[dict[str, Any]], out_png: str | Path) -> Path:
@@ -106,9 +102,4 @@ def plot_policies(reports: list[dict[str, Any]], out_png: str | Path) -> Path:
         ax.set_title(title)
     ax0.set_ylim(0, 105)
     ax0.legend(fontsize=8)
-    fig.tight_layout()
-    out = Path(out_png)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out_png)

@@ -14,6 +14,8 @@ matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from terrainml._figures import save_figure  # noqa: E402
+
 __all__ = ["plot_experiment"]
 
 METHOD_COLORS = {"none": "tab:red", "exponential": "tab:blue", "irls": "tab:green"}
@@ -57,9 +59,4 @@ def plot_experiment(result, out_png: str | Path) -> Path:
     ax1.set_title(f"Average tracking error across laps ({cfg['n_robots']} robots)")
     ax1.grid(alpha=0.3)
     ax1.legend()
-    fig.tight_layout()
-    out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=110)
-    plt.close(fig)
-    return out_png
+    return save_figure(fig, out_png)

@@ -20,9 +20,10 @@ from sklearn.utils.validation import check_is_fitted
 
 from terrainml.features.sets import MIN_SPEED_MPS, ROUGHNESS_MIN_SPEED_MPS
 from terrainml.features.windows import IMU_CHANNELS
+from terrainml.robot import RobotSpec
 
 __all__ = ["side_channel_features", "SideChannelFeatures", "SIDE_BANDS_HZ", "GYRO_CHANNELS",
-           "HUSKY_TRACK_M"]
+           "HUSKY_TRACK_M", "track_of"]
 
 GYRO_CHANNELS = ("imu_wx", "imu_wy", "imu_wz")
 #: IMU channels that get the roughness invariants (accelerometer, then gyro)
@@ -33,6 +34,13 @@ SIDE_BANDS_HZ = ((0.0, 1.0), (1.0, 3.0), (3.0, 6.0), (6.0, 10.0), (10.0, 15.0), 
                  (20.0, 30.0), (30.0, 40.0), (40.0, 50.0))
 #: left-right wheel distance B (m) of the Clearpath Husky, the default robot of this family
 HUSKY_TRACK_M = 0.5708
+
+
+def track_of(robot: RobotSpec) -> float:
+    """Left-right wheel distance B (m): |y| of wheel 1 minus wheel 2 (the Husky's when the robot
+    has a single wheel)."""
+    wheels = robot.wheels
+    return float(abs(wheels[0].y_m - wheels[1].y_m)) if len(wheels) > 1 else HUSKY_TRACK_M
 
 
 def side_channel_features(X: np.ndarray, channels: Sequence[str], rate_hz: float = 100.0,

@@ -1,4 +1,4 @@
-"""Steady 2 s windows cut from an EST table (SYSTEM §8), offline and online with one function.
+"""Steady 2 s windows cut from an EST table (design §8), offline and online with one function.
 
 :func:`cut_windows` serves both paths:
 
@@ -13,7 +13,7 @@ Every per-row conversion is elementwise and every per-window reduction runs on t
 in the same order in both paths, so a window cut online is bit-identical to the same window cut
 offline (``tests/features/test_windows.py`` proves it within 1e-9 on features).
 
-Steady rules (SYSTEM §8); a window is kept only if all hold, and every rule counts the windows
+Steady rules (design §8); a window is kept only if all hold, and every rule counts the windows
 it rejects (a window may fail several rules, so the counts may add up to more than the number
 rejected):
 
@@ -23,7 +23,7 @@ rejected):
 ``acceleration``   |mean ekf_ax| and |mean ekf_ay| < 0.15 m/s^2 over the window (EKF body
                    acceleration states, centripetal part included: steady arcs tighter than
                    0.15 m/s^2 lateral are rejected; ``spec.remove_centripetal`` uses dv/dt
-                   instead). *Departure*: SYSTEM §8 reads "mean |ax|"; the magnitude of the
+                   instead). *Departure*: design §8 reads "mean |ax|"; the magnitude of the
                    mean is used because on rough or soft ground the body vibrates at 3-8 Hz
                    with 0.1-0.4 m/s^2 rms (roughness modulating thrust), so mean |ax| rejected
                    every cruise window on tilled soil while the robot held its speed. The
@@ -53,13 +53,32 @@ channel         EST column                 valid when
 
 A missing ``*_valid`` / ``estimator_ok`` column counts as valid (finiteness still applies); a
 missing data column makes its channel invalid everywhere.
+
+Side channels of a skid-steer robot without camera or steering (design §8, BorealTC):
+``imu_wx, imu_wy, imu_wz`` (``imu_{roll,pitch,yaw}_rate_radps``, ``imu_valid``),
+``current_left/right`` (the current of the first left/right wheel, ``current_valid``) and
+``speed_left/right_mps`` (that wheel's ``omega * R``, ``wheels_valid``); left is y > 0.
+
+Named window specs (:data:`WINDOW_SPECS`, :func:`window_spec`; ``--windows NAME`` on the
+command line), design §8:
+
+``steady``  the rules above (default; the reference robot's training windows).
+``chunks``  the BorealTC authors' fixed windows: 1.7 s windows inside non-overlapping 5 s chunks,
+            kept when every sample of the chunk is valid and labelled alike; offline the chunk
+            and class balancing are :mod:`terrainml.features.chunks`; online the latest 1.7 s
+            window with every used channel valid. No motion rule: the terrain is read from
+            vibration and motor load whatever the manoeuvre.
+``state``   windows conditioned on the dynamic state: every wheel in one *moving* state
+            (steady, traction or braking) for >= 90% of ticks, speed and steering rules, no
+            acceleration rule, so accelerating and braking stretches give windows too.
 """
 
 from __future__ import annotations
 
 import json
 from collections import deque
-from dataclasses import asdict, dataclass, field, fields
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, Iterable, Sequence
 
 import numpy as np
@@ -67,19 +86,29 @@ import pandas as pd
 
 from terrainml.robot import RobotSpec, load_robot
 
-__all__ = ["WindowSpec", "Windows", "cut_windows", "OnlineWindower", "RULES",
-           "default_channels", "channel_source"]
+__all__ = ["WindowSpec", "Windows", "cut_windows", "OnlineWindower", "RULES", "WINDOW_SPECS",
+           "window_spec", "default_channels", "channel_source", "register_window_spec",
+           "SIDE_CHANNEL_NAMES", "WHEEL_STATE_MODES", "channel_sensor_group", "is_side_channel_set",
+           "channel_column", "side_wheels"]
 
 RULES: tuple[str, ...] = ("time_gap", "wheel_state", "speed", "acceleration", "steering",
                           "terrain_label", "channel_valid")
 STEADY_STATES = ("steady", "idle")
 BODY_CHANNELS = ("vx", "vy", "r")
 IMU_CHANNELS = ("imu_ax", "imu_ay", "imu_az")
+#: side channels of a camera-less skid-steer robot (design §8): IMU, then per-side current and speed
+SIDE_CHANNEL_NAMES = IMU_CHANNELS + ("imu_wx", "imu_wy", "imu_wz", "current_left", "current_right",
+                                     "speed_left_mps", "speed_right_mps")
+_GYRO_COLUMNS = {"imu_wx": "imu_roll_rate_radps", "imu_wy": "imu_pitch_rate_radps",
+                 "imu_wz": "imu_yaw_rate_radps"}
+#: ``steady``: every wheel steady or idle; ``dominant``: every wheel in one moving state
+WHEEL_STATE_MODES = ("steady", "dominant")
+MOVING_STATES = ("steady", "traction", "braking")
 
 
 @dataclass(frozen=True)
 class WindowSpec:
-    """Window length, hops and steady-rule thresholds (defaults: SYSTEM §8).
+    """Window length, hops and steady-rule thresholds (defaults: design §8).
 
     Attributes
     ----------
@@ -95,6 +124,9 @@ class WindowSpec:
     remove_centripetal : bool, test dv/dt (ax - r vy, ay + r vx) instead of the EKF's
         acceleration states (False: the design's literal rule).
     channels : tuple of str or None, channels to cut (None: all the robot has).
+    name : str, the named spec this one was made from (:data:`WINDOW_SPECS`; "steady" by
+        default). Recorded with datasets and model artifacts, so the predictor cuts exactly
+        what the model was trained on.
     """
 
     window_s: float = 2.0
@@ -108,6 +140,12 @@ class WindowSpec:
     min_valid_fraction: float = 0.95
     remove_centripetal: bool = False
     channels: tuple[str, ...] | None = None
+    name: str = "steady"
+    rules: tuple[str, ...] | None = None
+    wheel_state_mode: str = "steady"
+    chunk_s: float | None = None
+    windows_per_chunk: int = 11
+    homogeneous: bool = True
 
     def __post_init__(self) -> None:
         for name in ("window_s", "hop_s", "online_hop_s", "rate_hz"):
@@ -119,6 +157,23 @@ class WindowSpec:
             object.__setattr__(self, "channels", tuple(str(c) for c in self.channels))
             for c in self.channels:
                 channel_source(c)  # ValueError naming an unknown channel
+        if self.rules is not None:
+            object.__setattr__(self, "rules", tuple(str(r) for r in self.rules))
+            unknown = [r for r in self.rules if r not in RULES]
+            if unknown:
+                raise ValueError(f"WindowSpec.rules: unknown rule(s) {unknown}; known {list(RULES)}")
+        if self.wheel_state_mode not in WHEEL_STATE_MODES:
+            raise ValueError(f"WindowSpec.wheel_state_mode must be one of {WHEEL_STATE_MODES}, "
+                             f"got {self.wheel_state_mode!r}")
+        if self.chunk_s is not None and not float(self.chunk_s) >= self.window_s:
+            raise ValueError(f"WindowSpec.chunk_s ({self.chunk_s}) must be >= window_s ({self.window_s})")
+        if int(self.windows_per_chunk) < 1:
+            raise ValueError("WindowSpec.windows_per_chunk must be >= 1")
+
+    @property
+    def active_rules(self) -> tuple[str, ...]:
+        """The rules this spec applies (all of :data:`RULES` unless ``rules`` names a subset)."""
+        return RULES if self.rules is None else self.rules
 
     @property
     def n_samples(self) -> int:
@@ -132,6 +187,7 @@ class WindowSpec:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["channels"] = None if self.channels is None else list(self.channels)
+        d["rules"] = None if self.rules is None else list(self.rules)
         return d
 
     @classmethod
@@ -143,13 +199,76 @@ class WindowSpec:
         d = dict(d)
         if d.get("channels") is not None:
             d["channels"] = tuple(d["channels"])
+        if d.get("rules") is not None:
+            d["rules"] = tuple(d["rules"])
         return cls(**d)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), sort_keys=True)
 
 
+# ------------------------------------------------------------------------------ named specs
+#: Named window specs (design §8): field overrides of :class:`WindowSpec`'s defaults.
+#: ``steady`` is today's rules (2 s steady windows, thesis §8.1). ``short`` (issue #19) is
+#: made for stop-and-go: 1 s windows in any wheel state (traction phases included, so the
+#: features see the soil while the robot accelerates), kept when the robot moves (mean body
+#: speed >= 0.3 m/s, i.e. >= 0.3 m travelled) and its net acceleration is moderate; online a
+#: new window every 0.1 s. A legacy artifact without a name is ``steady``.
+WINDOW_SPECS: dict[str, dict[str, Any]] = {
+    "steady": {},
+    "short": {"window_s": 1.0, "hop_s": 0.5, "online_hop_s": 0.1, "min_steady_fraction": 0.0,
+              "min_speed_mps": 0.3, "max_mean_abs_accel_mps2": 0.5},
+    # issue #17: the BorealTC authors' fixed windows, and windows conditioned on the dynamic state
+    "chunks": {"window_s": 1.7, "hop_s": 1.7, "online_hop_s": 0.5, "chunk_s": 5.0,
+               "windows_per_chunk": 11, "homogeneous": True, "min_valid_fraction": 1.0,
+               "rules": ("time_gap", "terrain_label", "channel_valid")},
+    "state": {"wheel_state_mode": "dominant",
+              "rules": ("time_gap", "wheel_state", "speed", "steering", "terrain_label", "channel_valid")},
+}
+
+
+def window_spec(name: str = "steady", **overrides: Any) -> WindowSpec:
+    """The named spec ``name`` (:data:`WINDOW_SPECS`) with field ``overrides``.
+
+    Raises ValueError naming the known specs for an unknown name.
+    """
+    if name not in WINDOW_SPECS:
+        raise ValueError(f"unknown window spec {name!r}; expected one of {sorted(WINDOW_SPECS)}")
+    return replace(WindowSpec(name=name, **WINDOW_SPECS[name]), **overrides)
+
+
+def register_window_spec(name: str, **fields_: Any) -> None:
+    """Add (or replace) a named window spec: ``fields_`` override :class:`WindowSpec` defaults."""
+    WindowSpec(name=name, **fields_)  # validate now, not when first used
+    WINDOW_SPECS[str(name)] = dict(fields_)
+
+
 # ------------------------------------------------------------------------------ channels
+def channel_sensor_group(channel: str) -> str:
+    """Sensor group a channel needs: ``wheels``, ``currents``, ``imu``, ``cam`` or ``estimator``."""
+    if channel.startswith("slip_"):
+        return "cam"
+    if channel.startswith("current_"):
+        return "currents"
+    if channel.startswith("speed_"):
+        return "wheels"
+    if channel.startswith("imu_"):
+        return "imu"
+    return "estimator"
+
+
+def is_side_channel_set(channels: Sequence[str]) -> bool:
+    """True when every channel is a side channel (the side-channel feature family applies)."""
+    return bool(channels) and all(c in SIDE_CHANNEL_NAMES for c in channels)
+
+
+def side_wheels(robot: RobotSpec) -> tuple[int, int]:
+    """1-based indices of the first left (y > 0) and first right (y < 0) wheel (1, 2 if unclear)."""
+    left = next((i for i, w in enumerate(robot.wheels, 1) if w.y_m > 0), 1)
+    right = next((i for i, w in enumerate(robot.wheels, 1) if w.y_m < 0), min(2, robot.n_wheels))
+    return left, right
+
+
 def default_channels(robot: RobotSpec) -> tuple[str, ...]:
     """Raw-window channels for a robot: slips (only with a camera), currents, body, IMU."""
     n = robot.n_wheels
@@ -163,7 +282,7 @@ def channel_source(channel: str) -> tuple[str, tuple[str, ...]]:
     if channel.startswith("slip_"):
         i = int(channel[5:])
         return f"slip{i}", ("wheels_valid", "cam_valid", "estimator_ok")
-    if channel.startswith("current_"):
+    if channel.startswith("current_") and channel[8:].isdigit():
         i = int(channel[8:])
         return f"wheel{i}_current_a", ("current_valid",)
     body = {"vx": "ekf_vx_mps", "vy": "ekf_vy_mps", "r": "ekf_yaw_rate_radps"}
@@ -171,23 +290,81 @@ def channel_source(channel: str) -> tuple[str, tuple[str, ...]]:
         return body[channel], ("estimator_ok",)
     if channel in IMU_CHANNELS:
         return f"{channel}_mps2", ("imu_valid",)
+    if channel in _GYRO_COLUMNS:
+        return _GYRO_COLUMNS[channel], ("imu_valid",)
+    # side channels: the wheel index is resolved per robot in cut_windows (side_wheels); the
+    # Husky convention (left wheel 1, right wheel 2) is the default
+    sides = {"current_left": ("wheel1_current_a", "current_valid"),
+             "current_right": ("wheel2_current_a", "current_valid"),
+             "speed_left_mps": ("wheel1_omega_radps", "wheels_valid"),
+             "speed_right_mps": ("wheel2_omega_radps", "wheels_valid")}
+    if channel in sides:
+        col, v = sides[channel]
+        return col, (v,)
     raise ValueError(f"unknown window channel {channel!r}; expected slip_i, current_i, vx, vy, r, "
-                     f"imu_ax, imu_ay, imu_az")
+                     f"imu_ax, imu_ay, imu_az or a side channel {list(SIDE_CHANNEL_NAMES[3:])}")
 
 
-def _float_col(est: pd.DataFrame, name: str, n: int) -> np.ndarray:
-    if name not in est.columns:
+def channel_column(channel: str, robot: RobotSpec) -> tuple[str, tuple[str, ...], float]:
+    """EST/run-table column, validity columns and scale of a channel for ``robot``.
+
+    Side channels take the robot's first left/right wheel; ``speed_*_mps`` scales the wheel's
+    rad/s by the wheel radius (m), every other channel has scale 1.
+    """
+    col, vcols = channel_source(channel)
+    if channel.endswith(("_left", "_left_mps", "_right", "_right_mps")) and channel not in IMU_CHANNELS:
+        left, right = side_wheels(robot)
+        i = left if "_left" in channel else right
+        col = f"wheel{i}_current_a" if channel.startswith("current_") else f"wheel{i}_omega_radps"
+        if channel.startswith("speed_"):
+            return col, vcols, float(robot.wheel_radius_m)
+    return col, vcols, 1.0
+
+
+def _has(est: Any, name: str) -> bool:
+    """Column ``name`` present in a DataFrame or a mapping of column arrays."""
+    return name in (est if isinstance(est, Mapping) else est.columns)
+
+
+def _n_rows(est: Any) -> int:
+    if isinstance(est, Mapping):
+        return int(len(next(iter(est.values())))) if est else 0
+    return len(est)
+
+
+def _text_col(est: Any, name: str) -> np.ndarray:
+    """Column as an object array of str (wheel states, run ids)."""
+    v = est[name]
+    if isinstance(est, Mapping):
+        return np.asarray(v, dtype=object).astype(str).astype(object)
+    return v.astype(str).to_numpy(dtype=object)
+
+
+def _float_col(est: Any, name: str, n: int) -> np.ndarray:
+    if not _has(est, name):
         return np.full(n, np.nan)
     v = est[name]
+    if isinstance(est, Mapping):  # column arrays (the online ring buffer): no pandas on the tick
+        v = np.asarray(v)
+        if v.dtype.kind in "fiub":
+            return v.astype(np.float64, copy=False)
+        v = pd.Series(v)
     if v.dtype.kind in "fiu":  # already numeric (the usual case): skip the parser
         return v.to_numpy(dtype=np.float64)
     return pd.to_numeric(v, errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
 
 
-def _bool_col(est: pd.DataFrame, name: str, n: int) -> np.ndarray:
-    if name not in est.columns:
+def _bool_col(est: Any, name: str, n: int) -> np.ndarray:
+    if not _has(est, name):
         return np.ones(n, dtype=bool)
     v = est[name]
+    if isinstance(est, Mapping):
+        v = np.asarray(v)
+        if v.dtype == bool:
+            return v
+        if v.dtype.kind in "fiu":  # a float flag (ring buffer): the same rule as below
+            return np.isfinite(v) & (v != 0)
+        v = pd.Series(v)
     if v.dtype == bool:
         return v.to_numpy(dtype=bool)
     f = pd.to_numeric(v, errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
@@ -306,19 +483,23 @@ def _fill_invalid(x: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return out
 
 
-def cut_windows(est: pd.DataFrame, robot: RobotSpec | str | None = None,
+def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec | str | None = None,
                 spec: WindowSpec | None = None, online: bool = False,
-                run_id: str | None = None) -> tuple[Windows, dict[str, int]]:
+                run_id: str | None = None, *, with_meta: bool = True) -> tuple[Windows, dict[str, int]]:
     """Cut steady windows from an EST table (contract 2) or a ring buffer of EST rows.
 
     Parameters
     ----------
-    est : DataFrame (n_rows, ...), EST table rows in time order at ``spec.rate_hz``.
+    est : DataFrame (n_rows, ...), EST table rows in time order at ``spec.rate_hz``; or a mapping
+        of column name -> array (n_rows,) (the predictor's ring buffer, no DataFrame built on
+        the serving path). Both go through the same per-row conversions and rules.
     robot : RobotSpec, name or path (None: reference robot); gives N and the channel set.
     spec : WindowSpec (None: defaults).
     online : bool, False: windows from row 0 every ``hop_s``; True: windows ending at the last
         row every ``online_hop_s`` backwards (a one-window buffer gives the latest window).
     run_id : str, run id for the metadata when the table has no ``run_id`` column.
+    with_meta : bool, False: ``Windows.meta`` is None (the serving path needs only X; building the
+        metadata DataFrame cost more than the rules, features and SVM together).
 
     Returns
     -------
@@ -330,14 +511,15 @@ def cut_windows(est: pd.DataFrame, robot: RobotSpec | str | None = None,
     robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
     channels = tuple(spec.channels) if spec.channels is not None else default_channels(robot)
     N = robot.n_wheels
-    n = len(est)
+    n = _n_rows(est)
     T = spec.n_samples
     starts = _window_starts(n, T, spec.hop_samples(online), online)
     counts = {"n_windows": int(len(starts)), "n_kept": 0, "n_rejected": 0}
     counts.update({r: 0 for r in RULES})
     C = len(channels)
     if len(starts) == 0:
-        return Windows(np.zeros((0, C, T)), channels, _empty_meta(), spec.rate_hz), counts
+        return Windows(np.zeros((0, C, T)), channels, _empty_meta() if with_meta else None,
+                       spec.rate_hz), counts
 
     # ---- per-row arrays (elementwise only: identical whatever rows surround a window)
     t = _float_col(est, "t_s", n)
@@ -349,37 +531,47 @@ def cut_windows(est: pd.DataFrame, robot: RobotSpec | str | None = None,
     if spec.remove_centripetal:
         ax, ay = ax - r * vy, ay + r * vx
     speed = np.hypot(vx, vy)
+    active = spec.active_rules
     steady = np.ones((N, n), dtype=bool)
-    for i in range(1, N + 1):
-        col = f"state{i}"
-        if col in est.columns:
-            steady[i - 1] = est[col].astype(str).isin(STEADY_STATES).to_numpy()
-        else:
-            steady[i - 1] = False
+    # "dominant" mode: per wheel, one boolean row per moving state (the window keeps the
+    # state that holds >= min_steady_fraction of its ticks)
+    moving = np.zeros((len(MOVING_STATES), N, n), dtype=bool)
+    if "wheel_state" in active:
+        for i in range(1, N + 1):
+            col = f"state{i}"
+            if _has(est, col):
+                st = _text_col(est, col)
+                steady[i - 1] = (st == STEADY_STATES[0]) | (st == STEADY_STATES[1])
+                for k, name in enumerate(MOVING_STATES):
+                    moving[k, i - 1] = st == name
+            else:
+                steady[i - 1] = False
     steer = np.empty((N, n))
     for i in range(1, N + 1):
-        name = f"ekf_steer{i}_rad" if f"ekf_steer{i}_rad" in est.columns else f"wheel{i}_steer_rad"
-        steer[i - 1] = _float_col(est, name, n) if name in est.columns else 0.0
-    if "terrain" in est.columns:
-        lab = pd.to_numeric(est["terrain"], errors="coerce").to_numpy(dtype=np.float64, na_value=np.nan)
+        name = f"ekf_steer{i}_rad" if _has(est, f"ekf_steer{i}_rad") else f"wheel{i}_steer_rad"
+        steer[i - 1] = _float_col(est, name, n) if _has(est, name) else 0.0
+    if _has(est, "terrain"):
+        lab = _float_col(est, "terrain", n)
         lab = np.where(np.isfinite(lab) & (lab >= 0), lab, np.nan)
     else:
         lab = np.full(n, np.nan)
-    if "run_id" in est.columns and n:
-        run_ids = est["run_id"].astype(str).to_numpy(dtype=object)
+    if _has(est, "run_id") and n:
+        run_ids = _text_col(est, "run_id")
     else:
         run_ids = np.full(n, run_id if run_id is not None else "", dtype=object)
     data = np.empty((C, n))
     valid = np.empty((C, n), dtype=bool)
     for k, ch in enumerate(channels):
-        col, vcols = channel_source(ch)
+        col, vcols, scale = channel_column(ch, robot)
         x = _float_col(est, col, n)
+        if scale != 1.0:
+            x = x * scale
         ok = np.isfinite(x)
         for vc in vcols:
             ok &= _bool_col(est, vc, n)
         data[k], valid[k] = x, ok
     for c in channels:
-        if c.startswith(("slip_", "current_")) and int(c.split("_")[1]) > N:
+        if c.startswith(("slip_", "current_")) and c.split("_")[1].isdigit() and int(c.split("_")[1]) > N:
             raise ValueError(f"channel {c!r} names a wheel the robot '{robot.name}' does not have "
                              f"(N = {N})")
 
@@ -393,8 +585,13 @@ def cut_windows(est: pd.DataFrame, robot: RobotSpec | str | None = None,
         span = tw[-1] - tw[0]
         if not (np.all(np.isfinite(tw)) and abs(span - (T - 1) * dt) <= 0.5 * dt):
             fails.append("time_gap")
-        if np.any(steady[:, s:e].mean(axis=1) < spec.min_steady_fraction):
-            fails.append("wheel_state")
+        if "wheel_state" in active:
+            if spec.wheel_state_mode == "dominant":
+                frac = moving[:, :, s:e].mean(axis=2).max(axis=0)  # (N,) share of each wheel's top state
+                if N and np.any(frac < spec.min_steady_fraction):
+                    fails.append("wheel_state")
+            elif np.any(steady[:, s:e].mean(axis=1) < spec.min_steady_fraction):
+                fails.append("wheel_state")
         sp = speed[s:e]
         sp = sp[np.isfinite(sp)]
         if sp.size == 0 or not sp.mean() >= spec.min_speed_mps:
@@ -412,6 +609,8 @@ def cut_windows(est: pd.DataFrame, robot: RobotSpec | str | None = None,
             fails.append("terrain_label")
         if C and np.any(valid[:, s:e].mean(axis=1) < spec.min_valid_fraction):
             fails.append("channel_valid")
+        if spec.rules is not None:
+            fails = [f for f in fails if f in active]
         if fails:
             counts["n_rejected"] += 1
             for f in fails:
@@ -424,6 +623,9 @@ def cut_windows(est: pd.DataFrame, robot: RobotSpec | str | None = None,
         meta_rows.append((str(run_ids[s]), int(labels[0]) if labels.size else -1,
                           float(tw[0]), float(tw[-1]), int(s)))
     counts["n_kept"] = len(X_kept)
+    if not with_meta:
+        X = np.stack(X_kept) if X_kept else np.zeros((0, C, T))
+        return Windows(X, channels, None, spec.rate_hz), counts  # type: ignore[arg-type]
     if not X_kept:
         return Windows(np.zeros((0, C, T)), channels, _empty_meta(), spec.rate_hz), counts
     meta = pd.DataFrame(meta_rows, columns=["run_id", "terrain", "t_start_s", "t_end_s", "start_index"])

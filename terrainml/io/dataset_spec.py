@@ -20,13 +20,12 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
-import yaml
 
+from terrainml._yaml_checks import read_builtin_yaml, read_yaml_file
 from terrainml.io.ingest_tables import Binding, TableFile, label_values, table_header
 from terrainml.robot import RobotSpec
 from terrainml.schema import column_map
@@ -486,15 +485,10 @@ def load_dataset_spec(spec: str | Path | DatasetSpec | dict) -> DatasetSpec:
         return parse_dataset_spec(spec)
     name = str(spec)
     if name in BUILTIN_SPECS:
-        text = resources.files("terrainml.io").joinpath("datasets", f"{name}.yaml").read_text()
-        return parse_dataset_spec(yaml.safe_load(text), f"{name}.yaml")
+        return parse_dataset_spec(read_builtin_yaml("terrainml.io", "datasets", name), f"{name}.yaml")
     path = Path(name)
-    if not path.is_file():
-        raise DatasetSpecError(f"{path}: dataset spec not found (built-in: {', '.join(BUILTIN_SPECS)})")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise DatasetSpecError(f"{path}: not valid YAML: {exc}") from None
+    data = read_yaml_file(path, DatasetSpecError,
+                          f"{path}: dataset spec not found (built-in: {', '.join(BUILTIN_SPECS)})")
     spec_ = parse_dataset_spec(data, str(path))
     if spec_.robot is not None and not Path(spec_.robot).is_absolute() and spec_.robot.endswith((".yaml", ".yml")):
         spec_.robot = str(path.parent / spec_.robot)   # a robot spec next to the dataset spec

@@ -149,6 +149,13 @@ def _empty_table(robot: RobotSpec) -> pd.DataFrame:
     return validate_run_table(pd.DataFrame(cols), robot.n_wheels)
 
 
+def _failed(rep: IngestReport, robot: RobotSpec, error: str | None) -> IngestResult:
+    """The empty result of a run that could not be read, ``error`` (if any) added to the report."""
+    if error is not None:
+        rep.errors.append(error)
+    return IngestResult(_empty_table(robot), rep)
+
+
 def _topic_map(topic_map, fmt: str) -> TopicMap | None:
     """The topic map of a log (default map for MCAP) or of a table (None: canonical names)."""
     if fmt in LOG_FORMATS:
@@ -212,12 +219,9 @@ def load_run(path: str | Path, *, robot: RobotSpec | str | Path | None = None,
         else:
             df = _from_tabular(path, fmt, robot_spec, tmap, float(rate_hz), rep)
     except (LogReadError, TopicMapError, RobotSpecError) as exc:
-        rep.errors.append(str(exc))
-        return IngestResult(_empty_table(robot_spec), rep)
-    if df is None or len(df) < 2:
-        if df is not None:
-            rep.errors.append(f"{path}: fewer than two ticks of data")
-        return IngestResult(_empty_table(robot_spec), rep)
+        return _failed(rep, robot_spec, str(exc))
+    if df is None or len(df) < 2:   # None: the reader already reported why
+        return _failed(rep, robot_spec, None if df is None else f"{path}: fewer than two ticks of data")
     run_id = rep.topics.get("<table>", {}).get("run_id", path.stem)
     df["run_id"] = run_id
     try:
@@ -326,12 +330,9 @@ def load_dataset_run(spec: DatasetSpec, run: RunFiles, *, robot: RobotSpec | str
         df = tables_to_run(files, robot_spec, rate_hz, rep, span=spec.span if len(files) > 1 else "first",
                            missing_steer_ok=True)
     except (DatasetSpecError, RobotSpecError, SchemaError) as exc:
-        rep.errors.append(str(exc))
-        return IngestResult(_empty_table(robot_spec), rep)
-    if df is None or len(df) < 2:
-        if df is not None:
-            rep.errors.append(f"{run.primary}: fewer than two ticks of data")
-        return IngestResult(_empty_table(robot_spec), rep)
+        return _failed(rep, robot_spec, str(exc))
+    if df is None or len(df) < 2:   # None: the reader already reported why
+        return _failed(rep, robot_spec, None if df is None else f"{run.primary}: fewer than two ticks of data")
     for col in spec.absent_columns(run, robot_spec):   # an optional file absent: its columns NaN
         if col not in df:
             df[col] = np.nan

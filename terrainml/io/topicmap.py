@@ -28,12 +28,10 @@ skid/differential robot from its body twist). For CSV/Parquet inputs a map may i
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from terrainml._yaml_checks import read_builtin_yaml, read_yaml_file
 from terrainml.io import cdr
 
 KINDS = {
@@ -145,13 +143,8 @@ def load_topic_map(spec: str | Path | TopicMap | dict | None = None) -> TopicMap
         return _parse(spec, "<dict>")
     name = "default" if spec is None else str(spec)
     if name in BUILTIN_MAPS:
-        text = resources.files("terrainml.io").joinpath("topicmaps", f"{name}.yaml").read_text()
-        return _parse(yaml.safe_load(text), f"{name}.yaml")
+        return _parse(read_builtin_yaml("terrainml.io", "topicmaps", name), f"{name}.yaml")
     path = Path(name)
-    if not path.is_file():
-        raise TopicMapError(f"{path}: topic map file not found (built-in: {', '.join(BUILTIN_MAPS)})")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise TopicMapError(f"{path}: not valid YAML: {exc}") from None
+    data = read_yaml_file(path, TopicMapError,
+                          f"{path}: topic map file not found (built-in: {', '.join(BUILTIN_MAPS)})")
     return _parse(data, str(path))

@@ -10,6 +10,7 @@ matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from terrainml._figures import save_figure  # noqa: E402
 from terrainml.lookup import terramechanics as tm  # noqa: E402
 from terrainml.lookup.table import DesiredSlipTable, mu_net_curve, slip_grid  # noqa: E402
 from terrainml.robot import RobotSpec, load_robot  # noqa: E402
@@ -59,9 +60,4 @@ def plot_table(out: str | Path, robot: RobotSpec | str | None = None,
                  r"($\blacktriangle$ traction, $\blacktriangledown$ braking, $\bullet$ steady)")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="lower right", fontsize=8, ncol=2)
-    fig.tight_layout()
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=dpi)
-    plt.close(fig)
-    return out
+    return save_figure(fig, out, dpi)

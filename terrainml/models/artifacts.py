@@ -1,6 +1,6 @@
 """Model artifacts: a folder of files plus a ``manifest.json`` that hashes every one of them.
 
-Layout of ``runs/NAME/`` (SYSTEM §9)::
+Layout of ``runs/NAME/`` (design §9)::
 
     manifest.json                 this module's manifest (written last)
     svm/model.skops               SVM (skops, no pickle)
@@ -24,6 +24,10 @@ sha256. Then the SVM is loaded with ``skops.io.load`` after checking
 ``skops.io.get_untrusted_types`` against :data:`ALLOWED_SKOPS_TYPES` (an explicit allow-list; an
 unknown type refuses), the CNN through safetensors + JSON. Nothing is unpickled. Every refusal
 raises :class:`ArtifactError` with a message naming the file.
+
+The hashes prove integrity, not origin. With ``trusted_keys``, :func:`load_artifact` first checks
+the ed25519 signature ``manifest.sig`` (:mod:`terrainml.models.signing`; not listed in the
+manifest, which it signs) and raises :class:`SignatureError` naming the folder.
 """
 
 from __future__ import annotations
@@ -42,15 +46,17 @@ import skops.io as sio
 from terrainml import __version__
 from terrainml.features.windows import WindowSpec
 from terrainml.hashing import sha256_file
+from terrainml.models.ensemble import ProbabilityAverage
+from terrainml.models.signing import (MANIFEST_NAME, SIGNATURE_NAME, PublicKeyLike, SignatureError,
+                                      verify_artifact_signature)
 from terrainml.robot import RobotSpec
 
 __all__ = ["ArtifactError", "Artifact", "save_artifact", "load_artifact", "verify_artifact",
            "read_manifest", "write_manifest", "ALLOWED_SKOPS_TYPES", "MANIFEST_NAME", "SCHEMA",
-           "SCHEMA_VERSION", "json_safe"]
+           "SCHEMA_VERSION", "SIGNATURE_NAME", "SignatureError", "json_safe"]
 
 SCHEMA = "terrainml.model"
 SCHEMA_VERSION = 1
-MANIFEST_NAME = "manifest.json"
 SKOPS_NAME = "model.skops"
 
 #: Types skops may instantiate besides its own defaults (checked against
@@ -58,6 +64,26 @@ SKOPS_NAME = "model.skops"
 ALLOWED_SKOPS_TYPES: frozenset[str] = frozenset({
     "terrainml.models.svm.SVMClassifier",
     "terrainml.features.sets.FeatureSet",
+    # boosted trees and the side-channel feature family (design §9, issue #17)
+    "terrainml.models.trees.BoostedTrees",
+    "terrainml.features.side_channel.SideChannelFeatures",
+    "sklearn.ensemble._hist_gradient_boosting.gradient_boosting.HistGradientBoostingClassifier",
+    "sklearn.ensemble._hist_gradient_boosting.binning._BinMapper",
+    "sklearn.ensemble._hist_gradient_boosting.predictor.TreePredictor",
+    "sklearn._loss.loss.HalfMultinomialLoss",
+    "sklearn._loss.loss.HalfBinomialLoss",
+    "sklearn._loss.link.MultinomialLogit",
+    "sklearn._loss.link.LogitLink",
+    "sklearn._loss.link.Interval",
+    "sklearn._loss._loss.CyHalfMultinomialLoss",
+    "sklearn._loss._loss.CyHalfBinomialLoss",
+    "sklearn.ensemble._hist_gradient_boosting.gradient_boosting.TreeGrower",
+    "numpy.uint8",
+    "numpy.float32",
+    "numpy.int32",
+    "numpy.uint32",
+    "numpy.int8",
+    "builtins.object",
     "sklearn.calibration.CalibratedClassifierCV",
     "sklearn.calibration._CalibratedClassifier",
     "sklearn.calibration._SigmoidCalibration",
@@ -118,15 +144,21 @@ def _model_kind(model: Any) -> str:
         return "svm"
     if name == "CNNClassifier":
         return "cnn"
+    if name == "BoostedTrees":
+        return "hgb"
+    if name == "ProbabilityAverage":
+        return "average"
     raise ArtifactError(f"cannot persist a model of type {type(model).__module__}.{name}")
 
 
 def save_model_files(directory: Path, name: str, model: Any) -> tuple[str, list[Path]]:
     """Write one model's files under ``directory/name``; returns (kind, files)."""
     kind = _model_kind(model)
+    if kind == "average":  # its members are saved as models of their own (named in the manifest)
+        return kind, []
     sub = Path(directory) / name
     sub.mkdir(parents=True, exist_ok=True)
-    if kind == "svm":
+    if kind in ("svm", "hgb"):
         path = sub / SKOPS_NAME
         sio.dump(model, path)
         return kind, [path]
@@ -137,13 +169,16 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
                   class_names: Sequence[str], channels: Sequence[str], window_spec: WindowSpec,
                   robot: RobotSpec, training_fingerprint: str, metrics_summary: dict | None = None,
                   default_model: str | None = None, preset: str = "robust",
-                  attachments: Mapping[str, str] | None = None, extra: dict | None = None) -> dict:
+                  attachments: Mapping[str, str] | None = None, extra: dict | None = None,
+                  sensors: Sequence[str] | None = None, feature_family: str | None = None) -> dict:
     """Write models and attachments, then the manifest over all files.
 
     Parameters
     ----------
     directory : output folder (created).
-    models : {name: fitted model} (``SVMClassifier`` or ``CNNClassifier``), e.g. {"svm": m}.
+    models : {name: fitted model} (``SVMClassifier``, ``CNNClassifier``, ``BoostedTrees`` or a
+        ``ProbabilityAverage`` whose members are also in ``models`` under the names of its
+        ``A+B`` name), e.g. {"svm": m, "hgb": t, "svm+hgb": avg}.
     classes : class ids (labels of the models), physical order.
     class_names : names of the classes.
     channels : raw-window channel names. window_spec : WindowSpec used to cut them.
@@ -155,6 +190,9 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
         ``attachments`` (e.g. ``{"desired_slip_table.json": table.to_json()}``); verified on load
         like every file, read by whoever knows their format (:attr:`Artifact.attachments`).
     extra : more JSON-able fields stored under ``extra``.
+    sensors : sensor groups the models need (``wheels``, ``currents``, ``imu``, ``cam``); the
+        predictor checks health only on those (None: all the robot has).
+    feature_family : ``canonical`` or ``side_channel`` (design §8).
 
     Other files already in ``directory`` (reports) are hashed into the manifest too; call
     :func:`write_manifest` again after adding files.
@@ -167,8 +205,15 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
         entry = {"kind": kind, "files": [p.relative_to(directory).as_posix() for p in files]}
         if kind == "svm":
             entry["feature_names"] = model.feature_names_
-            entry["feature_subset"] = model.features_.subset
+            entry["feature_subset"] = getattr(model.features_, "subset", None)
             entry["best_params"] = model.best_params_
+        if kind == "average":
+            members = name.split("+")
+            if len(members) < 2 or any(m not in models or models[m] is not mm
+                                       for m, mm in zip(members, model.members_)):
+                raise ArtifactError(f"{directory}: average {name!r} must be named A+B after its members, "
+                                    "each saved in the same folder")
+            entry["members"] = members
         entries[name] = entry
     for fname, text in (attachments or {}).items():
         if Path(fname).name != fname or fname == MANIFEST_NAME:
@@ -184,6 +229,8 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
         "models": entries, "default_model": default_model or next(iter(models)),
         "attachments": sorted(attachments or {}),
         "metrics_summary": metrics_summary or {}, "extra": extra or {},
+        "sensors": None if sensors is None else [str(g) for g in sensors],
+        "feature_family": feature_family,
     }
     return write_manifest(directory, doc)
 
@@ -192,7 +239,8 @@ def write_manifest(directory: str | Path, doc: dict | None = None) -> dict:
     """(Re)write ``manifest.json`` hashing every file in ``directory`` (recursively).
 
     ``doc`` None re-reads the existing manifest (without verifying files) and refreshes the
-    file list, e.g. after reports were added.
+    file list, e.g. after reports were added. The signature (``manifest.sig``, if any) is not
+    hashed: it signs the manifest, and a rewritten manifest no longer matches it (sign again).
     """
     directory = Path(directory)
     if doc is None:
@@ -200,7 +248,7 @@ def write_manifest(directory: str | Path, doc: dict | None = None) -> dict:
     doc = {k: v for k, v in doc.items() if k not in ("files", "manifest_sha256")}
     files = {}
     for p in sorted(directory.rglob("*")):
-        if p.is_file() and p.name != MANIFEST_NAME:
+        if p.is_file() and p.name not in (MANIFEST_NAME, SIGNATURE_NAME):
             rel = p.relative_to(directory).as_posix()
             files[rel] = {"sha256": sha256_file(p), "bytes": p.stat().st_size}
     doc["files"] = files
@@ -293,6 +341,8 @@ class Artifact:
     attachments : {file name: Path} of the verified attachments (e.g. the desired-slip table).
     class_ids : list of int. class_names : list of str. channels : list of str.
     preset : estimation preset. features : None (the models compute their own features).
+    sensors : sensor groups the model needs (None: a folder written before they were recorded;
+        the robot's groups then apply). feature_family : ``canonical``, ``side_channel`` or None.
     """
 
     path: Path
@@ -308,17 +358,58 @@ class Artifact:
     channels: list = field(default_factory=list)
     preset: str = "robust"
     features: Any = None
+    sensors: list | None = None
+    feature_family: str | None = None
 
 
-def load_artifact(directory: str | Path, model: str | None = None) -> Artifact:
+def _load_model(directory: Path, doc: dict, name: str, depth: int = 0) -> tuple[str, Any]:
+    """(kind, fitted model) of the manifest's model ``name`` (files already verified)."""
+    mpath = directory / MANIFEST_NAME
+    try:
+        entry = doc["models"][name]
+    except KeyError:
+        raise ArtifactError(f"{mpath}: no model {name!r} (models: {list(doc.get('models', {}))})") from None
+    kind = entry.get("kind")
+    if kind in ("svm", "hgb"):
+        path = directory / next(f for f in entry["files"] if f.endswith(".skops"))
+        return kind, _load_skops(path)
+    if kind == "cnn":
+        try:
+            from terrainml.models.cnn import CNNClassifier  # noqa: PLC0415 - torch, optional
+        except ImportError as exc:
+            raise ArtifactError(f"{mpath}: model {name!r} needs the CNN ({exc})") from None
+        sub = directory / Path(entry["files"][0]).parent
+        try:
+            return kind, CNNClassifier.load(sub)
+        except ValueError as exc:
+            raise ArtifactError(str(exc)) from None
+    if kind == "average" and depth == 0:
+        members = [_load_model(directory, doc, m, depth + 1)[1] for m in entry.get("members", [])]
+        try:
+            return kind, ProbabilityAverage.from_fitted(members)
+        except ValueError as exc:
+            raise ArtifactError(f"{mpath}: average {name!r}: {exc}") from None
+    raise ArtifactError(f"{mpath}: unknown model kind {kind!r} for {name!r}")
+
+
+def load_artifact(directory: str | Path, model: str | None = None, *,
+                  trusted_keys: Sequence[PublicKeyLike] | None = None) -> Artifact:
     """Verify a model folder and load one model (default: the manifest's ``default_model``).
+
+    ``trusted_keys`` (public keys: ``KEY.pub`` paths or loaded keys): the manifest must also be
+    signed by one of them (:mod:`terrainml.models.signing`), checked first. None: not checked.
 
     Raises
     ------
     ArtifactError
         Naming the file that is missing, modified, of an unknown schema or unsafe to load.
+    SignatureError
+        Naming the folder, with ``trusted_keys``: unsigned, signed by another key, or manifest
+        changed after signing.
     """
     directory = Path(directory)
+    if trusted_keys is not None:
+        verify_artifact_signature(directory, trusted_keys)
     doc = verify_artifact(directory)
     mpath = directory / MANIFEST_NAME
     try:
@@ -332,22 +423,8 @@ def load_artifact(directory: str | Path, model: str | None = None) -> Artifact:
         raise ArtifactError(f"{mpath}: {exc}") from None
     if robot.sha256() != doc["robot"].get("sha256"):
         raise ArtifactError(f"{mpath}: robot spec sha256 mismatch")
-    kind = entry.get("kind")
-    if kind == "svm":
-        path = directory / next(f for f in entry["files"] if f.endswith(".skops"))
-        clf = _load_skops(path)
-    elif kind == "cnn":
-        try:
-            from terrainml.models.cnn import CNNClassifier  # noqa: PLC0415 - torch, optional
-        except ImportError as exc:
-            raise ArtifactError(f"{mpath}: model {name!r} needs the CNN ({exc})") from None
-        sub = directory / Path(entry["files"][0]).parent
-        try:
-            clf = CNNClassifier.load(sub)
-        except ValueError as exc:
-            raise ArtifactError(str(exc)) from None
-    else:
-        raise ArtifactError(f"{mpath}: unknown model kind {kind!r} for {name!r}")
+    del entry  # the model's entry is read by _load_model
+    kind, clf = _load_model(directory, doc, name)
     # folders written before attachments existed name the desired-slip table on its own
     names = doc.get("attachments") or ([doc["desired_slip_table"]] if doc.get("desired_slip_table") else [])
     attachments = {str(n): directory / str(n) for n in names}
@@ -356,4 +433,5 @@ def load_artifact(directory: str | Path, model: str | None = None) -> Artifact:
         raise ArtifactError(f"{mpath}: model classes {list(clf.classes_)} differ from the manifest's {classes}")
     return Artifact(directory, doc, name, kind, clf, robot, spec, attachments, classes,
                     list(doc.get("class_names", [])), list(doc.get("channels", [])),
-                    doc.get("preset", "robust"))
+                    doc.get("preset", "robust"), sensors=doc.get("sensors"),
+                    feature_family=doc.get("feature_family"))

@@ -2,7 +2,7 @@
 
 :func:`build_dataset` runs :func:`process_log` on every log of a folder (sorted by path, so the
 order is deterministic) with ``joblib.Parallel(n_jobs)``; given a Dask scheduler address the same
-calls run on the cluster through ``joblib.parallel_config(backend="dask")`` (SYSTEM §14).
+calls run on the cluster through ``joblib.parallel_config(backend="dask")`` (design §14).
 Results are collected in input order, so a parallel or distributed build gives a table identical
 to the sequential one.
 
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -33,18 +33,71 @@ from joblib import Parallel, delayed, parallel_config
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.estimation.run import estimate_run
-from terrainml.features.windows import RULES, Windows, WindowSpec, cut_windows, default_channels
+from terrainml.features.chunks import chunk_windows, make_chunks
+from terrainml.features.windows import (RULES, SIDE_CHANNEL_NAMES, Windows, WindowSpec, channel_column,
+                                        channel_sensor_group, cut_windows, default_channels)
+from terrainml.io.damage import damage_summary
 from terrainml.io.ingest import load_run
 from terrainml.robot import RobotSpec, load_robot
 
 __all__ = ["find_logs", "process_log", "build_dataset", "Dataset", "write_windows",
-           "read_windows", "fingerprint", "DatasetError", "LOG_SUFFIXES"]
+           "read_windows", "fingerprint", "DatasetError", "LOG_SUFFIXES", "SENSOR_GROUPS",
+           "dataset_channels", "sensors_of", "class_report", "LOSS_HINT_FRACTION"]
 
 FORMAT = "terrainml.windows"
 FORMAT_VERSION = 1
 META_KEY = b"terrainml_windows"
 LOG_SUFFIXES = (".mcap", ".bag", ".parquet", ".csv")
 NOT_LOGS = {"index.csv"}
+#: sensor groups a model may need (``train --sensors``): wheel speeds, motor currents, IMU, camera
+SENSOR_GROUPS = ("wheels", "currents", "imu", "cam")
+#: a class that keeps less than this share of its candidate windows gets a hint
+LOSS_HINT_FRACTION = 0.5
+#: what to try when a rule rejects most of a class (``dataset build`` prints it)
+RULE_HINTS = {
+    "time_gap": "its logs have gaps (see `terrainml inspect`); shorter windows (--windows chunks) fit between them",
+    "wheel_state": "the robot rarely cruises on it; try --windows state (any moving wheel state) or "
+                   "--windows chunks (fixed windows, no motion rule)",
+    "speed": "the robot moves slowly or stands there; try --windows chunks (no motion rule)",
+    "acceleration": "the robot keeps accelerating or braking there; try --windows state or --windows chunks",
+    "steering": "the robot steers a lot there; try --windows chunks (no steering rule)",
+    "terrain_label": "labels change inside windows (or are missing); shorter windows: --windows chunks",
+    "channel_valid": "a sensor group is missing or invalid in its runs; train on the groups they have, "
+                     "e.g. --sensors wheels,currents",
+}
+
+
+def sensors_of(channels) -> list[str]:
+    """Sensor groups the channels need (wheels always: the estimator and the speeds need them)."""
+    groups = {channel_sensor_group(c) for c in channels} - {"estimator"}
+    return [g for g in SENSOR_GROUPS if g in groups or g == "wheels"]
+
+
+def dataset_channels(robot: RobotSpec, spec: WindowSpec, sensors=None) -> tuple[str, ...]:
+    """Window channels for a robot and spec, restricted to the sensor groups ``sensors``.
+
+    ``spec.channels`` wins when given. The ``chunks`` spec takes the side channels of a
+    camera-less robot (design §8), the other specs the canonical channels
+    (:func:`~terrainml.features.windows.default_channels`). ``sensors`` (None: all) drops the
+    channels of the groups not listed; ValueError names an unknown group.
+    """
+    if sensors is not None:
+        unknown = [g for g in sensors if g not in SENSOR_GROUPS]
+        if unknown:
+            raise ValueError(f"unknown sensor group(s) {unknown}; expected some of {list(SENSOR_GROUPS)}")
+    if spec.channels is not None:
+        chans = tuple(spec.channels)
+    elif spec.chunk_s is not None:
+        chans = SIDE_CHANNEL_NAMES
+    else:
+        chans = default_channels(robot)
+    if sensors is None:
+        return chans
+    keep = set(sensors) | {"estimator", "wheels"}
+    out = tuple(c for c in chans if channel_sensor_group(c) in keep)
+    if not out:
+        raise ValueError(f"no window channel left for sensors {list(sensors)} (channels {list(chans)})")
+    return out
 
 
 class DatasetError(ValueError):
@@ -73,10 +126,16 @@ class Dataset:
     preset: str = "robust"
     class_ids: list = field(default_factory=list)
     class_names: list = field(default_factory=list)
+    class_report: pd.DataFrame | None = None
 
     @property
     def fingerprint(self) -> str:
         return fingerprint(self.windows)
+
+    @property
+    def sensors(self) -> list[str]:
+        """Sensor groups the windows' channels need (see :func:`sensors_of`)."""
+        return sensors_of(self.windows.channels)
 
 
 def fingerprint(windows: Windows) -> str:
@@ -114,7 +173,8 @@ def process_log(path: str | Path, robot: RobotSpec | str | None = None, preset: 
 
     Returns
     -------
-    dict with ``source``, ``run_id``, ``status`` (``ok``, ``unusable``, ``error``), ``message``,
+    dict with ``source``, ``run_id``, ``status`` (``ok``; ``damaged``, usable but the log lost
+    messages or cells, counted in ``message``; ``unusable``, ``error``), ``message``,
     ``n_rows``, ``windows`` (Windows; unlabelled windows dropped), ``counts`` (per rule, plus
     ``unlabelled``), ``class_names`` (from the table's metadata when it brings its own).
     """
@@ -122,7 +182,8 @@ def process_log(path: str | Path, robot: RobotSpec | str | None = None, preset: 
     robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
     path = Path(path)
     out: dict[str, Any] = {"source": path.name, "run_id": path.stem, "status": "ok", "message": "",
-                           "n_rows": 0, "windows": None, "counts": {}, "class_names": None}
+                           "n_rows": 0, "windows": None, "counts": {}, "class_names": None,
+                           "run_class": -1, "table": None}
     try:
         if table is None:
             res = load_run(path, robot=robot, rate_hz=spec.rate_hz)
@@ -137,7 +198,20 @@ def process_log(path: str | Path, robot: RobotSpec | str | None = None, preset: 
         if "run_id" in table.columns and len(table):
             out["run_id"] = str(table["run_id"].iloc[0])
         out["n_rows"] = int(len(table))
+        damage = damage_summary(table)
+        if damage.any:  # usable, but what the log lost is said per run, not only at ingest
+            out["status"], out["message"] = "damaged", damage.text.removeprefix("damaged: ")
+        out["run_class"] = _run_class(table)
+        channels = spec.channels if spec.channels is not None else default_channels(robot)
+        if spec.chunk_s is not None:
+            # fixed chunks are cut over the whole dataset (the class balancing needs every run)
+            out["table"] = _chunk_table(table, robot, channels, preset)
+            return out
         est = estimate_run(table, robot, preset)
+        for ch in channels:  # raw columns the estimator does not pass through (gyro roll/pitch)
+            col = channel_column(ch, robot)[0]
+            if col not in est.columns and col in table.columns and len(est) == len(table):
+                est[col] = table[col].to_numpy()
         wins, counts = cut_windows(est, robot, spec, online=False, run_id=out["run_id"])
         labelled = wins.meta["terrain"].to_numpy() >= 0
         counts["unlabelled"] = int((~labelled).sum())
@@ -151,17 +225,121 @@ def process_log(path: str | Path, robot: RobotSpec | str | None = None, preset: 
     return out
 
 
+def _run_class(table: pd.DataFrame) -> int:
+    """The run's most common label (-1 when unlabelled): the class its rejections are counted under."""
+    if "terrain" not in table.columns or not len(table):
+        return -1
+    lab = pd.to_numeric(table["terrain"], errors="coerce")
+    lab = lab[lab >= 0]
+    return int(lab.mode().iloc[0]) if len(lab) else -1
+
+
+def _needs_estimation(channels) -> bool:
+    return any(channel_sensor_group(c) in ("estimator", "cam") for c in channels)
+
+
+def _chunk_table(table: pd.DataFrame, robot: RobotSpec, channels, preset: str) -> pd.DataFrame:
+    """The columns the ``chunks`` spec needs (estimated first only when a channel needs the EKF)."""
+    src = estimate_run(table, robot, preset) if _needs_estimation(channels) else table
+    cols = ["t_s", "run_id", "terrain"]
+    for ch in channels:
+        col, vcols, _ = channel_column(ch, robot)
+        cols += [col, *vcols]
+    out = pd.DataFrame({c: src[c].to_numpy() for c in dict.fromkeys(cols) if c in src.columns})
+    if "run_id" not in out.columns:
+        out["run_id"] = str(table["run_id"].iloc[0]) if "run_id" in table.columns else ""
+    if "terrain" not in out.columns:
+        out["terrain"] = -1
+    out.attrs["terrainml"] = {"rate_hz": (table.attrs.get("terrainml") or {}).get("rate_hz")}
+    return out
+
+
+def _chunk_results(results: list[dict], robot: RobotSpec, spec: WindowSpec, channels) -> None:
+    """Cut the ``chunks`` spec's windows over all runs at once; fill each result's windows and counts."""
+    ok = [r for r in results if r.get("table") is not None and len(r["table"])]
+    if not ok:
+        return
+    valid_cols = sorted({v for ch in channels for v in channel_column(ch, robot)[1]})
+    tables = [r["table"] for r in ok]
+    chunks = make_chunks(tables, chunk_s=float(spec.chunk_s), valid_cols=valid_cols)
+    cols = {ch: channel_column(ch, robot)[0] for ch in channels}
+    T = spec.n_samples
+    if len(chunks):
+        wins = chunk_windows(tables, chunks, window_s=spec.window_s, max_windows_per_chunk=spec.windows_per_chunk,
+                             homogeneous=spec.homogeneous, channels=cols, wheel_radius_m=robot.wheel_radius_m)
+    else:
+        wins = Windows.concat([], channels=channels, n_samples=T, rate_hz=spec.rate_hz)
+    L = chunks.chunk_samples
+    run_of_window = wins.meta["run_id"].astype(str).to_numpy() if len(wins) else np.array([], dtype=object)
+    kept_chunks = chunks.meta.groupby("table").size().to_dict() if len(chunks) else {}
+    for k, r in enumerate(ok):
+        sel = np.flatnonzero(run_of_window == str(r["run_id"]))
+        w = wins.subset(sel)
+        w.meta = w.meta.drop(columns=["chunk_id"], errors="ignore")
+        w.meta["source"] = r["source"]
+        n_chunks = len(r["table"]) // L
+        lost = n_chunks - int(kept_chunks.get(k, 0))
+        counts = {"n_windows": int(n_chunks), "n_kept": int(len(w)), "n_rejected": int(lost)}
+        counts.update({rule: 0 for rule in RULES})
+        # a dropped chunk had an invalid sample or a missing or changing label
+        invalid = _invalid_chunks(r["table"], L, valid_cols)
+        counts["channel_valid"] = int(min(invalid, lost))
+        counts["terrain_label"] = int(lost - min(invalid, lost))
+        counts["unlabelled"] = 0
+        r["windows"], r["counts"], r["table"] = w, counts, None
+
+
+def _invalid_chunks(df: pd.DataFrame, L: int, valid_cols) -> int:
+    ok = np.ones(len(df), bool)
+    for c in valid_cols:
+        if c in df.columns:
+            ok &= df[c].to_numpy(dtype=bool)
+    n = len(df) // L
+    return int(sum(not ok[s * L:(s + 1) * L].all() for s in range(n)))
+
+
+def class_report(runs: pd.DataFrame, wins: Windows, names: Sequence[str] | None) -> pd.DataFrame:
+    """Per class: runs, candidate windows (chunks for ``chunks``), kept windows, per-rule rejections.
+
+    A run's rejections count under its most common label. ``hint`` says what to try when a
+    class keeps less than :data:`LOSS_HINT_FRACTION` of its candidates (chunks: of its chunks).
+    """
+    rows: list[dict] = []
+    if not len(runs) or "run_class" not in runs.columns:
+        return pd.DataFrame(rows)
+    kept_by_class = pd.Series(wins.y).value_counts().to_dict() if len(wins) else {}
+    for cid, g in runs[runs["run_class"] >= 0].groupby("run_class"):
+        cid = int(cid)
+        name = names[cid] if names is not None and 0 <= cid < len(names) else str(cid)
+        cand = int(g["n_windows"].sum())
+        rej = {rule: int(g[rule].sum()) for rule in RULES if rule in g.columns}
+        row = {"class_id": cid, "class": name, "runs": int(len(g)), "candidates": cand,
+               "kept": int(kept_by_class.get(cid, 0)), **rej}
+        # candidates that passed every rule (chunks: chunks kept; their windows are then balanced)
+        share = (cand - int(g["n_rejected"].sum())) / cand if cand and "n_rejected" in g.columns else 0.0
+        row["kept_share"] = round(share, 4)
+        row["hint"] = ""
+        if share < LOSS_HINT_FRACTION:
+            worst = max(rej, key=rej.get) if rej and max(rej.values()) > 0 else None
+            row["hint"] = f"keeps {share:.0%} of its candidates" + (
+                f", most rejected by '{worst}': {RULE_HINTS[worst]}" if worst else "; check its runs' status")
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def _collect(results: Sequence[dict], robot: RobotSpec, spec: WindowSpec, preset: str) -> Dataset:
     channels = tuple(spec.channels) if spec.channels is not None else default_channels(robot)
+    if spec.chunk_s is not None:
+        _chunk_results(list(results), robot, spec, channels)
     rows = []
     totals = {"n_windows": 0, "n_kept": 0, "n_rejected": 0, **{r: 0 for r in RULES}, "unlabelled": 0}
     names = None
     for r in results:
         c = r["counts"]
         row = {"source": r["source"], "run_id": r["run_id"], "status": r["status"],
-               "message": r["message"], "n_rows": r["n_rows"],
+               "message": r["message"], "n_rows": r["n_rows"], "run_class": int(r.get("run_class", -1)),
                "n_windows": c.get("n_windows", 0), "n_kept": len(r["windows"]) if r["windows"] is not None else 0}
-        row.update({k: c.get(k, 0) for k in RULES + ("unlabelled",)})
+        row.update({k: c.get(k, 0) for k in ("n_rejected",) + RULES + ("unlabelled",)})
         rows.append(row)
         for k in totals:
             totals[k] += int(c.get(k, 0))
@@ -178,9 +356,17 @@ def _collect(results: Sequence[dict], robot: RobotSpec, spec: WindowSpec, preset
     else:
         class_names = [TERRAIN_CLASSES[i] if 0 <= i < len(TERRAIN_CLASSES) else str(i) for i in ids]
         all_names = None
-    ds = Dataset(wins, runs, totals, robot, spec, preset, ids, class_names)
+    ds = Dataset(wins, runs, totals, robot, spec, preset, ids, class_names,
+                 class_report(runs, wins, all_names if all_names is not None else list(TERRAIN_CLASSES)))
     ds.windows.attrs["all_class_names"] = all_names
     return ds
+
+
+def _with_channels(spec: WindowSpec, robot: RobotSpec) -> WindowSpec:
+    """The ``chunks`` spec without channels gets the side channels (other specs keep None)."""
+    if spec.chunk_s is not None and spec.channels is None:
+        return replace(spec, channels=dataset_channels(robot, spec))
+    return spec
 
 
 def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | str | None = None,
@@ -194,7 +380,7 @@ def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | 
     source : folder (see :func:`find_logs`) or list of log paths.
     robot : RobotSpec, name or path (default the reference robot).
     preset : estimation preset (``robust`` or ``thesis``).
-    spec : WindowSpec (default SYSTEM §8).
+    spec : WindowSpec (default design §8).
     n_jobs : joblib jobs (-1: all cores). Ignored scheduling-wise with ``dask_address``.
     dask_address : ``tcp://HOST:PORT`` of a Dask scheduler: run the logs on that cluster.
     progress : callback ``(done, total, source_name)`` after each log, in input order.
@@ -205,6 +391,7 @@ def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | 
     """
     spec = spec or WindowSpec()
     robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
+    spec = _with_channels(spec, robot)
     paths = find_logs(source) if isinstance(source, (str, Path)) else [Path(p) for p in source]
     total = len(paths)
     calls = (delayed(process_log)(p, robot, preset, spec) for p in paths)
@@ -233,6 +420,7 @@ def build_from_tables(tables: Sequence[pd.DataFrame], robot: RobotSpec | str | N
     """Like :func:`build_dataset` for already ingested run tables (e.g. the BorealTC reader)."""
     spec = spec or WindowSpec()
     robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
+    spec = _with_channels(spec, robot)
     names = names or [str(t["run_id"].iloc[0]) if "run_id" in t.columns and len(t) else f"run{k}"
                       for k, t in enumerate(tables)]
     results = Parallel(n_jobs=n_jobs)(delayed(process_log)(Path(n), robot, preset, spec, t)
@@ -264,6 +452,8 @@ def write_windows(ds: Dataset, path: str | Path) -> Path:
         "robot_sha256": ds.robot.sha256(), "preset": ds.preset, "class_ids": ds.class_ids,
         "class_names": ds.class_names, "all_class_names": w.attrs.get("all_class_names"),
         "counts": ds.counts, "runs": json.loads(ds.runs.to_json(orient="records")),
+        "class_report": ([] if ds.class_report is None else
+                         json.loads(ds.class_report.to_json(orient="records"))),
         "fingerprint": fingerprint(w),
     }
     table = pa.table(cols).replace_schema_metadata({META_KEY: json.dumps(meta, sort_keys=True).encode()})
@@ -312,4 +502,4 @@ def read_windows(path: str | Path) -> Dataset:
     counts.update({k: v for k, v in raw_counts.items() if k not in counts})
     return Dataset(wins, runs, counts, robot, WindowSpec.from_dict(meta["window_spec"]),
                    meta.get("preset", "robust"), list(meta.get("class_ids", [])),
-                   list(meta.get("class_names", [])))
+                   list(meta.get("class_names", [])), pd.DataFrame(meta.get("class_report", [])))

@@ -1,12 +1,24 @@
 """Train, cross-validate, report and save; evaluate a saved model on other data.
 
-:func:`train` runs, for every requested model kind (``svm``, ``cnn``), grouped K-fold CV
+:func:`train` runs, for every requested model (``svm``, ``cnn``, ``hgb``, or ``A+B``: the mean of
+A's and B's probabilities, :class:`~terrainml.models.ensemble.ProbabilityAverage`), grouped K-fold CV
 (:mod:`terrainml.evaluation.cv`, seeded) and a final fit on all windows, measures per-window
 latency, runs the SVM feature-set ablation (kinematic / currents / imu / all) on the same folds,
 then writes the artifact (:mod:`terrainml.models.artifacts`) with the desired-slip table as an
 attachment (:data:`TABLE_FILE`, when the class set is ours) and the report
 (:mod:`terrainml.evaluation.report`) into one folder whose manifest hashes every file. The model
 with the best CV balanced accuracy is the folder's default (served) model.
+
+Feature families (design §8-9): windows of the canonical channels get
+:class:`~terrainml.features.sets.FeatureSet`; windows of a camera-less robot's side channels
+(the ``chunks`` spec) get :class:`~terrainml.features.side_channel.SideChannelFeatures` and the
+settings of the BorealTC protocols (``experiments/borealtc.py``), so ``train`` and
+``evaluate-protocol -p b`` fit the same models. The manifest records the family, the channels
+and the sensor groups the model needs (``sensors``).
+
+A class with fewer than :data:`MIN_RUNS_PER_CLASS` runs cannot be tested on a run it was not
+trained on: it is named, left out of the cross-validation (``report.json``:
+``excluded_classes``) and kept in the final fit.
 
 :func:`evaluate` loads a verified model folder and scores it on another dataset.
 """
@@ -22,21 +34,33 @@ import numpy as np
 import pandas as pd
 
 from terrainml.classes import TERRAIN_CLASSES
-from terrainml.evaluation.cv import cross_validate
+from terrainml.evaluation.cv import average_results, cross_validate
 from terrainml.evaluation.folds import grouped_folds
-from terrainml.evaluation.metrics import classification_metrics, latency_per_window_ms
+from terrainml.evaluation.metrics import classification_metrics, is_ordered, latency_per_window_ms
 from terrainml.evaluation.report import write_report
 from terrainml.features.sets import FEATURE_SUBSETS, FeatureSet
+from terrainml.features.side_channel import SideChannelFeatures, track_of
+from terrainml.features.windows import is_side_channel_set
+from terrainml.lookup.catalogue import BUILTIN_CATALOGUES
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import (Artifact, ArtifactError, load_artifact, save_artifact,
                                         write_manifest)
+from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.models.svm import SVMClassifier
+from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.dataset import Dataset
 
 __all__ = ["MODEL_KINDS", "TABLE_FILE", "make_factory", "train", "evaluate", "TrainResult",
-           "desired_slip_table_for", "served_table"]
+           "desired_slip_table_for", "served_table", "parse_models", "feature_family",
+           "MIN_RUNS_PER_CLASS", "ClassMismatchError", "parse_class_map"]
 
-MODEL_KINDS = ("svm", "cnn")
+#: base model kinds; ``A+B`` averages the probabilities of A and B
+MODEL_KINDS = ("svm", "cnn", "hgb")
+#: fewer runs than this and grouped CV never tests the class on a run it was not trained on
+MIN_RUNS_PER_CLASS = 2
+#: SVM search grid of the side-channel family (the BorealTC protocols' ``svm``)
+SIDE_C_GRID = (3.0, 10.0, 30.0, 100.0)
+SIDE_GAMMA_GRID = ("scale", 0.001, 0.002)
 #: the desired-slip table's attachment in a model folder (read back by :func:`served_table`)
 TABLE_FILE = "desired_slip_table.json"
 
@@ -49,13 +73,44 @@ def _cnn_class():
     return CNNClassifier
 
 
+class ClassMismatchError(ValueError):
+    """The data's (or a table's) class names differ from the model's (both sets listed)."""
+
+
+def parse_models(spec: str | Sequence[str]) -> list[str]:
+    """Model names from ``svm``, ``cnn``, ``hgb``, ``all`` (svm and cnn) or ``A+B`` averages.
+
+    ``"svm,svm+hgb"`` -> ``["svm", "svm+hgb"]``. ValueError names an unknown kind.
+    """
+    items = [m.strip() for m in (spec.split(",") if isinstance(spec, str) else spec) if m.strip()]
+    out: list[str] = []
+    for m in items:
+        names = ["svm", "cnn"] if m == "all" else [m]
+        for name in names:
+            parts = name.split("+")
+            bad = [q for q in parts if q not in MODEL_KINDS]
+            if bad or len(set(parts)) != len(parts):
+                raise ValueError(f"unknown model {name!r}; expected {', '.join(MODEL_KINDS)}, all, or "
+                                 "an average of distinct ones such as svm+hgb")
+            if name not in out:
+                out.append(name)
+    if not out:
+        raise ValueError("no model given")
+    return out
+
+
+def feature_family(channels: Sequence[str]) -> str:
+    """``side_channel`` for a camera-less robot's side channels, else ``canonical`` (design §8)."""
+    return "side_channel" if is_side_channel_set(channels) else "canonical"
+
+
 def make_factory(kind: str, ds: Dataset, seed: int = 0, subset: str = "all", n_jobs: int | None = 1,
                  params: dict | None = None) -> Callable[[], Any]:
     """Factory of unfitted classifiers on raw windows for a model kind.
 
     Parameters
     ----------
-    kind : ``svm`` or ``cnn``.
+    kind : ``svm``, ``cnn`` or ``hgb``.
     ds : the dataset (robot constants, channel names).
     seed : random_state of the model.
     subset : SVM feature subset.
@@ -63,6 +118,16 @@ def make_factory(kind: str, ds: Dataset, seed: int = 0, subset: str = "all", n_j
     params : extra constructor parameters.
     """
     params = dict(params or {})
+    side = feature_family(ds.windows.channels) == "side_channel"
+    if side:
+        sfs = SideChannelFeatures(rate_hz=ds.windows.rate_hz, track_m=track_of(ds.robot))
+    if kind == "svm" and side:  # the BorealTC protocols' SVM (experiments.borealtc.protocol_models)
+        kw = {"C_grid": SIDE_C_GRID, "gamma_grid": SIDE_GAMMA_GRID, "inner_folds": 3, **params}
+        return lambda: SVMClassifier(features=sfs, random_state=seed, n_jobs=n_jobs or 1, **kw)
+    if kind == "hgb":
+        feats = sfs if side else FeatureSet.for_robot(ds.robot, subset=subset, channel_names=ds.windows.channels,
+                                                       rate_hz=ds.windows.rate_hz)
+        return lambda: BoostedTrees(feats, random_state=seed, **params)
     if kind == "svm":
         fs = FeatureSet.for_robot(ds.robot, subset=subset, channel_names=ds.windows.channels,
                                   rate_hz=ds.windows.rate_hz)
@@ -74,13 +139,20 @@ def make_factory(kind: str, ds: Dataset, seed: int = 0, subset: str = "all", n_j
 
 
 def desired_slip_table_for(ds: Dataset | None, robot: Any) -> Any:
-    """The desired-slip table when the class set is ours (SYSTEM §6.1), else None.
+    """The desired-slip table of the dataset's class set for ``robot`` (design §10), or None.
 
-    A dataset that brings its own class names (e.g. BorealTC) has no desired-slip targets: the
-    desired-slip error is then reported as n/a and no table is stored with the model.
+    Our eight classes (design §6.1) get :meth:`DesiredSlipTable.build`; a dataset that brings
+    its own class names gets the table of the first built-in terrain catalogue that has every
+    one of them (BorealTC's five: the ``borealtc`` catalogue), ids in the dataset's order. With
+    no such catalogue the desired-slip error is n/a and no table is stored with the model.
     """
     all_names = None if ds is None else ds.windows.attrs.get("all_class_names")
     if all_names is not None and list(all_names) != list(TERRAIN_CLASSES):
+        for cat in BUILTIN_CATALOGUES:
+            try:
+                return DesiredSlipTable.from_catalogue(cat, robot, list(all_names))
+            except Exception:  # noqa: BLE001 - a catalogue without these classes: try the next
+                continue
         return None
     try:
         return DesiredSlipTable.build(robot)
@@ -121,7 +193,8 @@ class TrainResult:
 
 
 def _ablation(ds: Dataset, folds, seed: int, n_jobs: int, table, classes, cv_all=None,
-              params: dict | None = None) -> pd.DataFrame:
+              params: dict | None = None, windows=None) -> pd.DataFrame:
+    W = ds.windows if windows is None else windows
     rows = []
     for subset in FEATURE_SUBSETS:
         try:
@@ -131,8 +204,8 @@ def _ablation(ds: Dataset, folds, seed: int, n_jobs: int, table, classes, cv_all
         if subset == "all" and cv_all is not None:
             res = cv_all
         else:
-            res = cross_validate(make_factory("svm", ds, seed, subset, params=params), ds.windows, ds.windows.y,
-                                 ds.windows.groups, folds=folds, n_jobs=n_jobs, table=table, classes=classes)
+            res = cross_validate(make_factory("svm", ds, seed, subset, params=params), W, W.y,
+                                 W.groups, folds=folds, n_jobs=n_jobs, table=table, classes=classes)
         s = res.summary
         get = lambda k, q: s.get(k, {}).get(q, float("nan"))  # noqa: E731
         rows.append({"subset": subset, "n_features": n_feat,
@@ -172,42 +245,77 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     classes = np.asarray(sorted(set(y.tolist())))
     if len(classes) < 2:
         raise ValueError(f"need at least 2 classes to train, the dataset has {classes.tolist()}")
-    for kind in models:
-        if kind not in MODEL_KINDS:
-            raise ValueError(f"unknown model kind {kind!r}; expected one of {MODEL_KINDS}")
+    models = parse_models(models)
+    names = list(ds.class_names) if ds.class_names else [str(c) for c in classes]
+    name_of = dict(zip(classes.tolist(), names))
     table = desired_slip_table_for(ds, ds.robot)
-    fold_list = grouped_folds(y, groups, folds, seed)
+    # classes with a single run: never tested on an unseen run under grouped CV -> out of the CV
+    runs_per_class = {int(c): len(set(groups[y == c])) for c in classes}
+    excluded = [int(c) for c in classes if runs_per_class[int(c)] < MIN_RUNS_PER_CLASS]
+    cv_classes = np.asarray([c for c in classes if int(c) not in excluded])
+    if len(cv_classes) < 2:
+        raise ValueError(f"grouped CV needs at least 2 classes with >= {MIN_RUNS_PER_CLASS} runs; runs per "
+                         f"class: { {name_of[c]: n for c, n in runs_per_class.items()} }; record more runs")
+    for c in excluded:
+        say(f"warning: class {name_of[c]!r} has {runs_per_class[c]} run(s): excluded from the "
+            f"cross-validation mean (grouped CV cannot test it on an unseen run; record another run "
+            f"of it), kept in the final model")
+    keep = np.isin(y, cv_classes)
+    Wcv = W.subset(np.flatnonzero(keep)) if not keep.all() else W
+    ycv, gcv = Wcv.y, Wcv.groups
+    fold_list = grouped_folds(ycv, gcv, folds, seed)
+    cv_names = [name_of[int(c)] for c in cv_classes]
     results: dict[str, dict] = {}
     fitted: dict[str, Any] = {}
-    for kind in models:
+    bases = list(dict.fromkeys(q for m in models for q in m.split("+")))
+    for kind in bases:
         params = (model_params or {}).get(kind, {})
         inner_jobs = 1 if n_jobs != 1 else None
         if kind == "cnn" and n_jobs != 1:
             params = {"n_threads": 1, **params}
         factory = make_factory(kind, ds, seed, n_jobs=inner_jobs, params=params)
         say(f"{kind}: grouped {len(fold_list)}-fold cross-validation")
-        cv = cross_validate(factory, W, y, groups, folds=fold_list, n_jobs=n_jobs, table=table, classes=classes)
+        cv = cross_validate(factory, Wcv, ycv, gcv, folds=fold_list, n_jobs=n_jobs, table=table,
+                            classes=cv_classes, class_names=cv_names, name=kind)
         say(f"{kind}: final fit on {len(W)} windows")
         model = factory()
         t0 = time.perf_counter()
         model.fit(W, y, groups=groups)
         fit_s = time.perf_counter() - t0
-        lat = latency_per_window_ms(model, W, n_calls=min(200, max(20, len(W))))
         p = dict(getattr(model, "best_params_", {}) or {})
         if kind == "cnn":
             p = {"best_epoch": getattr(model, "best_epoch_", None), "n_epochs": getattr(model, "n_epochs_", None)}
-        results[kind] = {"cv": cv, "latency": lat, "fit_time_s": fit_s, "params": p}
+        results[kind] = {"cv": cv, "fit_time_s": fit_s, "params": p}
         fitted[kind] = model
+    for name in models:
+        if "+" in name:
+            members = name.split("+")
+            results[name] = {"cv": average_results([results[q]["cv"] for q in members], name=name, table=table),
+                             "fit_time_s": sum(results[q]["fit_time_s"] for q in members),
+                             "params": {"members": members}}
+            fitted[name] = ProbabilityAverage.from_fitted([fitted[q] for q in members])
+    for name, model in fitted.items():
+        results[name]["latency"] = latency_per_window_ms(model, W, n_calls=min(200, max(20, len(W))))
+    # report and save the requested models (an average's members are stored for it anyway)
+    results = {k: results[k] for k in [*models, *[b for b in bases if b not in models]]}
+    fitted = {k: fitted[k] for k in results}
     abl = None
-    if ablation and "svm" in models:
+    if ablation and "svm" in models and feature_family(W.channels) == "canonical":
         say("svm: feature-set ablation")
-        abl = _ablation(ds, fold_list, seed, n_jobs, table, classes, results["svm"]["cv"],
-                        (model_params or {}).get("svm"))
-    default = max(results, key=lambda k: (results[k]["cv"].summary["balanced_accuracy"]["mean"],
-                                          -MODEL_KINDS.index(k)))
-    names = list(ds.class_names) if ds.class_names else [str(c) for c in classes]
+        abl = _ablation(ds, fold_list, seed, n_jobs, table, cv_classes, results["svm"]["cv"],
+                        (model_params or {}).get("svm"), windows=Wcv)
+    order = list(results)
+    default = max((k for k in results if k in models),
+                  key=lambda k: (results[k]["cv"].summary["balanced_accuracy"]["mean"], -order.index(k)))
     summary = {"n_runs": int(len(np.unique(groups))), "n_windows": int(len(W)),
                "windows_per_class": {str(n): int((y == c).sum()) for c, n in zip(classes, names)},
+               "runs_per_class": {name_of[c]: n for c, n in runs_per_class.items()},
+               "excluded_classes": [{"class": name_of[c], "runs": runs_per_class[c],
+                                     "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: grouped CV cannot "
+                                               "test it on an unseen run; excluded from the CV mean"}
+                                    for c in excluded],
+               "feature_family": feature_family(W.channels), "sensors": ds.sensors,
+               "window_spec": ds.spec.name,
                "robot": ds.robot.name, "preset": ds.preset, "channels": list(W.channels),
                "fingerprint": ds.fingerprint, "rejections": ds.counts}
     res = TrainResult(out, results, default, classes.tolist(), names, len(fold_list), seed, summary, abl,
@@ -216,16 +324,58 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     save_artifact(out, fitted, classes=classes.tolist(), class_names=names, channels=W.channels,
                   window_spec=ds.spec, robot=ds.robot, training_fingerprint=ds.fingerprint,
                   metrics_summary=metrics_summary, default_model=default, preset=ds.preset,
+                  sensors=ds.sensors, feature_family=feature_family(W.channels),
                   attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
                   extra={"folds": len(fold_list), "seed": seed, "n_windows": len(W),
-                         "latency_ms": {k: r["latency"] for k, r in results.items()}})
+                         "latency_ms": {k: r["latency"] for k, r in results.items()},
+                         "excluded_classes": summary["excluded_classes"]})
     write_report(out, res)
     res.manifest = write_manifest(out)  # hash the report files too
     return res
 
 
-def evaluate(model_dir: str | Path, ds: Dataset, model: str | None = None) -> dict:
-    """Score a saved model (verified on load) on a dataset.
+def parse_class_map(text: str | None) -> dict[str, str]:
+    """``"A=B,C=D"`` -> ``{"A": "B", "C": "D"}`` (data class name -> model class name)."""
+    out: dict[str, str] = {}
+    for item in (text or "").split(","):
+        if not item.strip():
+            continue
+        if item.count("=") != 1 or not all(p.strip() for p in item.split("=")):
+            raise ValueError(f"--class-map: {item!r} is not DATA_CLASS=MODEL_CLASS")
+        a, b = (p.strip() for p in item.split("="))
+        out[a] = b
+    return out
+
+
+def match_classes(data_names: Sequence[str], model_names: Sequence[str],
+                  class_map: dict[str, str] | None = None, source: str = "the data") -> dict[str, str]:
+    """Data class name -> model class name, matched by name (never by id).
+
+    Every data class must be one of the model's (after ``class_map``); otherwise
+    :class:`ClassMismatchError` lists both sets and the names that differ.
+    """
+    class_map = dict(class_map or {})
+    unknown_keys = sorted(set(class_map) - set(data_names))
+    if unknown_keys:
+        raise ClassMismatchError(f"--class-map names {unknown_keys}, which {source} does not have "
+                                 f"(its classes: {sorted(data_names)})")
+    mapping = {n: class_map.get(n, n) for n in data_names}
+    missing = sorted({n for n, m in mapping.items() if m not in set(model_names)})
+    if missing:
+        raise ClassMismatchError(
+            f"class names differ: {source} has {sorted(data_names)}, the model has {sorted(model_names)}; "
+            f"not in the model: {missing}. Map them with --class-map DATA=MODEL,... if they are the "
+            "same terrain under another name")
+    return mapping
+
+
+def evaluate(model_dir: str | Path, ds: Dataset, model: str | None = None,
+             class_map: dict[str, str] | None = None, **load_kwargs: Any) -> dict:
+    """Score a saved model (verified on load) on a dataset, classes matched by name.
+
+    ``class_map`` maps data class names to model class names (``--class-map A=B``); a data class
+    the model lacks is refused (:class:`ClassMismatchError`, both sets listed). ``load_kwargs`` go
+    to :func:`~terrainml.models.artifacts.load_artifact` (e.g. ``trusted_keys``).
 
     Returns
     -------
@@ -233,8 +383,20 @@ def evaluate(model_dir: str | Path, ds: Dataset, model: str | None = None) -> di
     other metrics of :func:`classification_metrics`, ``model``, ``model_dir``,
     ``training_fingerprint`` and ``data_fingerprint``.
     """
-    art = load_artifact(model_dir, model)
+    art = load_artifact(model_dir, model, **load_kwargs)
     W = ds.windows
+    model_names = list(art.class_names) or [str(c) for c in art.class_ids]
+    data_ids = sorted(set(W.y.tolist()))
+    all_names = W.attrs.get("all_class_names")
+    if all_names is not None:
+        data_name = {i: str(all_names[i]) if 0 <= i < len(all_names) else str(i) for i in data_ids}
+    else:
+        data_name = {i: n for i, n in zip(ds.class_ids, ds.class_names)}
+        data_name = {i: data_name.get(i, TERRAIN_CLASSES[i] if 0 <= i < len(TERRAIN_CLASSES) else str(i))
+                     for i in data_ids}
+    mapping = match_classes([data_name[i] for i in data_ids], model_names, class_map)
+    model_id = dict(zip(model_names, art.class_ids))
+    relabel = {i: int(model_id[mapping[data_name[i]]]) for i in data_ids}
     missing = [c for c in art.channels if c not in W.channels]
     if missing:
         raise ValueError(f"the data lacks channels {missing} the model {art.model_name!r} was trained on")
@@ -244,9 +406,12 @@ def evaluate(model_dir: str | Path, ds: Dataset, model: str | None = None) -> di
     proba = np.asarray(art.model.predict_proba(W), dtype=float)
     classes = np.asarray(art.model.classes_)
     y_pred = classes[np.argmax(proba, axis=1)]
-    m = classification_metrics(W.y, y_pred, proba, classes, served_table(art))
+    y_true = np.asarray([relabel[int(v)] for v in W.y], dtype=np.int64)
+    m = classification_metrics(y_true, y_pred, proba, classes, served_table(art),
+                               ordered=is_ordered(art.class_names or None))
     m.update({"model": art.model_name, "model_kind": art.kind, "model_dir": str(model_dir),
               "training_fingerprint": art.manifest.get("training_fingerprint"),
               "data_fingerprint": ds.fingerprint,
-              "class_names": art.class_names})
+              "class_names": art.class_names,
+              "class_map": {k: v for k, v in mapping.items() if k != v}})
     return m

@@ -182,6 +182,20 @@ N_CROWS = 19
 N_SROWS = 11
 
 
+@njit(cache=True, inline="always")
+def _grid_cell(idx_f, n):
+    """Lower node and fraction of a fractional index on a grid of ``n`` nodes, clamped to the grid
+    (the last cell takes the end point, fraction 1)."""
+    if idx_f < 0.0:
+        idx_f = 0.0
+    if idx_f > n - 1.0:
+        idx_f = n - 1.0
+    i = int(idx_f)
+    if i >= n - 1:
+        i = n - 2
+    return i, idx_f - i
+
+
 @njit(cache=True)
 def _interp_table(tab, c, lf, s_idx_f, n_load, n_slip):
     """Bilinear interpolation of tab[c, load, slip]; returns value and d/d(slip index)."""
@@ -194,14 +208,7 @@ def _interp_table(tab, c, lf, s_idx_f, n_load, n_slip):
     fl = lf - il
     if fl > 1.0:
         fl = 1.0
-    if s_idx_f < 0.0:
-        s_idx_f = 0.0
-    if s_idx_f > n_slip - 1.0:
-        s_idx_f = n_slip - 1.0
-    i = int(s_idx_f)
-    if i >= n_slip - 1:
-        i = n_slip - 2
-    fs = s_idx_f - i
+    i, fs = _grid_cell(s_idx_f, n_slip)
     a0 = tab[c, il, i] * (1.0 - fl) + tab[c, il + 1, i] * fl
     a1 = tab[c, il, i + 1] * (1.0 - fl) + tab[c, il + 1, i + 1] * fl
     return a0 + (a1 - a0) * fs, a1 - a0
@@ -371,14 +378,7 @@ def _lateral_forces(g, wheel, ct):
         ld = wheel[W_LOAD, i]
         alpha = math.atan2(ct[C_VLAT, i], max(abs(ct[C_VLONG, i]), 0.25))
         af = (alpha - g.alpha_lo) / g.alpha_step
-        if af < 0.0:
-            af = 0.0
-        if af > n_alpha - 1.0:
-            af = n_alpha - 1.0
-        ia = int(af)
-        if ia >= n_alpha - 1:
-            ia = n_alpha - 2
-        fa = af - ia
+        ia, fa = _grid_cell(af, n_alpha)
         y0 = y_tab[int(ct[C_CELL, i]), ia]
         y1 = y_tab[int(ct[C_CELL, i]), ia + 1]
         ct[C_FYL, i] = (y0 + (y1 - y0) * fa) * ld

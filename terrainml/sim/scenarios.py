@@ -16,7 +16,8 @@ import numpy as np
 from terrainml.classes import N_CLASSES, class_id
 from terrainml.sim.terrain import TerrainLayout
 
-SCENARIOS = ("straight", "omni", "arc", "reversal", "stop_and_go", "mixed", "patch_map")
+SCENARIOS = ("straight", "omni", "arc", "reversal", "stop_and_go", "mixed", "patch_map",
+             "course_stop_and_go")
 # scenarios drawn for labelled single-terrain runs (sim generate --runs-per-class)
 LABELLED_SCENARIOS = ("straight", "omni", "arc", "reversal", "stop_and_go")
 CMD_RATE_HZ = 100.0
@@ -180,6 +181,86 @@ def patch_map(speed_mps: float, duration_s: float, rng: np.random.Generator, gri
     return Scenario("patch_map", duration_s, layout, command, {"grid": grid, "radius_m": radius_m})
 
 
+# --------------------------------------------------------------------------- course, stop-and-go
+# Mixed-terrain courses driven stop-and-go (design §6, issue #19): today's ``mixed`` course
+# (straight segments of different terrain, TerrainLayout.course) driven the way a field robot
+# works: legs of 1-4 m, stops of 1-3 s, each start either ramped (1 m/s^2, thesis §7.2.3) or a
+# step (5 m/s^2 commanded: the wheels' own limit does the rest). Legs are sized by distance, the
+# segment length is chosen so the course crosses every terrain of the list, and every draw comes
+# from the scenario's random generator, so a seed gives the same course every time.
+
+LEG_M = (1.0, 4.0)      # leg length range, m
+STOP_S = (1.0, 3.0)     # stop duration range, s
+RAMP_MPS2 = 1.0         # ramped start and every stop: 1 m/s^2
+STEP_MPS2 = 5.0         # step start: as fast as the command allows (the wheels limit the rest)
+START_S = 0.5           # the first leg starts here (the estimator settles at rest)
+
+
+def _draw_terrains(rng: np.random.Generator, n: int) -> list[int]:
+    """n classes, no two consecutive alike."""
+    out = [int(rng.integers(N_CLASSES))]
+    while len(out) < n:
+        c = int(rng.integers(N_CLASSES))
+        if c != out[-1]:
+            out.append(c)
+    return out
+
+
+def _command_table(speed_mps: float, duration_s: float,
+                   rng: np.random.Generator) -> tuple[np.ndarray, int]:
+    """(n, 3) command table at 100 Hz for legs and stops; the number of legs."""
+    n = int(round(duration_s * CMD_RATE_HZ)) + 1
+    dt = 1.0 / CMD_RATE_HZ
+    target = np.zeros(n)
+    accel = np.full(n, RAMP_MPS2)
+    t, legs = START_S, 0
+    v = abs(float(speed_mps))
+    while t < duration_s - 2.0:
+        go_s = rng.uniform(*LEG_M) / v
+        step = bool(rng.random() < 0.5)
+        k0, k1 = int(round(t * CMD_RATE_HZ)), int(round((t + go_s) * CMD_RATE_HZ))
+        target[k0:k1] = float(speed_mps)
+        accel[k0:k0 + int(round(v / RAMP_MPS2 * CMD_RATE_HZ)) + 1] = STEP_MPS2 if step else RAMP_MPS2
+        legs += 1
+        t += go_s + v / RAMP_MPS2 + rng.uniform(*STOP_S)  # decelerate, then stand still
+    cmd = np.zeros((n, 3))
+    cur = 0.0
+    for k in range(n):
+        cur += float(np.clip(target[k] - cur, -accel[k] * dt, accel[k] * dt))
+        cmd[k, 0] = cur
+    return cmd, legs
+
+
+def course_stop_and_go(speed_mps: float, duration_s: float, rng: np.random.Generator,
+                       terrains=None, segment_m: float | None = None) -> Scenario:
+    """A mixed-terrain course driven stop-and-go.
+
+    Parameters
+    ----------
+    speed_mps : commanded leg speed, m/s.
+    duration_s : run length, s.
+    rng : the scenario's random generator (terrains, legs, stops, start kinds).
+    terrains : class ids or names along the course (default 5 drawn, no two consecutive alike).
+    segment_m : length of each terrain segment, m (default: the commanded distance split so that
+        every terrain is crossed, at least 2 m).
+
+    Returns
+    -------
+    Scenario ``course_stop_and_go`` with ``info``: ``terrains``, ``segment_m``, ``legs``,
+    ``distance_m`` (commanded).
+    """
+    terrains = _draw_terrains(rng, 5) if terrains is None else [class_id(c) for c in terrains]
+    cmd, legs = _command_table(speed_mps, duration_s, rng)
+    distance_m = float(np.sum(np.abs(cmd[:, 0])) / CMD_RATE_HZ)
+    if segment_m is None:
+        # wheels slip and soils slow the robot: leave ~20% margin so the last terrain is reached
+        segment_m = max(2.0, 0.8 * distance_m / len(terrains))
+    layout = TerrainLayout.course(terrains, segment_m, start_x_m=-1.0)
+    return Scenario("course_stop_and_go", duration_s, layout, _table_command(cmd),
+                    {"terrains": terrains, "segment_m": segment_m, "legs": legs,
+                     "distance_m": distance_m})
+
+
 def make_scenario(name: str, terrain=0, *, speed_mps: float = 1.0, duration_s: float = 60.0,
                   rng: np.random.Generator | None = None, **kw) -> Scenario:
     """Build a scenario by name (one of :data:`SCENARIOS`)."""
@@ -196,6 +277,8 @@ def make_scenario(name: str, terrain=0, *, speed_mps: float = 1.0, duration_s: f
         return stop_and_go(terrain, speed_mps, duration_s, rng)
     if name == "mixed":
         return mixed(speed_mps, duration_s, rng, **kw)
+    if name == "course_stop_and_go":
+        return course_stop_and_go(speed_mps, duration_s, rng, **kw)
     if name == "patch_map":
         return patch_map(speed_mps, duration_s, rng, **kw)
     raise ValueError(f"unknown scenario {name!r}; expected one of: {', '.join(SCENARIOS)}")

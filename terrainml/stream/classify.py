@@ -15,13 +15,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
 from terrainml.classes import TERRAIN_CLASSES
-from terrainml.features.windows import WindowSpec, cut_windows
+from terrainml.features.windows import Windows, WindowSpec, channel_column, cut_windows
+from terrainml.lookup.catalogue import BUILTIN_CATALOGUES
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import load_artifact
 from terrainml.robot import RobotSpec, load_robot
@@ -41,6 +42,46 @@ class ServingModel:
     window_s: float = 2.0
     hop_s: float = 0.5
     rate_hz: float = 100.0
+    window_spec: WindowSpec | None = None
+    #: sensor groups the model needs (None: every group the robot has; design §9)
+    sensors: list[str] | None = None
+
+
+def _raw_columns(channel: str, robot: RobotSpec) -> tuple[str, ...]:
+    col, vcols, _ = channel_column(channel, robot)
+    return (col, *vcols)
+
+
+def check_table_classes(table: Any, class_ids: Sequence[int], class_names: Sequence[str], source: str) -> None:
+    """Refuse a desired-slip table whose rows are not the model's classes, matched by name.
+
+    The policy looks targets up by class id, so row ``cid`` of the table must be the model's
+    class ``cid`` (a table with more classes is fine: the reference table serves a model trained
+    on some of its classes). Raises ModelLoadError listing both class sets.
+    """
+    rows = list(getattr(table, "class_names", None) or [])
+    if not rows:
+        return
+    bad = [(int(c), str(n)) for c, n in zip(class_ids, class_names)
+           if not (0 <= int(c) < len(rows) and rows[int(c)] == str(n))]
+    if bad:
+        raise ModelLoadError(f"{source}: the desired-slip table's classes {rows} are not the model's "
+                             f"{[str(n) for n in class_names]} (by id: {bad} differ); serve a table "
+                             "built for the model's classes (`terrainml lookup build --catalogue ...`)")
+
+
+def _table_for(art: Any, robot: RobotSpec, names: Sequence[str]) -> Any:
+    """The table for a folder without a stored one: the reference table for our classes, else the
+    first built-in catalogue with every class (ModelLoadError when none has them)."""
+    if all(n in TERRAIN_CLASSES for n in names):
+        return DesiredSlipTable.build(robot)
+    for cat in BUILTIN_CATALOGUES:
+        try:
+            return DesiredSlipTable.from_catalogue(cat, robot, list(names))
+        except Exception:  # noqa: BLE001 - this catalogue lacks a class: try the next
+            continue
+    raise ModelLoadError(f"{art.path}: no desired-slip table for the model's classes {list(names)}; "
+                         "store one with the model (build it from a terrain catalogue)")
 
 
 class WindowClassifier:
@@ -65,53 +106,79 @@ class WindowClassifier:
         if ids is None:
             raise ModelLoadError("model has no classes_ and no class ids were given")
         self.class_ids = [int(c) for c in ids]
+        # run-table columns the windows read that the estimator may not pass through (e.g. the
+        # gyro roll and pitch rates of the side channels): the predictor copies them into its rows
+        chans = getattr(window_spec, "channels", None) or ()
+        self.raw_columns = tuple(dict.fromkeys(c for ch in chans for c in _raw_columns(ch, robot)))
 
     def classify(self, window: pd.DataFrame) -> np.ndarray | None:
-        spec = self.window_spec if self.window_spec is not None else WindowSpec()
+        """Probabilities (K,) for the latest window of an EST DataFrame, or None."""
         # labels are not known online: never let a logged label gate or inform the window
         drop = [c for c in window.columns if c in ("terrain", "run_id") or c.startswith("gt_")]
-        res = cut_windows(window.drop(columns=drop), self.robot, spec=spec, online=True)
-        wins = res[0] if isinstance(res, tuple) else res
-        if wins is None or len(wins) == 0:
+        return self.classify_columns(window.drop(columns=drop))
+
+    def classify_columns(self, columns: Mapping[str, np.ndarray] | pd.DataFrame) -> np.ndarray | None:
+        """The same on column arrays (the ring buffer's, labels left out): the serving path.
+
+        :func:`~terrainml.features.windows.cut_windows` cuts the artifact's window spec from the
+        arrays directly (no DataFrame) and the model computes only the features it uses (the
+        SVM's selected columns), which keeps one update well under a millisecond.
+        """
+        spec = self.window_spec if self.window_spec is not None else WindowSpec()
+        wins, _ = cut_windows(columns, self.robot, spec=spec, online=True, with_meta=False)
+        if len(wins) == 0:
             return None
+        if len(wins) > 1:  # the latest window only
+            wins = Windows(wins.X[-1:], wins.channels, None, wins.rate_hz)  # type: ignore[arg-type]
         x = self.features.transform(wins) if self.features is not None else wins
         p = np.asarray(self.model.predict_proba(x), dtype=float)
         return p[-1]
 
 
 def load_serving_model(model_dir: str | Path, robot: RobotSpec | str | None = None,
-                       model_name: str | None = None) -> ServingModel:
+                       model_name: str | None = None,
+                       trusted_keys: Sequence[str | Path] | None = None) -> ServingModel:
     """Open ``runs/NAME`` for serving, verified by :func:`terrainml.models.artifacts.load_artifact`.
 
     The desired-slip table stored with the model is used; if the folder has none, the table is
     built from the robot spec (``DesiredSlipTable.build``). ``class_names`` covers every class id
     of :data:`TERRAIN_CLASSES` (the message's ``class_probabilities`` has one entry per id),
-    overridden by the artifact's own names.
+    overridden by the artifact's own names. With ``trusted_keys`` (``KEY.pub`` paths) the folder
+    must be signed by one of them (:mod:`terrainml.models.signing`); a refusal names the folder.
     """
     model_dir = Path(model_dir)
     if not model_dir.is_dir():
         raise ModelLoadError(f"{model_dir}: no such model folder (train one with `terrainml train`)")
     try:
-        art = load_artifact(model_dir, model_name)
-    except Exception as exc:  # noqa: BLE001 - ArtifactError names the file; keep the message
+        art = load_artifact(model_dir, model_name, trusted_keys=trusted_keys)
+    except Exception as exc:  # noqa: BLE001 - Artifact/SignatureError name the file; keep the message
         raise ModelLoadError(str(exc)) from None
     rb = robot if isinstance(robot, RobotSpec) else (load_robot(robot) if robot else art.robot)
     if rb.n_wheels != art.robot.n_wheels:
         raise ModelLoadError(f"{model_dir}: model trained for {art.robot.n_wheels} wheels, robot "
                              f"'{rb.name}' has {rb.n_wheels}")
     stored = art.attachments.get("desired_slip_table.json")  # written by terrainml.pipeline.train
+    ids = [int(c) for c in art.class_ids]
+    own = [str(n) for n in (art.class_names or [])]
     try:
         table = (DesiredSlipTable.from_json(stored.read_text(), robot=art.robot, source=str(stored))
-                 if stored is not None else DesiredSlipTable.build(rb))
+                 if stored is not None else _table_for(art, rb, own or [TERRAIN_CLASSES[i] for i in ids]))
     except ValueError as exc:
         raise ModelLoadError(str(exc)) from None
-    ids = [int(c) for c in art.class_ids]
-    names = list(TERRAIN_CLASSES) + [str(i) for i in range(len(TERRAIN_CLASSES), max(ids) + 1)]
-    for cid, name in zip(ids, art.class_names or []):
-        names[cid] = str(name)
+    if own:
+        check_table_classes(table, ids, own, str(stored or model_dir))
+    # names by class id: the reference's eight (a model on some of them keeps their ids), or the
+    # model's own class set, so class_probabilities has the model's length and names
+    if not own or all(n in TERRAIN_CLASSES for n in own):
+        names = list(TERRAIN_CLASSES) + [str(i) for i in range(len(TERRAIN_CLASSES), max(ids) + 1)]
+    else:
+        names = [str(i) for i in range(max(ids) + 1)]
+    for cid, name in zip(ids, own):
+        names[cid] = name
     clf = WindowClassifier(art.model, rb, art.features, art.window_spec,
                            class_ids=[int(c) for c in art.model.classes_])
     return ServingModel(rb, table, clf, art.preset or "robust", names,
                         window_s=float(art.window_spec.window_s),
                         hop_s=float(art.window_spec.online_hop_s),
-                        rate_hz=float(art.window_spec.rate_hz))
+                        rate_hz=float(art.window_spec.rate_hz), window_spec=art.window_spec,
+                        sensors=None if art.sensors is None else list(art.sensors))

@@ -1,4 +1,4 @@
-"""Input hygiene and estimator health for the online predictor (SYSTEM §11, robustness).
+"""Input hygiene and estimator health for the online predictor (design §11, robustness).
 
 Rules
 -----
@@ -13,13 +13,16 @@ Rules
 * **Health**: a monitored group (wheels, current, imu; steer when the robot steers; cam when it
   has a camera) that has not been fresh for more than ``silent_s`` (default 0.2 s) makes the
   estimator unhealthy. Health returns as soon as every monitored group is fresh again.
+  A model that records the sensor groups it needs (``sensors`` in its manifest, design §9)
+  narrows the monitored groups to those (wheels always): a robot without IMU, camera or
+  current sensing is then served by a model that does not use them.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -27,6 +30,8 @@ from terrainml.robot import RobotSpec
 from terrainml.schema import VALID_GROUPS, column_map, group_columns
 
 _NAN = float("nan")
+#: model sensor group (manifest ``sensors``) -> health group
+SENSOR_TO_GROUP = {"wheels": "wheels", "currents": "current", "imu": "imu", "cam": "cam"}
 
 
 def _is_finite_number(v: Any) -> bool:
@@ -84,9 +89,12 @@ class HealthMonitor:
     ----------
     robot : RobotSpec, decides the monitored groups and wheel columns.
     silent_s : float, s. A monitored group silent for longer than this marks the estimator unhealthy.
+    sensors : the model's sensor groups (``wheels``, ``currents``, ``imu``, ``cam``) or None (every
+        group the robot has). Only these are monitored (wheels, and steer on a steered robot,
+        always: the estimator needs them).
     """
 
-    def __init__(self, robot: RobotSpec, silent_s: float = 0.2):
+    def __init__(self, robot: RobotSpec, silent_s: float = 0.2, sensors: Sequence[str] | None = None):
         self.robot = robot
         self.silent_s = float(silent_s)
         n = robot.n_wheels
@@ -101,6 +109,9 @@ class HealthMonitor:
             self.monitored.append("steer")
         if robot.has_camera:
             self.monitored.append("cam")
+        if sensors is not None:
+            wanted = {SENSOR_TO_GROUP.get(str(g), str(g)) for g in sensors} | {"wheels", "steer"}
+            self.monitored = [g for g in self.monitored if g in wanted]
         self.last_fresh_t: dict[str, float] = {}
         self._t0: float | None = None
         self.counters: InputCounters | None = None

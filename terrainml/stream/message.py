@@ -1,19 +1,20 @@
-"""The ``DesiredSlip`` message served once per base-rate tick (SYSTEM §11).
+"""The ``DesiredSlip`` message served once per base-rate tick (design §11).
 
 Fields (units)
 --------------
 t_s                  float, s        time of the tick (the input sample's ``t_s``)
 seq                  int             0, 1, 2, ... one per emitted tick (dropped samples emit nothing)
 slip_desired         float[N]        per-wheel desired slip, signed (SAE, eq. 8.7-8.9); 0 when idle
-slip_measured        float[N]        per-wheel measured slip from the estimator (SYSTEM §7.1)
-wheel_state          str[N]          ``idle|steady|traction|braking`` (SYSTEM §7.2)
-terrain_class        int             id of the class whose targets are served (0 = pavement in fallback)
-terrain_name         str             name of that class
-confidence           float, 0..1     probability of the served class (0 in fallback)
+slip_measured        float[N]        per-wheel measured slip from the estimator (design §7.1)
+wheel_state          str[N]          ``idle|steady|traction|braking`` (design §7.2)
+terrain_class        int             id of the served class; -1 in fallback (no class: the safe cap
+                                     of design §10 is served; CAN 255)
+terrain_name         str             name of that class; ``"none"`` in fallback
+confidence           float, 0..1     fused (posterior) probability of the served class (0 in fallback)
 class_probabilities  float[K]        probabilities of the last classification (all 0 if none)
 classification_age_s float, s        age of the last classification; -1 when none exists yet
                                      (and on a ``clock_jump`` tick, whose time is off the timeline)
-fallback             bool            True when the least aggressive row is served (SYSTEM §10)
+fallback             bool            True when the class-free safe cap is served (design §10)
 fallback_reason      str             "" or one of :data:`FALLBACK_REASONS`
 estimator_ok         bool            estimator healthy (no silent sensor group, finite state);
                                      false on a ``clock_jump`` tick (the estimator did not run)
@@ -39,9 +40,10 @@ from terrainml.schema import WHEEL_STATES
 FALLBACK_REASONS: tuple[str, ...] = (
     "estimator_unhealthy",   # a sensor group silent > 0.2 s, or the estimator state is not finite
     "classifier_error",      # the last classification attempt raised; no usable classification
-    "no_classification",     # start-up: no steady window has been classified yet
-    "stale_classification",  # the last classification is older than max_age_s (default 1.0 s)
+    "no_classification",     # start-up: no window has been classified yet
+    "stale_classification",  # more than stale_m (default 3 m) travelled since the last classification
     "clock_jump",            # t_s off the stream's timeline, re-anchoring (stream/clock.py)
+    "uncertain_classification",  # the fused posterior's maximum is below serve_p (default 0.6)
 )
 
 #: value substituted for a non-finite number, per field
@@ -88,7 +90,7 @@ class DesiredSlip:
 
     # ------------------------------------------------------------------ json
     def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able dict with the SYSTEM §11 field names; never NaN/inf."""
+        """Plain JSON-able dict with the design §11 field names; never NaN/inf."""
         return {
             "t_s": _finite(self.t_s, SAFE_VALUES["t_s"]),
             "seq": int(self.seq),
@@ -141,7 +143,7 @@ def json_schema(n_wheels: int | None = None, n_classes: int | None = None) -> di
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": "terrainml.DesiredSlip",
-        "description": "Per-wheel desired slip served by terrainml predict (SYSTEM §11).",
+        "description": "Per-wheel desired slip served by terrainml predict (design §11).",
         "type": "object",
         "properties": {
             "t_s": {"type": "number", "description": "tick time, s"},
@@ -150,9 +152,11 @@ def json_schema(n_wheels: int | None = None, n_classes: int | None = None) -> di
             "slip_measured": arr(num, n_wheels, "measured slip per wheel"),
             "wheel_state": arr({"type": "string", "enum": list(WHEEL_STATES)}, n_wheels,
                                "dynamic state per wheel"),
-            "terrain_class": {"type": "integer", "description": "served class id"},
-            "terrain_name": {"type": "string"},
-            "confidence": {"type": "number", "minimum": 0, "maximum": 1},
+            "terrain_class": {"type": "integer", "minimum": -1,
+                              "description": "served class id; -1 in fallback (no class)"},
+            "terrain_name": {"type": "string", "description": "served class name; none in fallback"},
+            "confidence": {"type": "number", "minimum": 0, "maximum": 1,
+                           "description": "fused probability of the served class"},
             "class_probabilities": arr(num, n_classes, "last classification's probabilities"),
             "classification_age_s": {"type": "number", "description": "s; -1 when none yet"},
             "fallback": {"type": "boolean"},

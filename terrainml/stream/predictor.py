@@ -1,6 +1,6 @@
 """The online predictor: one :class:`~terrainml.stream.message.DesiredSlip` per base-rate tick.
 
-Chain per tick (SYSTEM §11)::
+Chain per tick (design §11)::
 
     sample ─ check_sample ─ ClockGate ─ HealthMonitor ─ OnlineEstimator.step ─ RingBuffer ─┬─ policy ─ DesiredSlip
                                                                       every hop (0.5 s):    └─ classify latest window
@@ -43,14 +43,16 @@ import pandas as pd
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.estimation.online import OnlineEstimator
+from terrainml.features.windows import WindowSpec
 from terrainml.lookup.policy import PolicyDecision, TargetTable
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import WHEEL_STATES
 from terrainml.stream.classify import load_serving_model
 from terrainml.stream.clock import ACCEPT, JUMP, MAX_GAP_S, REANCHOR, REANCHOR_AFTER, ClockGate
+from terrainml.stream.fusion import TerrainFilter
 from terrainml.stream.health import HealthMonitor, InputCounters
 from terrainml.stream.message import DesiredSlip
-from terrainml.stream.policy import decide
+from terrainml.stream.policy import NO_CLASS_ID, NO_CLASS_NAME, SERVE_P, decide, safe_cap_for
 from terrainml.stream.sample import InvalidSample, check_sample
 
 __all__ = ["InvalidSample", "Predictor", "RingBuffer", "make_predictor"]
@@ -58,6 +60,13 @@ __all__ = ["InvalidSample", "Predictor", "RingBuffer", "make_predictor"]
 log = logging.getLogger("terrainml.stream")
 
 _TIME_REASONS = ("no_t_s", "bad_t_s", "t_s_not_finite")
+#: distance the robot must cover between two classification attempts (m): none standing still
+MIN_MOVE_M = 0.01
+
+
+def _is_label(name: str) -> bool:
+    """Logged labels and simulator truth: never seen by the serving path."""
+    return name in ("terrain", "run_id") or name.startswith("gt_")
 
 
 class Estimator(Protocol):
@@ -162,10 +171,27 @@ class RingBuffer:
         """Rows in time order, oldest first: DataFrame, shape (count, n_fields)."""
         return self.to_frame(self.snapshot())
 
+    def to_columns(self, snap: tuple[np.ndarray, np.ndarray] | None,
+                   skip: Callable[[str], bool] = lambda k: False) -> dict[str, np.ndarray]:
+        """Column arrays (count,) of a :meth:`snapshot`, the same values as :meth:`to_frame`'s
+        columns (flags as bool), without building a DataFrame; fields where ``skip(name)`` is
+        true are left out (labels, which the serving path must not see)."""
+        if snap is None:
+            return {}
+        num, obj = snap
+        cols: dict[str, np.ndarray] = {}
+        for j, k in enumerate(self._num_keys):  # type: ignore[arg-type]
+            if not skip(k):
+                cols[k] = num[:, j] > 0.5 if k in self._bool_keys else num[:, j]
+        for j, k in enumerate(self._obj_keys):
+            if not skip(k):
+                cols[k] = obj[:, j]
+        return cols
+
 
 # --------------------------------------------------------------------------- predictor
 class Predictor:
-    """Online desired-slip predictor (SYSTEM §10-11).
+    """Online desired-slip predictor (design §10-11).
 
     Parameters
     ----------
@@ -176,14 +202,24 @@ class Predictor:
         (:class:`terrainml.stream.classify.WindowClassifier`), or None (always fallback).
     estimator : object with ``step(sample) -> dict`` (an EST row); default
         ``OnlineEstimator(robot, preset)``.
-    rate_hz : base rate, Hz. window_s, hop_s : s (SYSTEM §8: 2.0 and 0.5 online).
-    max_age_s : s, classification older than this → fallback. silent_s : s, health rule.
+    rate_hz : base rate, Hz. window_s, hop_s : s, window length and online hop (used when
+        ``window_spec`` is None; design §8: 2.0 and 0.5 online).
+    window_spec : the model's :class:`~terrainml.features.windows.WindowSpec` (its window length
+        and online hop size the ring buffer and the classification rate).
+    stale_m : m (default 3.0). More than this travelled since the last classification →
+        ``stale_classification`` fallback. The age counts distance (the EKF's body speed
+        integrated over ticks), not time: a robot standing still keeps its class.
+    serve_p : fused posterior below this → ``uncertain_classification`` fallback (default 0.6).
+    fusion : dict of :class:`~terrainml.stream.fusion.TerrainFilter` settings (``length_m``,
+        ``alpha``, ``eps``, ``drift``, ``threshold``).
+    max_age_s : s or None (default None: off). An optional wall-time limit on the age of the
+        last classification, on top of ``stale_m``. silent_s : s, health rule.
     classify_lag_ticks : 0 (default) classifies inline on the hop tick. L > 0 runs the
         classification in a background thread and applies its result exactly L ticks later
         (deterministic: the tick waits for it if needed); the tick path then only snapshots
         the ring buffer, which keeps per-tick latency low when samples arrive in real time.
         The classification age still counts from the window's last tick.
-    class_names : names of all class ids (default the eight of SYSTEM §6.1).
+    class_names : names of all class ids (default the eight of design §6.1).
     max_clock_gap_s : s, > 0 (default 1.0). Largest step between consecutive ticks of one
         timeline; a larger step either way is a clock jump (:mod:`terrainml.stream.clock`).
     reanchor_after : int >= 1 (default 5). Consecutive consistent off-timeline samples (K) that
@@ -196,9 +232,11 @@ class Predictor:
                  classifier: WindowClassifierLike | None = None,
                  estimator: Estimator | None = None, *, preset: str = "robust",
                  rate_hz: float = 100.0, window_s: float = 2.0, hop_s: float = 0.5,
-                 max_age_s: float = 1.0, silent_s: float = 0.2, classify_lag_ticks: int = 0,
+                 max_age_s: float | None = None, silent_s: float = 0.2, classify_lag_ticks: int = 0,
                  class_names: Sequence[str] = TERRAIN_CLASSES, max_clock_gap_s: float = MAX_GAP_S,
-                 reanchor_after: int = REANCHOR_AFTER):
+                 reanchor_after: int = REANCHOR_AFTER, window_spec: WindowSpec | None = None,
+                 stale_m: float = 3.0, serve_p: float = SERVE_P,
+                 fusion: Mapping[str, float] | None = None, sensors: Sequence[str] | None = None):
         self.robot = robot
         self.table = table
         self.classifier = classifier
@@ -209,14 +247,26 @@ class Predictor:
             self._estimator_factory = partial(OnlineEstimator, robot, preset)
             estimator = self._estimator_factory()
         self.estimator = estimator
+        if window_spec is not None:
+            rate_hz, window_s = window_spec.rate_hz, window_spec.window_s
+            hop_s = window_spec.online_hop_s
+        self.window_spec = window_spec
         self.rate_hz = float(rate_hz)
         self.window_s = float(window_s)
         self.hop_s = float(hop_s)
-        self.max_age_s = float(max_age_s)
+        self.max_age_s = None if max_age_s is None else float(max_age_s)
+        self.serve_p = float(serve_p)
         self.class_names = list(class_names)
         self.counters = InputCounters()
         self.clock = ClockGate(self.counters, max_gap_s=max_clock_gap_s, reanchor_after=reanchor_after)
-        self.health = HealthMonitor(robot, silent_s=silent_s)
+        # health only on the model's sensor groups (design §9, issue #17): a robot without IMU
+        # is served by a model that does not use it; the EKF's own freshness rule requires the
+        # IMU, so without it the estimator's flag is not read (a silent group, or a state that
+        # is not finite, still makes the tick unhealthy)
+        self.health = HealthMonitor(robot, silent_s=silent_s, sensors=sensors)
+        self.sensors = None if sensors is None else list(sensors)
+        self._estimator_flag = "imu" in self.health.monitored
+        self._raw_columns = tuple(getattr(classifier, "raw_columns", ()) or ())
         self.health.counters = self.counters
         self.ring = RingBuffer(int(round(self.window_s * self.rate_hz)))
         self.n = robot.n_wheels
@@ -242,6 +292,14 @@ class Predictor:
         # wheel states and speeds of the last estimated tick (what a clock_jump tick serves with)
         self._last_states: list[str] = ["idle"] * self.n
         self._last_v_long: list[float] = [0.0] * self.n
+        # distance travelled (m): the clock of classification age and fusion
+        self.odometer_m = 0.0
+        self._t_prev: float | None = None
+        self._odo_at_attempt: float | None = None
+        self.filter = TerrainFilter(len(self._class_ids()), stale_m=stale_m, **dict(fusion or {}))
+        cap_names = [self._name(c) for c in self._class_ids()]
+        self._cap_classes = cap_names if hasattr(table, "class_names") else None
+        self._cap_table = safe_cap_for(table, self._class_ids(), cap_names)
         if warm:
             self.warm_up(preset)
 
@@ -269,13 +327,17 @@ class Predictor:
     # ------------------------------------------------------------------ build
     @classmethod
     def from_model_dir(cls, model_dir: str | Path, *, robot: RobotSpec | str | None = None,
-                       preset: str | None = None, **kwargs: Any) -> "Predictor":
-        """Predictor for a verified model artifact ``runs/NAME`` (model, manifest, slip table)."""
-        served = load_serving_model(model_dir, robot=robot)
+                       preset: str | None = None, trusted_keys: Sequence[str | Path] | None = None,
+                       **kwargs: Any) -> "Predictor":
+        """Predictor for a verified model artifact ``runs/NAME`` (model, manifest, slip table).
+
+        ``trusted_keys``: public keys (``KEY.pub``) one of which must have signed the artifact.
+        """
+        served = load_serving_model(model_dir, robot=robot, trusted_keys=trusted_keys)
         return cls(served.robot, served.table, served.classifier,
                    preset=preset or served.preset, class_names=served.class_names,
                    window_s=served.window_s, hop_s=served.hop_s, rate_hz=served.rate_hz,
-                   **kwargs)
+                   window_spec=served.window_spec, **{"sensors": served.sensors, **kwargs})
 
     # ------------------------------------------------------------------ tick
     def step(self, sample: Mapping[str, Any]) -> DesiredSlip | None:
@@ -325,7 +387,11 @@ class Predictor:
         healthy, _silent = self.health.update(t, fresh)
 
         row = self._estimate(clean)
-        est_ok = healthy and row is not None and bool(row.get("estimator_ok", True))
+        est_ok = healthy and row is not None and (bool(row.get("estimator_ok", True)) or not self._estimator_flag)
+        if row is not None:
+            for k in self._raw_columns:  # columns the model's windows read that the EKF does not pass
+                if k not in row:
+                    row[k] = clean.get(k, math.nan)
         slips, states, v_long = [0.0] * self.n, ["idle"] * self.n, [0.0] * self.n
         if row is not None:
             try:
@@ -337,12 +403,31 @@ class Predictor:
                 est_ok = False
             self.ring.append(row)
         self._last_states, self._last_v_long = states, v_long
+        self._advance_odometer(t, row if est_ok else None)
 
         self._maybe_classify(t)
 
         age = None if self._class_t is None else t - self._class_t
         dec = self._decide(age, est_ok, states, v_long, t)
         return self._message(t, dec, slips, states, age, est_ok, t_start)
+
+    def _advance_odometer(self, t: float, row: dict | None) -> None:
+        """Integrate the EKF's body speed over the tick; the fusion filter ages by that distance.
+
+        An unhealthy tick adds nothing (its speed is not trusted); dt is bounded by the clock
+        policy (<= max_clock_gap_s)."""
+        dt = 0.0 if self._t_prev is None else t - self._t_prev
+        self._t_prev = t
+        if row is None or not dt > 0:
+            return
+        try:
+            v = math.hypot(float(row.get("ekf_vx_mps", 0.0)), float(row.get("ekf_vy_mps", 0.0)))
+        except (TypeError, ValueError):
+            return
+        if math.isfinite(v):
+            d = v * dt
+            self.odometer_m += d
+            self.filter.predict(d)
 
     def _clock_jump_tick(self, t: float, t_start: float) -> DesiredSlip:
         """A stamp off the timeline: the fallback row for the last estimated wheel states.
@@ -353,24 +438,50 @@ class Predictor:
         dec = self._decide(None, False, self._last_states, self._last_v_long, t, clock_jump=True)
         return self._message(t, dec, [0.0] * self.n, self._last_states, None, False, t_start)
 
+    def safe_cap_traction(self) -> float:
+        """Traction target of the safe cap served on fallback (design §10)."""
+        cap = self._cap_table.safe_cap(self._cap_classes)
+        return float(cap.target("traction"))
+
+    def fallback_reason(self, age_s: float | None, est_ok: bool, clock_jump: bool = False) -> str:
+        """The reason this tick cannot serve a class ("" when it can), by priority (design §11)."""
+        if clock_jump:
+            return "clock_jump"
+        if not est_ok:
+            return "estimator_unhealthy"
+        if self._classifier_error and self.filter.posterior is None:
+            return "classifier_error"
+        if self.filter.posterior is None:
+            return "no_classification"
+        if self.filter.stale or (self.max_age_s is not None and age_s is not None
+                                 and age_s > self.max_age_s):
+            return "stale_classification"
+        if self.filter.best()[1] < self.serve_p:
+            return "uncertain_classification"
+        return ""
+
     def _decide(self, age: float | None, est_ok: bool, states: list[str], v_long: list[float],
                 t: float, clock_jump: bool = False) -> PolicyDecision:
+        reason = self.fallback_reason(age, est_ok, clock_jump)
         try:
-            return decide(self._probs, self._class_ids(), age, est_ok, self.table, states=states,
-                          v_long=v_long, classifier_error=self._classifier_error,
-                          clock_jump=clock_jump, max_age_s=self.max_age_s)
+            k, post = self.filter.best()
+            cid = self._class_ids()[k] if k >= 0 and not reason else None
+            return decide(cid, post, reason, self.table, self._cap_table, self._cap_classes,
+                          states=states, v_long=v_long,
+                          class_name=self._name(cid) if cid is not None else NO_CLASS_NAME)
         except Exception as exc:  # noqa: BLE001 - a broken table/policy must not stop serving
             log.warning("policy failed at t=%.3f s (serving zero slip): %s", t, exc)
-            return PolicyDecision(class_id=0, class_name=self._name(0), confidence=0.0,
+            return PolicyDecision(class_id=NO_CLASS_ID, class_name=NO_CLASS_NAME, confidence=0.0,
                                   slip_desired=(0.0,) * self.n, fallback=True,
-                                  reason="clock_jump" if clock_jump else "classifier_error")
+                                  reason=reason or "classifier_error")
 
     def _message(self, t: float, dec: PolicyDecision, slips: list[float], states: list[str],
                  age: float | None, est_ok: bool, t_start: float) -> DesiredSlip:
         slip_des = [v if math.isfinite(v) else 0.0 for v in dec.slip_desired]
         msg = DesiredSlip(
             t_s=t, seq=self.seq, slip_desired=slip_des, slip_measured=slips, wheel_state=states,
-            terrain_class=dec.class_id, terrain_name=self._name(dec.class_id),
+            terrain_class=dec.class_id,
+            terrain_name=NO_CLASS_NAME if dec.fallback else self._name(dec.class_id),
             confidence=dec.confidence, class_probabilities=self._full_probs(len(self.class_names)),
             classification_age_s=-1.0 if age is None else float(age),
             fallback=dec.fallback, fallback_reason=dec.reason, estimator_ok=est_ok,
@@ -394,6 +505,9 @@ class Predictor:
         self._class_t = None
         self._last_attempt_t = None
         self._classifier_error = False
+        self.filter.reset()
+        self._t_prev = None
+        self._odo_at_attempt = None
 
     # ------------------------------------------------------------------ parts
     def _read_row(self, row: dict, slips: list, states: list, v_long: list) -> bool:
@@ -434,6 +548,8 @@ class Predictor:
         return [int(c) for c in self.classifier.class_ids]
 
     def _name(self, cid: int) -> str:
+        if cid == NO_CLASS_ID:
+            return NO_CLASS_NAME
         return self.class_names[cid] if 0 <= cid < len(self.class_names) else str(cid)
 
     def _full_probs(self, k: int) -> list[float]:
@@ -464,7 +580,11 @@ class Predictor:
             return
         if self._last_attempt_t is not None and t - self._last_attempt_t < self.hop_s - 1e-9:
             return
+        # standing still the window holds nothing new about the ground: skip (and save the cost)
+        if self._odo_at_attempt is not None and self.odometer_m - self._odo_at_attempt < MIN_MOVE_M:
+            return
         self._last_attempt_t = t
+        self._odo_at_attempt = self.odometer_m
         snap = self.ring.snapshot()
         if self.classify_lag_ticks > 0:
             if self._executor is None:
@@ -481,6 +601,9 @@ class Predictor:
     def _timed_classify(self, snap: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
         c0 = time.perf_counter()
         try:
+            fast = getattr(self.classifier, "classify_columns", None)
+            if fast is not None:  # column arrays straight from the ring: no DataFrame
+                return fast(self.ring.to_columns(snap, _is_label))
             return self.classifier.classify(self.ring.to_frame(snap))  # type: ignore[union-attr]
         finally:
             self.classify_ms.append((time.perf_counter() - c0) * 1e3)
@@ -497,6 +620,7 @@ class Predictor:
         self._class_t = t_win
         self._classifier_error = False
         self.n_classifications += 1
+        self.filter.update(self._probs)
 
     def _fail(self, t: float, exc: BaseException) -> None:
         self.n_classifier_errors += 1
@@ -505,6 +629,7 @@ class Predictor:
         self._probs = None
         self._class_t = None
         self._classifier_error = True
+        self.filter.reset()
 
     def close(self) -> None:
         """Stop the background classification thread (if any)."""
@@ -518,7 +643,8 @@ class Predictor:
                 "classifications": self.n_classifications,
                 "classifier_errors": self.n_classifier_errors,
                 "unsteady_windows": self.n_unsteady_windows,
-                "estimator_errors": self.n_estimator_errors}
+                "estimator_errors": self.n_estimator_errors,
+                "distance_m": self.odometer_m, "terrain_changes": self.filter.n_changes}
 
 
 def make_predictor(model: str | Path, robot: str | None = None, preset: str | None = None,

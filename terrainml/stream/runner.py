@@ -31,6 +31,8 @@ log = logging.getLogger("terrainml.stream")
 
 #: ``terrainml predict`` classifies in a background thread; results apply 10 ticks (0.1 s) later
 CLASSIFY_LAG_TICKS = 10
+#: a tick counts as moving (served-class accuracy of ``replay_summary``) at this body speed, m/s
+MOVING_MPS = 0.05
 
 
 def serve(predictor: Predictor, samples: Iterable[dict], sinks: Sequence[Any],
@@ -72,15 +74,21 @@ def _setup_logging(verbose: bool) -> None:
 def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = False,
                 robot: str | None = None, preset: str | None = None,
                 idle_timeout_s: float | None = None, verbose: bool = False,
-                max_clock_gap_s: float = MAX_GAP_S, reanchor_after: int = REANCHOR_AFTER) -> int:
-    """Run ``terrainml predict``; return the process exit code (0 ok, 2 unusable input)."""
+                max_clock_gap_s: float = MAX_GAP_S, reanchor_after: int = REANCHOR_AFTER,
+                trusted_keys: Sequence[str | Path] | None = None) -> int:
+    """Run ``terrainml predict``; return the process exit code (0 ok, 2 unusable input).
+
+    ``trusted_keys``: public keys (``KEY.pub``); the model must be signed by one of them, else it
+    is refused (exit 2, the message names the folder and the reason) before anything is served.
+    """
     console = Console(stderr=True, soft_wrap=True)
     _setup_logging(verbose)
     try:
         predictor = Predictor.from_model_dir(model, robot=robot, preset=preset,
                                                classify_lag_ticks=CLASSIFY_LAG_TICKS,
                                                max_clock_gap_s=max_clock_gap_s,
-                                               reanchor_after=reanchor_after)
+                                               reanchor_after=reanchor_after,
+                                               trusted_keys=trusted_keys)
     except (ModelLoadError, FileNotFoundError, ValueError) as exc:
         console.print(f"[red]error:[/] model {model}: {exc}")
         return 2
@@ -166,13 +174,16 @@ def replay_summary(model: str | Path, log_path: str | Path, *, console: Console 
 
     Consecutive ticks serving the same class with the same fallback reason form one segment;
     returns the segments as dicts (``t_start_s``, ``t_end_s``, ``terrain_class``,
-    ``terrain_name``, ``fallback_reason``, ``ticks``, ``mean_slip_desired``, and ``true_class``,
-    the most frequent logged ``terrain`` label of the segment when the log has labels).
+    ``terrain_name``, ``fallback_reason``, ``ticks``, ``mean_slip_desired``, ``true_class``,
+    the most frequent logged ``terrain`` label of the segment when the log has labels, and
+    ``moving_ticks`` / ``moving_right``: labelled ticks with the estimated body speed >= 0.05 m/s,
+    and those of them that served the logged class (a fallback tick is never right)).
     """
     console = console or Console(stderr=True, soft_wrap=True)
     predictor = Predictor.from_model_dir(model, robot=robot, classify_lag_ticks=CLASSIFY_LAG_TICKS)
     segments: list[dict[str, Any]] = []
     labels: list[int] = []
+    odo_prev, t_prev = 0.0, None
     try:
         for sample in open_source(str(log_path), robot=predictor.robot):
             try:
@@ -188,6 +199,7 @@ def replay_summary(model: str | Path, log_path: str | Path, *, console: Console 
                 segments.append({"_key": key, "t_start_s": msg.t_s, "terrain_class": msg.terrain_class,
                                  "terrain_name": msg.terrain_name,
                                  "fallback_reason": msg.fallback_reason, "ticks": 0,
+                                 "moving_ticks": 0, "moving_right": 0,
                                  "_slip": np.zeros(len(msg.slip_desired))})
                 labels = []
             seg = segments[-1]
@@ -197,6 +209,13 @@ def replay_summary(model: str | Path, log_path: str | Path, *, console: Console 
             lab = sample.get("terrain")
             if lab is not None and lab == lab and int(lab) >= 0:
                 labels.append(int(lab))
+            # moving: the estimator's body speed (the predictor's odometer) >= 0.05 m/s
+            dt = 0.0 if t_prev is None else msg.t_s - t_prev
+            moving = dt > 0 and (predictor.odometer_m - odo_prev) / dt >= MOVING_MPS
+            odo_prev, t_prev = predictor.odometer_m, msg.t_s
+            if moving and lab is not None and lab == lab and int(lab) >= 0:
+                seg["moving_ticks"] += 1  # served right: the logged class, never a fallback
+                seg["moving_right"] += int(not msg.fallback and msg.terrain_class == int(lab))
         if segments:
             _close_segment(segments[-1], labels)
     finally:

@@ -1,4 +1,4 @@
-"""Where served :class:`DesiredSlip` messages go: stdout, UDP JSON, CAN, MCAP, Foxglove (SYSTEM §11).
+"""Where served :class:`DesiredSlip` messages go: stdout, UDP JSON, CAN, MCAP, Foxglove (design §11).
 
 Sink specs (``terrainml predict --sink``; repeat the option for several sinks)::
 
@@ -33,7 +33,8 @@ Wheel frame i (1..N), id ``BASE + i``::
     byte  7    uint8   seq & 0xFF (pairs the wheel frames of one tick)
 
 Fallback reason codes: 0 none, 1 estimator_unhealthy, 2 classifier_error, 3 no_classification,
-4 stale_classification, 5 clock_jump.
+4 stale_classification, 5 clock_jump, 6 uncertain_classification (7: unknown). In fallback no
+class is served: ``terrain_class`` -1 is sent as 255.
 """
 
 from __future__ import annotations

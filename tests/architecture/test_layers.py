@@ -14,6 +14,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 LINT_IMPORTS = Path(sys.executable).with_name("lint-imports")
 
@@ -36,20 +38,17 @@ def test_the_repository_keeps_the_layers_contract():
     assert "0 broken" in res.stdout
 
 
-def test_a_back_import_from_the_chain_into_sim_breaks_the_contract(tmp_path):
+@pytest.mark.parametrize(("layer", "import_line", "importer", "imported"), [
+    ("io", "import terrainml.sim  # noqa: F401", "terrainml.io", "terrainml.sim"),
+    ("estimation", "from terrainml.stream import message  # noqa: F401", "terrainml.estimation",
+     "terrainml.stream"),
+], ids=["chain-into-sim", "lower-into-higher"])
+def test_a_back_import_breaks_the_contract(tmp_path, layer, import_line, importer, imported):
+    """A module of a lower layer importing the simulator or a higher layer makes lint-imports fail."""
     parent = _copy_package(tmp_path)
-    module = parent / "terrainml" / "io" / "_back_import.py"
-    module.write_text('"""A deliberate violation."""\n\nimport terrainml.sim  # noqa: F401\n')
+    module = parent / "terrainml" / layer / "_back_import.py"
+    module.write_text(f'"""A deliberate violation."""\n\n{import_line}\n')
     res = _lint(parent)
     assert res.returncode != 0
-    assert "terrainml.io is not allowed to import terrainml.sim" in res.stdout
-    assert "terrainml.io._back_import -> terrainml.sim" in res.stdout
-
-
-def test_a_lower_layer_importing_a_higher_one_breaks_the_contract(tmp_path):
-    parent = _copy_package(tmp_path)
-    module = parent / "terrainml" / "estimation" / "_back_import.py"
-    module.write_text('"""A deliberate violation."""\n\nfrom terrainml.stream import message  # noqa: F401\n')
-    res = _lint(parent)
-    assert res.returncode != 0
-    assert "terrainml.estimation is not allowed to import terrainml.stream" in res.stdout
+    assert f"{importer} is not allowed to import {imported}" in res.stdout
+    assert f"{importer}._back_import -> {imported}" in res.stdout

@@ -61,26 +61,11 @@ def _refined_cap_after_traction(seed: int, traction_m: float = 10.0, load_w: flo
     """Dry sand draw of ``seed``, a cart of ``load_w`` W rolling resistance, a 0.8 m/s step: the
     oracle-class limiter with online refinement. Returns (cap per wheel once every wheel's surface
     travelled ``traction_m`` in traction, true peak per wheel)."""
-    from terrainml.classes import class_id
     from terrainml.control import baselines as bl
     from terrainml.experiments.closed_loop import closed_loop_hook
-    from terrainml.robot import load_robot
-    from terrainml.sim.mission_physics import TowedLoad, traction_peak
-    from terrainml.sim.scenarios import Scenario
-    from terrainml.sim.simulator import Simulator
-    from terrainml.sim.terrain import TerrainLayout
+    from towed_sand import towed_sand_start
 
-    rb = load_robot()
-    w = rb.mass_kg * 9.81
-    cid = class_id("dry_sand")
-
-    def cmd(t, x=0.0, y=0.0, psi=0.0):
-        return (0.8 if t >= 0.5 else 0.0), 0.0, 0.0
-
-    towed = TowedLoad(mass_kg=80.0, crr=load_w / 0.9 * w / (80.0 * 9.81), tongue_fraction=0.1)
-    sim = Simulator(Scenario("tow", 120.0, TerrainLayout.uniform(cid), cmd), rb, seed, towed=towed)
-    peak = np.array([traction_peak(sim.terrain.params[0], wl, rb)[0]
-                     for wl in rb.static_wheel_loads_n()])
+    sim, rb, cid, peak = towed_sand_start(seed, 120.0, load_w)
     ctrl = bl.oracle(rb, lambda t: cid)
     hook = closed_loop_hook(sim, ctrl)
     travel = np.zeros(rb.n_wheels)

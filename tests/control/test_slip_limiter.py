@@ -106,28 +106,12 @@ def test_config_checked():
 
 # ------------------------------------------------------------------ simulator: towed-load start
 def _towed_start(policy: str, load_w: float = 0.10, duration_s: float = 30.0):
-    from terrainml.classes import class_id
     from terrainml.control import baselines as bl
     from terrainml.experiments.closed_loop import closed_loop_hook
-    from terrainml.robot import load_robot
+    from towed_sand import towed_sand_start
     from terrainml.sim import physics as ph
-    from terrainml.sim.mission_physics import TowedLoad, traction_peak
-    from terrainml.sim.scenarios import Scenario
-    from terrainml.sim.simulator import Simulator
-    from terrainml.sim.terrain import TerrainLayout
 
-    rb = load_robot()
-    w = rb.mass_kg * 9.81
-    cid = class_id("dry_sand")
-
-    def cmd(t, x=0.0, y=0.0, psi=0.0):
-        return (0.8 if t >= 0.5 else 0.0), 0.0, 0.0
-
-    towed = TowedLoad(mass_kg=80.0, crr=load_w / 0.9 * w / (80.0 * 9.81), tongue_fraction=0.1)
-    sim = Simulator(Scenario("tow", duration_s, TerrainLayout.uniform(cid), cmd), rb, 5000,
-                    towed=towed)
-    peak = np.array([traction_peak(sim.terrain.params[0], wl, rb)[0]
-                     for wl in rb.static_wheel_loads_n()])
+    sim, rb, cid, peak = towed_sand_start(5000, duration_s, load_w)
     ctrl = None if policy == "none" else bl.oracle_cap(rb, lambda: peak, lambda t: cid)
     res = sim.run(controller=None if ctrl is None else closed_loop_hook(sim, ctrl))
     x = res.log[:, ph.L_X]

@@ -13,6 +13,8 @@ from terrainml.cli import app
 from terrainml.estimation.synthetic import kinematic_run
 from terrainml.schema import write_run_parquet
 
+from cli_refusal import assert_refused
+
 runner = CliRunner()
 
 
@@ -52,15 +54,6 @@ def test_estimate_bad_inputs_exit_2(tmp_path):
     assert res.exit_code == 2 and "bad.parquet" in res.output.replace("\n", "")
 
 
-def _refused(res, *needles):
-    assert res.exit_code == 2, res.output
-    assert isinstance(res.exception, SystemExit), res.exception  # a message, not a crash
-    out = res.output.replace("\n", "")
-    assert "error:" in out and "Traceback" not in out
-    for n in needles:
-        assert str(n) in out, (n, out)
-
-
 @pytest.fixture
 def no_estimation(monkeypatch):
     """Make the estimation fail the test: refusals must come before the long work."""
@@ -75,20 +68,20 @@ def test_unwritable_outputs_refused_before_estimating(tmp_path, no_estimation):
     blocker = tmp_path / "blocker"
     blocker.write_text("a file, not a folder")  # root ignores permission bits, not this
     out = blocker / "est.parquet"
-    _refused(runner.invoke(app, ["estimate", str(src), "--out", str(out)]), out)
+    assert_refused(runner.invoke(app, ["estimate", str(src), "--out", str(out)]), out)
     plots = blocker / "plots"
-    _refused(runner.invoke(app, ["estimate", str(src), "--out", str(tmp_path / "e.parquet"),
+    assert_refused(runner.invoke(app, ["estimate", str(src), "--out", str(tmp_path / "e.parquet"),
                                  "--plot", str(plots)]), plots)
     # the report goes next to the EST table: a folder in its place is refused too
     (tmp_path / "e.report.json").mkdir()
-    _refused(runner.invoke(app, ["estimate", str(src), "--out", str(tmp_path / "e.parquet")]),
+    assert_refused(runner.invoke(app, ["estimate", str(src), "--out", str(tmp_path / "e.parquet")]),
              tmp_path / "e.report.json")
     if Path("/proc/self").is_dir():
-        _refused(runner.invoke(app, ["estimate", str(src), "--out", "/proc/est.parquet"]), "/proc/est.parquet")
+        assert_refused(runner.invoke(app, ["estimate", str(src), "--out", "/proc/est.parquet"]), "/proc/est.parquet")
     assert not (tmp_path / "e.parquet").exists()
 
 
 def test_wheel_count_mismatch_refused_before_estimating(tmp_path, no_estimation):
     src = write_run_parquet(kinematic_run(duration_s=1.0), tmp_path / "run.parquet")  # 3 wheels
     res = runner.invoke(app, ["estimate", str(src), "--out", str(tmp_path / "e.parquet"), "--robot", "husky"])
-    _refused(res, src, "3 wheel", "'husky' has 4")
+    assert_refused(res, src, "3 wheel", "'husky' has 4")

@@ -25,6 +25,8 @@ from terrainml.io.inspect import inspect_log
 from terrainml.io.mcap_writer import RosMcapWriter
 from terrainml.schema import read_run_parquet
 
+from mcap_damage import corrupt_middle_chunk
+
 N = 50   # rows of a hand-made table, 100 Hz
 
 
@@ -174,21 +176,10 @@ def _write_labelled(path, seconds=3.0, skip=None, chunk_size=4 * 1024):
                 w.write_terrain_label(t, 3)
 
 
-def _corrupt_second_chunk(src, dst):
-    from mcap.reader import make_reader
-
-    with open(src, "rb") as f:
-        chunks = sorted((c.chunk_start_offset, c.chunk_length) for c in make_reader(f).get_summary().chunk_indexes)
-    start, length = chunks[len(chunks) // 2]
-    data = bytearray(src.read_bytes())
-    data[start + length // 2:start + length // 2 + 64] = bytes(64)
-    dst.write_bytes(bytes(data))
-
-
 def test_corrupt_chunk_counts_travel_with_the_table(tmp_path):
     good, bad = tmp_path / "good.mcap", tmp_path / "bad.mcap"
     _write_labelled(good)
-    _corrupt_second_chunk(good, bad)
+    corrupt_middle_chunk(good, bad)
     assert not damage_summary(load_run(good).table).any
     r = load_run(bad)
     lost = {t: d["corrupt"] for t, d in r.report.topics.items() if d["corrupt"]}
@@ -218,7 +209,7 @@ def _label_expectation(t_s: np.ndarray, hole: np.ndarray, label_times=(0.0, 1.0,
 def test_label_is_not_carried_across_a_corrupt_hole(tmp_path):
     good, bad = tmp_path / "good.mcap", tmp_path / "bad.mcap"
     _write_labelled(good)
-    _corrupt_second_chunk(good, bad)
+    corrupt_middle_chunk(good, bad)
     for t in (load_run(bad).table, read_run_parquet(_ingested(bad, tmp_path / "bad.parquet"))):
         groups = ["wheels_valid", "imu_valid", "current_valid"]
         hole = ~t[groups].any(axis=1).to_numpy()
@@ -396,7 +387,7 @@ def test_damage_counts_reach_the_estimate_report(tmp_path):
     """`estimate` writes the counts into its report and says them (nothing said on a clean log)."""
     good, bad = tmp_path / "good.mcap", tmp_path / "bad.mcap"
     _write_labelled(good, seconds=4.0)
-    _corrupt_second_chunk(good, bad)
+    corrupt_middle_chunk(good, bad)
     lost = {t: d["corrupt"] for t, d in load_run(bad).report.topics.items() if d["corrupt"]}
     out = tmp_path / "est.parquet"
     res = CliRunner().invoke(app, ["estimate", str(bad), "--out", str(out)])

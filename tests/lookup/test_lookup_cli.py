@@ -13,6 +13,8 @@ from terrainml.cli import app
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import load_robot
 
+from cli_refusal import assert_refused
+
 runner = CliRunner()
 
 
@@ -59,15 +61,6 @@ def test_plot_writes_a_png(tmp_path):
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 20_000
 
 
-def _refused(res, *needles):
-    assert res.exit_code == 2, res.output
-    assert isinstance(res.exception, SystemExit), res.exception  # not a crash
-    out = res.output.replace("\n", "")
-    assert "error:" in out and "Traceback" not in out
-    for n in needles:
-        assert str(n) in out, (n, out)
-
-
 @pytest.mark.parametrize("name,content", [
     ("random.json", bytes(range(256))),
     ("shape.json", b'{"classes": {"pavement": 0.16}}'),
@@ -78,17 +71,17 @@ def test_foreign_table_file_is_refused_naming_it(tmp_path, name, content):
     path.write_bytes(content)
     for cmd in (["lookup", "show", "--table", str(path)],
                 ["lookup", "plot", "--table", str(path), "--out", str(tmp_path / "fig.png")]):
-        _refused(runner.invoke(app, cmd), path)
+        assert_refused(runner.invoke(app, cmd), path)
     assert not (tmp_path / "fig.png").exists()
 
 
 def test_unwritable_output_is_refused_before_building(tmp_path):
     blocker = tmp_path / "blocker"
     blocker.write_text("a file, not a folder")
-    _refused(runner.invoke(app, ["lookup", "build", "--out", str(blocker / "t.json")]), blocker / "t.json")
-    _refused(runner.invoke(app, ["lookup", "plot", "--out", str(blocker / "f.png")]), blocker / "f.png")
+    assert_refused(runner.invoke(app, ["lookup", "build", "--out", str(blocker / "t.json")]), blocker / "t.json")
+    assert_refused(runner.invoke(app, ["lookup", "plot", "--out", str(blocker / "f.png")]), blocker / "f.png")
     if Path("/proc/self").is_dir():  # fails for root too
-        _refused(runner.invoke(app, ["lookup", "build", "--out", "/proc/t.json"]), "/proc/t.json")
+        assert_refused(runner.invoke(app, ["lookup", "build", "--out", "/proc/t.json"]), "/proc/t.json")
 
 
 def test_build_from_a_catalogue_for_a_robot_spec_file(tmp_path):
@@ -114,10 +107,10 @@ def test_bad_catalogue_is_refused_naming_file_class_and_field(tmp_path):
     cat.write_text("schema: terrainml.terrain_catalogue\nschema_version: 1\nclasses:\n"
                    "  GRAVEL:\n    targets: {traction: 0.9, braking: -0.2, steady: 0.1}\n"
                    "    sources: {traction: a, braking: b, steady: c}\n")
-    _refused(runner.invoke(app, ["lookup", "build", "--catalogue", str(cat), "--out",
+    assert_refused(runner.invoke(app, ["lookup", "build", "--catalogue", str(cat), "--out",
                                  str(tmp_path / "t.json")]), cat, "class GRAVEL", "traction")
     assert not (tmp_path / "t.json").exists()
-    _refused(runner.invoke(app, ["lookup", "show", "--catalogue", "borealtc", "--classes",
+    assert_refused(runner.invoke(app, ["lookup", "show", "--catalogue", "borealtc", "--classes",
                                  "ASPHALT,GRASS"]), "borealtc", "GRASS")
-    _refused(runner.invoke(app, ["lookup", "show", "--catalogue", str(tmp_path / "no.yaml")]),
+    assert_refused(runner.invoke(app, ["lookup", "show", "--catalogue", str(tmp_path / "no.yaml")]),
              "no.yaml")

@@ -14,6 +14,8 @@ from terrainml.cli import app
 from terrainml.io.ingest import load_run
 from terrainml.schema import read_run_parquet
 
+from cli_refusal import assert_refused
+
 runner = CliRunner()
 
 
@@ -74,15 +76,6 @@ def test_plot_writes_pngs(tmp_path):
     assert (tmp_path / "plots" / "g_slip.png").stat().st_size > 10_000
 
 
-def _refused(res, *needles):
-    assert res.exit_code == 2, res.output
-    assert isinstance(res.exception, SystemExit), res.exception  # a message, not a crash
-    out = res.output.replace("\n", "")
-    assert "error:" in out and "Traceback" not in out
-    for n in needles:
-        assert str(n) in out, (n, out)
-
-
 @pytest.fixture
 def no_simulation(monkeypatch):
     """Make any simulation fail the test: refusals must come before the long work."""
@@ -97,7 +90,7 @@ def no_simulation(monkeypatch):
 def test_bad_n_jobs_refused_before_simulating(tmp_path, no_simulation, n_jobs):
     out = tmp_path / "ds"
     r = runner.invoke(app, ["sim", "generate", "--runs-per-class", "1", "--n-jobs", n_jobs, "--out", str(out)])
-    _refused(r, "--n-jobs", f"got {n_jobs}")
+    assert_refused(r, "--n-jobs", f"got {n_jobs}")
     assert not out.exists()
 
 
@@ -105,11 +98,11 @@ def test_unwritable_output_refused_before_simulating(tmp_path, no_simulation):
     blocker = tmp_path / "blocker"
     blocker.write_text("a file, not a folder")  # root ignores permission bits, not this
     one = blocker / "run.mcap"
-    _refused(runner.invoke(app, ["sim", "generate", "--terrain", "pavement", "--out", str(one)]), one)
+    assert_refused(runner.invoke(app, ["sim", "generate", "--terrain", "pavement", "--out", str(one)]), one)
     ds = blocker / "ds"
-    _refused(runner.invoke(app, ["sim", "generate", "--runs-per-class", "1", "--out", str(ds)]), ds)
-    _refused(runner.invoke(app, ["sim", "generate", "--runs-per-class", "1", "--out", str(blocker)]),
+    assert_refused(runner.invoke(app, ["sim", "generate", "--runs-per-class", "1", "--out", str(ds)]), ds)
+    assert_refused(runner.invoke(app, ["sim", "generate", "--runs-per-class", "1", "--out", str(blocker)]),
              blocker, "not a folder")
     if Path("/proc/self").is_dir():
-        _refused(runner.invoke(app, ["sim", "generate", "--terrain", "pavement", "--out", "/proc/run.mcap"]),
+        assert_refused(runner.invoke(app, ["sim", "generate", "--terrain", "pavement", "--out", "/proc/run.mcap"]),
                  "/proc/run.mcap")

@@ -11,6 +11,7 @@ import sys
 import time
 
 import pytest
+from mcap_damage import corrupt_middle_chunk
 from stream_fakes import SLIP_OF
 
 from terrainml.estimation.synthetic import kinematic_run, trapezoid_speed
@@ -177,8 +178,6 @@ def test_hostile_stdin_never_stops_predict(model_dir):
 
 def test_predict_says_what_a_damaged_log_lost(tmp_path, model_dir, capsys):
     """Issue 21: the damage counts of a log's ingest reach predict, before serving and in the summary."""
-    from mcap.reader import make_reader
-
     from terrainml.io.ingest import load_run
     from terrainml.io.mcap_writer import RosMcapWriter
     from terrainml.stream.runner import run_predict
@@ -190,12 +189,7 @@ def test_predict_says_what_a_damaged_log_lost(tmp_path, model_dir, capsys):
             w.write_imu(t, (0.0, 0.0, 9.81), (0.0, 0.0, 0.0))
             w.write_wheel_joints(t, [1.0 / 0.165] * 3, [0.0] * 3)
             w.write_motor_current(t, [1.0] * 3)
-    with open(good, "rb") as f:
-        chunks = sorted((c.chunk_start_offset, c.chunk_length) for c in make_reader(f).get_summary().chunk_indexes)
-    start, length = chunks[len(chunks) // 2]
-    data = bytearray(good.read_bytes())
-    data[start + length // 2:start + length // 2 + 64] = bytes(64)
-    bad.write_bytes(bytes(data))
+    corrupt_middle_chunk(good, bad)
     lost = sum(d["corrupt"] for d in load_run(bad).report.topics.values())
     assert lost > 0
     assert run_predict(model=model_dir, source=str(bad), sinks=["stdout"]) == 0

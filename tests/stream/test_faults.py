@@ -67,12 +67,14 @@ def test_silent_group_marks_unhealthy_within_0p2s(robot, fake_predictor, group, 
     assert flagged, "silence never detected"
     assert flagged[0].t_s <= t_off + 0.2 + 1e-9
     assert all(not m.estimator_ok and m.fallback and m.fallback_reason == "estimator_unhealthy"
-               and m.terrain_class == 0 for m in out if t_off + 0.2 <= m.t_s < t_on)
+               and m.terrain_class == -1 and m.terrain_name == "none"
+               for m in out if t_off + 0.2 <= m.t_s < t_on)
     # short of the 0.2 s threshold the estimator is still trusted
     assert all(m.estimator_ok for m in out if t_off <= m.t_s < t_off + 0.18)
-    # fallback row (pavement) is what is served while unhealthy: steady target 0.005
+    # the safe cap is what is served while unhealthy: in steady, the largest traction target of
+    # the classes (FakeTable: 0.1 + 0.05 * 7 = 0.45)
     m = next(m for m in out if t_off + 0.3 <= m.t_s)
-    assert m.slip_desired == pytest.approx([0.005] * robot.n_wheels)
+    assert m.slip_desired == pytest.approx([0.45] * robot.n_wheels)
     # health returns when the group publishes again
     assert all(m.estimator_ok for m in out if m.t_s >= t_on + 0.01)
 
@@ -132,7 +134,7 @@ def test_classifier_raising_gives_fallback_not_crash(robot, fake_predictor, capl
         out = _run(pred, make_samples(robot, 6.0))
     assert len(out) == 600
     bad = [m for m in out if m.fallback_reason == "classifier_error"]
-    assert bad and all(m.fallback and m.terrain_class == 0 for m in bad)
+    assert bad and all(m.fallback and m.terrain_class == -1 for m in bad)
     # calls 1, 2 succeed (t = 1.99, 2.49), 3 and 4 raise (t = 2.99, 3.49), 5 succeeds (t = 3.99)
     assert bad[0].t_s == pytest.approx(2.99) and bad[-1].t_s == pytest.approx(3.98)
     assert not out[-1].fallback and out[-1].terrain_class == 3
@@ -150,17 +152,40 @@ def test_classifier_returning_garbage_is_a_classifier_error(robot, fake_predicto
     assert all(math.isfinite(p) for p in out[-1].class_probabilities)
 
 
-def test_stale_classification_falls_back_after_1s(robot, fake_predictor):
+def test_classification_is_held_while_standing_still(robot, fake_predictor):
+    """Cruise 3 s (classified), stand still 10 s, drive on: the class is served throughout.
+
+    The terrain under a standing robot does not change, so the classification ages by distance
+    travelled, not time (design §11); no window exists while standing still.
+    """
     pred = fake_predictor()
-    # cruise 3 s (classified), then stop: windows stop being steady, classification ages
-    samples = make_samples(robot, 3.0) + make_samples(robot, 3.0, speed_mps=0.0, slip=0.0, t0=3.0)
+    samples = (make_samples(robot, 3.0)
+               + make_samples(robot, 10.0, speed_mps=0.0, slip=0.0, t0=3.0)
+               + make_samples(robot, 3.0, t0=13.0))
     out = _run(pred, samples)
-    last_class_t = max(m.t_s - m.classification_age_s for m in out if m.classification_age_s >= 0)
-    for m in out:
-        if m.classification_age_s > 1.0 + 1e-9:
-            assert m.fallback and m.fallback_reason == "stale_classification"
-    assert any(m.fallback_reason == "stale_classification" for m in out)
-    assert out[-1].t_s - last_class_t > 1.0
+    first_ok = next(m for m in out if not m.fallback)
+    after = [m for m in out if m.t_s >= first_ok.t_s]
+    assert all(not m.fallback and m.terrain_class == 3 for m in after)
+    standing = [m for m in out if 4.0 <= m.t_s < 13.0]
+    assert standing and max(m.classification_age_s for m in standing) > 9.0  # 9 s old, still served
+
+
+def test_stale_after_distance_without_classification(robot, fake_predictor):
+    """With no new classification the class goes stale after stale_m metres, not seconds."""
+
+    class OnlyFirst(FakeClassifier):  # classifies the first windows, then never again
+        def classify(self, window):
+            return super().classify(window) if self.calls < 2 else None
+
+    pred = fake_predictor(classifier=OnlyFirst(), stale_m=3.0)
+    out = _run(pred, make_samples(robot, 12.0, speed_mps=1.0))
+    last_ok = max(m.t_s for m in out if not m.fallback)
+    first_stale = next(m for m in out if m.fallback_reason == "stale_classification")
+    # the last classification is at t = 1.99 (window end) or 2.49 s, 1 m/s: stale 3 m later
+    assert first_stale.t_s == pytest.approx(last_ok + 0.01)
+    assert 4.9 <= first_stale.t_s <= 5.6
+    assert first_stale.terrain_class == -1 and first_stale.terrain_name == "none"
+
 
 
 def test_malformed_udp_datagrams_counted_and_skipped():

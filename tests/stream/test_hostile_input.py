@@ -298,19 +298,24 @@ samples_or_junk = st.one_of(
     _odd_values(), st.text(max_size=5), st.lists(_odd_values(), max_size=3))
 
 
-@settings(max_examples=40, deadline=None, database=None,
-          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-@given(st.lists(samples_or_junk, min_size=1, max_size=25))
-def test_step_raises_nothing_but_invalid_sample(robot, junk):
-    """Arbitrary inputs, then a clean stream: only InvalidSample escapes, never a wedge."""
-    pred = Predictor(robot, FakeTable(), FakeClassifier(), FakeEstimator(robot), reanchor_after=3)
-    for x in junk:
+def _step_all(pred, samples) -> None:
+    """Step ``pred`` through ``samples``: only InvalidSample may escape, every message served is strict."""
+    for x in samples:
         try:
             m = pred.step(x)
         except InvalidSample:
             continue
         if m is not None:
             _strict(m)
+
+
+@settings(max_examples=40, deadline=None, database=None,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(st.lists(samples_or_junk, min_size=1, max_size=25))
+def test_step_raises_nothing_but_invalid_sample(robot, junk):
+    """Arbitrary inputs, then a clean stream: only InvalidSample escapes, never a wedge."""
+    pred = Predictor(robot, FakeTable(), FakeClassifier(), FakeEstimator(robot), reanchor_after=3)
+    _step_all(pred, junk)
     clean = make_samples(robot, 2.5, t0=1e6)
     out = [pred.step(s) for s in clean]
     # at most max_clock_gap_s (1 s) of late samples is dropped, then every sample is a tick;
@@ -328,10 +333,4 @@ def test_step_raises_nothing_but_invalid_sample(robot, junk):
 @given(st.lists(samples_or_junk, min_size=1, max_size=10))
 def test_step_with_the_real_estimator_raises_nothing_but_invalid_sample(robot, junk):
     pred = Predictor(robot, FakeTable(), FakeClassifier(), OnlineEstimator(robot))
-    for x in junk + make_samples(robot, 0.1):
-        try:
-            m = pred.step(x)
-        except InvalidSample:
-            continue
-        if m is not None:
-            _strict(m)
+    _step_all(pred, junk + make_samples(robot, 0.1))

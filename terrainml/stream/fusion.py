@@ -1,0 +1,140 @@
+"""Temporal fusion of class probabilities over distance travelled (design §11, issue #19).
+
+The terrain under a robot changes with the ground it covers, not with time: a robot standing
+still stays on the same terrain. :class:`TerrainFilter` is a discrete Bayes filter (an HMM
+forward pass) over the model's K classes whose clock is the odometer:
+
+* **predict** (every tick, distance increment Δd >= 0 m): the class persists with probability
+  ``p_stay = exp(-Δd / L)`` (L = ``length_m``, the mean distance between transitions) and
+  otherwise moves to any other class uniformly::
+
+      b_k <- p_stay b_k + (1 - p_stay) (1 - b_k) / (K - 1)
+
+  With Δd = 0 (standing still) nothing changes: a classification is held across stops.
+* **update** (each classification, probabilities p of the window): the classifier's
+  probabilities (trained on balanced classes) stand for likelihoods; consecutive windows overlap,
+  so each is tempered by ``alpha`` (a likelihood ``(p + eps)^alpha``), then ``b`` is normalised.
+* **change detector**: a one-sided CUSUM on the surprise of the held class,
+  ``g <- max(0, g - log(p_held + eps) - drift)``; above ``threshold`` the terrain has likely
+  changed, so the filter restarts from the latest probabilities (``b <- p`` mixed with a little
+  uniform) and the served class can switch within a window or two instead of waiting for the
+  prior to decay.
+* **age in metres**: distance since the last classification (``age_m``); beyond ``stale_m``
+  (default 3 m) without a fresh one the fused class is stale.
+
+All numbers are finite by construction (``eps`` floors the likelihoods); K-vectors are small and
+each call costs a few microseconds.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["TerrainFilter"]
+
+
+class TerrainFilter:
+    """Discrete Bayes filter over terrain classes with a transition prior per metre.
+
+    Parameters
+    ----------
+    n_classes : int >= 1, K.
+    length_m : float > 0, L in p_stay = exp(-d / L), m (default 20: a class persists over metres).
+    alpha : float in (0, 1], likelihood temper for overlapping windows (default 0.35).
+    eps : float > 0, likelihood floor (default 0.02).
+    drift : float >= 0, CUSUM allowance per classification, nats (default 1.5).
+    threshold : float > 0, CUSUM alarm level, nats (default 4.0).
+    stale_m : float > 0, distance after the last classification beyond which the fused class is
+        stale, m (default 3.0).
+
+    Attributes
+    ----------
+    posterior : ndarray (K,) or None before the first classification.
+    age_m : float, m travelled since the last classification (inf before the first).
+    n_changes : int, change-detector alarms so far.
+    """
+
+    def __init__(self, n_classes: int, *, length_m: float = 20.0, alpha: float = 0.35,
+                 eps: float = 0.02, drift: float = 1.5, threshold: float = 4.0,
+                 stale_m: float = 3.0):
+        if int(n_classes) < 1:
+            raise ValueError("TerrainFilter: n_classes must be >= 1")
+        for name, v in (("length_m", length_m), ("eps", eps), ("threshold", threshold),
+                        ("stale_m", stale_m)):
+            if not float(v) > 0:
+                raise ValueError(f"TerrainFilter: {name} must be > 0, got {v!r}")
+        if not 0 < float(alpha) <= 1:
+            raise ValueError(f"TerrainFilter: alpha must be in (0, 1], got {alpha!r}")
+        if not float(drift) >= 0:
+            raise ValueError(f"TerrainFilter: drift must be >= 0, got {drift!r}")
+        self.n_classes = int(n_classes)
+        self.length_m = float(length_m)
+        self.alpha = float(alpha)
+        self.eps = float(eps)
+        self.drift = float(drift)
+        self.threshold = float(threshold)
+        self.stale_m = float(stale_m)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything (a new timeline)."""
+        self.posterior: np.ndarray | None = None
+        self.age_m = math.inf
+        self.cusum = 0.0
+        self.n_changes = 0
+        self.n_updates = 0
+
+    # ------------------------------------------------------------------ filter
+    def predict(self, distance_m: float) -> None:
+        """Advance by ``distance_m`` (m, >= 0; non-finite or negative counts as 0)."""
+        d = float(distance_m)
+        if not (d > 0 and math.isfinite(d)):
+            return
+        self.age_m += d
+        b = self.posterior
+        if b is None or self.n_classes == 1:
+            return
+        p_stay = math.exp(-d / self.length_m)
+        b = p_stay * b + (1.0 - p_stay) * (1.0 - b) / (self.n_classes - 1)
+        self.posterior = b / b.sum()
+
+    def update(self, probabilities: np.ndarray) -> bool:
+        """Fuse one classification (K probabilities); return True when a change was detected."""
+        p = np.asarray(probabilities, dtype=float).ravel()
+        if p.shape[0] != self.n_classes:
+            raise ValueError(f"TerrainFilter: {p.shape[0]} probabilities for {self.n_classes} classes")
+        self.age_m = 0.0
+        self.n_updates += 1
+        if self.posterior is None:
+            self.posterior = self._restart(p)
+            return False
+        held = int(np.argmax(self.posterior))
+        self.cusum = max(0.0, self.cusum - math.log(p[held] + self.eps) - self.drift)
+        if self.cusum > self.threshold:  # the held class no longer explains the windows
+            self.cusum = 0.0
+            self.n_changes += 1
+            self.posterior = self._restart(p)
+            return True
+        b = self.posterior * (p + self.eps) ** self.alpha
+        self.posterior = b / b.sum()
+        return False
+
+    def _restart(self, p: np.ndarray) -> np.ndarray:
+        """A posterior from one classification: its probabilities, floored like a likelihood."""
+        b = p + self.eps
+        return b / b.sum()
+
+    # ------------------------------------------------------------------ read-out
+    @property
+    def stale(self) -> bool:
+        """True when more than ``stale_m`` travelled since the last classification."""
+        return self.age_m > self.stale_m
+
+    def best(self) -> tuple[int, float]:
+        """(index of the most probable class, its posterior probability); (-1, 0.0) if none."""
+        if self.posterior is None:
+            return -1, 0.0
+        k = int(np.argmax(self.posterior))
+        return k, float(self.posterior[k])

@@ -1,0 +1,72 @@
+"""Named window specs (design §8, issue #17): registry, side channels, the state spec's rule."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from terrainml.features.windows import (RULES, WINDOW_SPECS, WindowSpec, channel_column, cut_windows,
+                                        window_spec)
+from terrainml.pipeline.dataset import dataset_channels, sensors_of
+from terrainml.robot import load_robot
+
+
+def test_named_specs_exist_and_round_trip():
+    for name in ("steady", "chunks", "state"):
+        assert name in WINDOW_SPECS
+        spec = window_spec(name)
+        assert spec.name == name
+        assert WindowSpec.from_dict(spec.to_dict()) == spec
+    assert window_spec("steady") == WindowSpec()  # the default is the design's steady rules
+    chunks = window_spec("chunks")
+    assert chunks.n_samples == 170 and chunks.chunk_s == 5.0  # the BorealTC authors' 1.7 s in 5 s
+    with pytest.raises(ValueError, match="unknown window spec"):
+        window_spec("nope")
+    with pytest.raises(ValueError, match="unknown rule"):
+        WindowSpec(rules=("speed", "no_such_rule"))
+
+
+def test_side_channels_map_to_the_robots_left_and_right_wheels():
+    husky = load_robot("husky")  # wheel 1 front-left (y > 0), wheel 2 front-right
+    assert channel_column("current_left", husky)[0] == "wheel1_current_a"
+    col, valid, scale = channel_column("speed_right_mps", husky)
+    assert col == "wheel2_omega_radps" and valid == ("wheels_valid",)
+    assert scale == pytest.approx(husky.wheel_radius_m)
+    assert channel_column("imu_wx", husky)[0] == "imu_roll_rate_radps"
+
+
+def test_sensor_subsets_restrict_channels():
+    husky = load_robot("husky")
+    chans = dataset_channels(husky, window_spec("chunks"), ["wheels", "currents"])
+    assert chans == ("current_left", "current_right", "speed_left_mps", "speed_right_mps")
+    assert sensors_of(chans) == ["wheels", "currents"]
+    assert sensors_of(dataset_channels(husky, window_spec("chunks"))) == ["wheels", "currents", "imu"]
+    with pytest.raises(ValueError, match="unknown sensor group"):
+        dataset_channels(husky, window_spec("chunks"), ["wheels", "lidar"])
+
+
+def _est(states, n=200, speed=1.0, ax=0.0):
+    """An EST table of n ticks at 100 Hz, wheel states given per wheel (list of n strings each)."""
+    t = np.arange(n) / 100.0
+    df = pd.DataFrame({"t_s": t, "ekf_vx_mps": speed, "ekf_vy_mps": 0.0, "ekf_yaw_rate_radps": 0.0,
+                       "ekf_ax_mps2": ax, "ekf_ay_mps2": 0.0, "terrain": 2, "run_id": "r"})
+    for i in range(1, 5):
+        df[f"state{i}"] = states
+        df[f"wheel{i}_current_a"] = 1.0
+        df[f"slip{i}"] = 0.1
+    for c in ("imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2"):
+        df[c] = 0.0
+    return df
+
+
+def test_state_spec_keeps_an_accelerating_window_the_steady_rules_reject():
+    robot = load_robot(None)
+    est = _est(["traction"] * 200, ax=0.5)  # accelerating hard, every wheel in traction
+    _, steady = cut_windows(est, robot, window_spec("steady"))
+    assert steady["n_kept"] == 0 and steady["wheel_state"] == 1 and steady["acceleration"] == 1
+    wins, state = cut_windows(est, robot, window_spec("state"))
+    assert state["n_kept"] == 1 and len(wins) == 1
+    assert state["acceleration"] == 0  # not a rule of this spec: never counted
+    # a window that switches state half-way is not conditioned on one state
+    mixed = _est(["traction"] * 100 + ["braking"] * 100)
+    assert cut_windows(mixed, robot, window_spec("state"))[1]["wheel_state"] == 1
+    assert set(window_spec("state").active_rules) < set(RULES)

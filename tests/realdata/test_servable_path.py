@@ -1,0 +1,141 @@
+"""BorealTC through the servable path (issue #17): window specs, per-class report, sensor subsets,
+models saved as verified artifacts, classes matched by name, and a served course of held-out runs.
+"""
+
+import json
+import shutil
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from terrainml.experiments.borealtc import course_runs, course_score, make_course
+from terrainml.features.windows import window_spec
+from terrainml.lookup.table import DesiredSlipTable
+from terrainml.models.artifacts import load_artifact, write_manifest
+from terrainml.pipeline.dataset import build_from_tables, dataset_channels
+from terrainml.pipeline.train import ClassMismatchError, evaluate, train
+from terrainml.robot import load_robot
+from terrainml.stream.classify import ModelLoadError, load_serving_model
+from terrainml.stream.predictor import Predictor
+
+HUSKY = load_robot("husky")
+NAMES = ["ASPHALT", "FLOORING", "ICE", "SANDY_LOAM", "SNOW"]
+
+
+def _wheel_spec(**kw):
+    spec = window_spec("chunks", **kw)
+    return replace(spec, channels=dataset_channels(HUSKY, spec, ["wheels", "currents"]))
+
+
+def test_chunks_spec_gives_the_protocols_windows_and_keeps_every_class(boreal_tables, boreal_windows):
+    tables, _ = boreal_tables
+    _, W = boreal_windows  # experiments.borealtc: 5 s chunks, 1.7 s windows, 6 per chunk
+    ds = build_from_tables(tables, HUSKY, spec=window_spec("chunks", windows_per_chunk=6))
+    assert ds.class_names == NAMES
+    assert np.array_equal(ds.windows.X, W.X) and np.array_equal(ds.windows.y, W.meta["terrain"].to_numpy())
+    rep = ds.class_report.set_index("class")
+    assert list(rep.index) == NAMES and (rep["kept"] > 0).all()
+    # runs without IMU file lose their chunks to channel_valid, and the hint says what to do
+    assert rep.loc["ICE", "channel_valid"] > 0 and "--sensors wheels,currents" in rep.loc["ICE", "hint"]
+
+
+def test_steady_rules_report_the_classes_they_starve(boreal_tables):
+    tables, _ = boreal_tables
+    short = {}
+    for t in tables:  # the two shortest runs of each class: enough to see the loss, fast
+        short.setdefault(int(t["terrain"].iloc[0]), []).append(t)
+    pick = [t for c in sorted(short) for t in sorted(short[c], key=len)[:2]]
+    ds = build_from_tables(pick, HUSKY, spec=window_spec("steady"))
+    rep = ds.class_report
+    assert len(rep) == 5
+    starved = rep[rep["kept_share"] < 0.5]
+    assert len(starved) >= 1  # the steady rules throw most real data away
+    for row in starved.itertuples(index=False):
+        assert "most rejected by" in row.hint and "--windows" in row.hint or "--sensors" in row.hint
+
+
+@pytest.fixture(scope="module")
+def wheel_model(boreal_tables, tmp_path_factory):
+    """hgb + svm+hgb on wheels and currents, 3 runs per class (one class with a single run)."""
+    tables, _ = boreal_tables
+    by = {}
+    for t in tables:
+        by.setdefault(int(t["terrain"].iloc[0]), []).append(t)
+    pick = [t for c in sorted(by) for t in by[c][: (1 if c == 3 else 3)]]
+    ds = build_from_tables(pick, HUSKY, spec=_wheel_spec(windows_per_chunk=2))
+    out = tmp_path_factory.mktemp("m") / "wheel"
+    res = train(ds, out, ["hgb", "svm+hgb"], folds=2, seed=0,
+                model_params={"hgb": {"max_iter": 30}, "svm": {"C_grid": (10.0,), "gamma_grid": ("scale",)}})
+    return out, ds, res
+
+
+def test_train_saves_every_model_with_its_sensors_and_names_a_single_run_class(wheel_model):
+    out, ds, res = wheel_model
+    doc = json.loads((out / "manifest.json").read_text())
+    assert doc["sensors"] == ["wheels", "currents"] and doc["feature_family"] == "side_channel"
+    assert doc["class_names"] == NAMES
+    assert set(doc["models"]) == {"hgb", "svm+hgb", "svm"}
+    assert doc["models"]["svm+hgb"] == {"kind": "average", "files": [], "members": ["svm", "hgb"]}
+    report = json.loads((out / "report.json").read_text())
+    assert [e["class"] for e in report["excluded_classes"]] == ["SANDY_LOAM"]
+    assert np.isfinite(report["balanced_accuracy"])
+    # the CV left SANDY_LOAM out; the final models know all five classes
+    assert res.models["hgb"]["cv"].class_names == ["ASPHALT", "FLOORING", "ICE", "SNOW"]
+    for name in ("hgb", "svm+hgb"):
+        art = load_artifact(out, name)
+        assert art.class_names == NAMES and list(art.model.classes_) == [0, 1, 2, 3, 4]
+        p = art.model.predict_proba(ds.windows.subset([0, 1]))
+        assert p.shape == (2, 5) and np.allclose(p.sum(axis=1), 1.0)
+    # BorealTC's catalogue table is stored, rows by the model's class names
+    table = DesiredSlipTable.from_json((out / "desired_slip_table.json").read_text(), robot=HUSKY)
+    assert list(table.class_names) == NAMES
+    # adjacent-class accuracy is not reported for an unordered class set
+    assert not np.isfinite(res.models["hgb"]["cv"].pooled["adjacent_accuracy"])
+
+
+def test_evaluate_matches_classes_by_name_and_refuses_a_mismatch(wheel_model):
+    out, ds, _ = wheel_model
+    m = evaluate(out, ds)
+    assert m["n_windows"] == len(ds.windows)
+    ds.windows.attrs["all_class_names"] = ["CONCRETE", *NAMES[1:]]
+    try:
+        with pytest.raises(ClassMismatchError) as err:
+            evaluate(out, ds)
+        msg = str(err.value)
+        assert "CONCRETE" in msg and "ASPHALT" in msg and "--class-map" in msg
+        mapped = evaluate(out, ds, class_map={"CONCRETE": "ASPHALT"})
+        assert mapped["balanced_accuracy"] == pytest.approx(m["balanced_accuracy"])
+    finally:
+        ds.windows.attrs["all_class_names"] = NAMES
+
+
+def test_serving_refuses_a_table_of_other_classes(wheel_model, tmp_path):
+    out, _, _ = wheel_model
+    served = load_serving_model(out)
+    assert served.class_names == NAMES and served.sensors == ["wheels", "currents"]
+    bad = tmp_path / "bad"
+    shutil.copytree(out, bad)
+    (bad / "desired_slip_table.json").write_text(DesiredSlipTable.build(HUSKY).to_json() + "\n")
+    write_manifest(bad)  # a consistent folder, but its table is the reference robot's classes
+    with pytest.raises(ModelLoadError, match="not the model's"):
+        load_serving_model(bad)
+
+
+def test_a_course_of_held_out_runs_without_imu_is_served(boreal_tables, tmp_path):
+    """Wheels-and-currents model, trained without the course's runs, serves their classes."""
+    tables, rep = boreal_tables
+    held = course_runs(tables)
+    ds = build_from_tables([t for t in tables if str(t["run_id"].iloc[0]) not in held], HUSKY,
+                           spec=_wheel_spec())
+    train(ds, tmp_path / "m", ["hgb"], folds=2, seed=0, ablation=False)
+    course = make_course(tables, held, segment_s=30.0)
+    assert not any(c.startswith("imu_") for c in course.columns)
+    p = Predictor.from_model_dir(tmp_path / "m")
+    assert "imu" not in p.health.monitored
+    cols = list(course.columns)
+    served = [p.step(dict(zip(cols, row))).to_dict() for row in course.itertuples(index=False)]
+    assert all(len(m["class_probabilities"]) == 5 for m in served)
+    score = course_score(course, served, rep.classes, HUSKY)
+    assert score["estimator_unhealthy"] == 0, score
+    assert score["share"] >= 0.8, score
