@@ -76,6 +76,14 @@ def _pct(x: float) -> str:
     return f"{100 * x:.2f}" if np.isfinite(x) else "n/a"
 
 
+def _protocol_rows(res, classes, times, protocol: str, std_of: str) -> list[list[str]]:
+    """One table row per model of a protocol: accuracies, recalls, fold std of ``std_of``, time."""
+    return [[f"ours: {name}" if name != "authors-svm" else "authors' SVM recipe, re-run here",
+             _pct(r.accuracy), _pct(r.balanced_accuracy), *_recall_row(r, classes),
+             f"{100 * r.summary[std_of]['std']:.2f}", f"{times[(protocol, name)]:.0f}"]
+            for name, r in res.items()]
+
+
 def _recall_row(res, classes) -> list[str]:
     rec = res.recall_per_class()
     return [_pct(rec[c]) for c in classes]
@@ -174,11 +182,7 @@ def run(quick: bool = False) -> str:
 
     # protocol (a)
     out.append("### Protocol (a): the authors' (stratified 5-fold over 5-s chunks, not grouped by run)\n")
-    rows = []
-    for name, r in res_a.items():
-        rows.append([f"ours: {name}" if name != "authors-svm" else "authors' SVM recipe, re-run here",
-                     _pct(r.accuracy), _pct(r.balanced_accuracy), *_recall_row(r, classes),
-                     f"{100 * r.summary['accuracy']['std']:.2f}", f"{times[('a', name)]:.0f}"])
+    rows = _protocol_rows(res_a, classes, times, "a", "accuracy")
     for k, d in pub.items():
         rows.append([f"published: {k}", f"{d.get('acc', float('nan')):.2f}", "",
                      *[f"{d[f'r-{s}']:.2f}" if f"r-{s}" in d else "" for s in short], "", ""])
@@ -208,11 +212,7 @@ def run(quick: bool = False) -> str:
 
     # protocol (b)
     out.append("### Protocol (b): grouped by run (StratifiedGroupKFold 5; no run in train and test)\n")
-    rows = []
-    for name, r in res_b.items():
-        rows.append([f"ours: {name}" if name != "authors-svm" else "authors' SVM recipe, re-run here",
-                     _pct(r.accuracy), _pct(r.balanced_accuracy), *_recall_row(r, classes),
-                     f"{100 * r.summary['balanced_accuracy']['std']:.2f}", f"{times[('b', name)]:.0f}"])
+    rows = _protocol_rows(res_b, classes, times, "b", "balanced_accuracy")
     out.append(markdown_table(["model", "accuracy %", "balanced acc. %", *[f"recall {s} %" for s in short],
                                "fold std bal. (pp)", "time s"], rows))
     best_b = max((k for k in res_b if k != "authors-svm"), key=lambda k: res_b[k].balanced_accuracy)

@@ -45,7 +45,7 @@ from typing import Any, Sequence
 
 import yaml
 
-from terrainml.lookup.terramechanics import TerrainParams
+from terrainml.lookup.terrain_params import TerrainParams
 
 __all__ = ["BUILTIN_CATALOGUES", "CatalogueClass", "CatalogueError", "TerrainCatalogue",
            "load_catalogue", "parse_catalogue"]

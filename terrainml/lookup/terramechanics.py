@@ -1,4 +1,4 @@
-"""Wheel-terrain force curves of the eight terrain classes: the ONE source of truth (design §6.1-6.2).
+"""Wheel-terrain force curves of the terrain classes (design §6.1-6.2), nominal values from the catalogue.
 
 The simulator (:mod:`terrainml.sim`) and the desired-slip lookup (:mod:`terrainml.lookup.table`) both
 import this module; it imports neither.
@@ -60,13 +60,14 @@ Departures from design §6.1 (recorded, with the reasons)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
-from typing import Any
+from dataclasses import replace
 
 import numpy as np
 from scipy.optimize import brentq
 
 from terrainml.classes import TERRAIN_CLASSES, class_id as _class_id
+from terrainml.lookup.catalogue import load_catalogue
+from terrainml.lookup.terrain_params import TerrainParams
 from terrainml.robot import load_robot
 
 __all__ = [
@@ -75,116 +76,12 @@ __all__ = [
     "net_traction_coefficient", "steady_slip", "SPREAD_FIELDS",
 ]
 
-_DEG = math.pi / 180.0
-
-
-@dataclass(frozen=True)
-class TerrainParams:
-    """Parameters of one terrain (a class's nominal values or one run's realisation).
-
-    Units: pressures Pa, ``k_c`` N/m^(n+1), ``k_phi`` N/m^(n+2), lengths m, angles rad.
-    """
-
-    class_id: int
-    name: str
-    model: str                      # "burckhardt" | "soil"
-    # Burckhardt tyre-road curve
-    c1: float = 0.0
-    c2: float = 0.0
-    c3: float = 0.0
-    # rolling resistance coefficient (burckhardt and layer soils)
-    crr: float = 0.0
-    # Mohr-Coulomb and shear
-    cohesion_pa: float = 0.0
-    friction_angle_rad: float = 0.0
-    shear_modulus_m: float = 0.02   # K (JH) or K_omega (hump: displacement of the shear peak)
-    residual_ratio: float = 1.0     # K_r; 1 = Janosi-Hanamoto, < 1 = Wong hump-type
-    # Bekker pressure-sinkage (k_phi == 0: not a Bekker soil, use layer_depth_m)
-    n_exp: float = 1.0
-    k_c: float = 0.0
-    k_phi: float = 0.0
-    layer_depth_m: float = 0.0
-    slip_sinkage: float = 1.0       # gain a of z(s) = z0 (1 + a s) / (1 - 0.5 a s)
-    free_slip: float = 0.0          # s_f: slip taken up by the compressible top layer before shear
-    # lateral force: F_y = -lateral_mu W tanh(alpha / lateral_alpha0_rad)
-    lateral_mu: float = 0.8
-    lateral_alpha0_rad: float = 0.12
-    # surface roughness for the simulator (vertical profile): rms height and the band of
-    # wavelengths it lives in. The band is the class's vibration signature: loose stones
-    # (gravel) shake at short wavelengths (5-17 Hz at 1 m/s), sod and sand ripples undulate
-    # slowly (below 4 Hz). Assumption, chosen so imu_az spectra differ the way they do on real
-    # robots; not a calibration target.
-    roughness_rms_m: float = 0.001
-    roughness_wavelength_min_m: float = 0.12
-    roughness_wavelength_max_m: float = 1.5
-    sources: str = ""
-
-    @property
-    def is_bekker(self) -> bool:
-        return self.model == "soil" and self.k_phi > 0.0
-
-    def to_dict(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-
 # ----------------------------------------------------------------------------- class table
-# Calibrated values (K, layer depths, slip-sinkage gains) come from benchmarks/sim_calibration.py.
-_NOMINAL: tuple[TerrainParams, ...] = (
-    TerrainParams(
-        0, "pavement", "burckhardt", c1=1.1973, c2=25.168, c3=0.5373, crr=0.012,
-        lateral_mu=1.0, lateral_alpha0_rad=0.08, roughness_rms_m=0.0003,
-        sources="Burckhardt (1993) dry concrete; C_rr 0.012 (Marks' handbook, tyre on concrete)"),
-    TerrainParams(
-        1, "compacted_dirt", "soil", crr=0.03, cohesion_pa=6.0e3, friction_angle_rad=35.0 * _DEG,
-        shear_modulus_m=0.0028, layer_depth_m=0.003, residual_ratio=0.75, free_slip=0.0337,
-        slip_sinkage=0.5,
-        lateral_mu=0.7, lateral_alpha0_rad=0.10, roughness_rms_m=0.0015,
-        roughness_wavelength_min_m=0.15, roughness_wavelength_max_m=1.0,
-        sources="compact soil, Wong hump-type shear (Theory of Ground Vehicles §2.4); C_rr 0.03; "
-                "K calibrated"),
-    TerrainParams(
-        2, "short_grass", "soil", crr=0.06, cohesion_pa=3.0e3, friction_angle_rad=29.0 * _DEG,
-        shear_modulus_m=0.004, layer_depth_m=0.01, residual_ratio=0.8, free_slip=0.1225,
-        slip_sinkage=0.5,
-        lateral_mu=0.55, lateral_alpha0_rad=0.14, roughness_rms_m=0.002,
-        roughness_wavelength_min_m=0.3, roughness_wavelength_max_m=2.0,
-        sources="sod: loam-like c 3 kPa, phi 29 deg (Wong); C_rr 0.06; K calibrated to thesis Fig. 7.3"),
-    TerrainParams(
-        3, "gravel_on_firm_soil", "soil", crr=0.06, cohesion_pa=1.3e3, friction_angle_rad=31.0 * _DEG,
-        shear_modulus_m=0.0053, layer_depth_m=0.012, residual_ratio=0.8, free_slip=0.1304,
-        slip_sinkage=0.5,
-        lateral_mu=0.55, lateral_alpha0_rad=0.14, roughness_rms_m=0.0006,
-        roughness_wavelength_min_m=0.06, roughness_wavelength_max_m=0.2,
-        sources="LETE-sand-like loose layer c 1.3 kPa, phi 31 deg (Wong) over firm base; C_rr 0.06; "
-                "K calibrated to thesis Fig. 7.4"),
-    TerrainParams(
-        4, "tall_damp_grass", "soil", crr=0.10, cohesion_pa=3.7e3, friction_angle_rad=29.8 * _DEG,
-        shear_modulus_m=0.0061, layer_depth_m=0.02, residual_ratio=0.8, free_slip=0.1849,
-        slip_sinkage=0.5,
-        lateral_mu=0.5, lateral_alpha0_rad=0.16, roughness_rms_m=0.003,
-        roughness_wavelength_min_m=0.3, roughness_wavelength_max_m=1.5,
-        sources="Rubicon sandy loam c 3.7 kPa, phi 29.8 deg (Wong); C_rr 0.10; K calibrated"),
-    TerrainParams(
-        5, "tilled_loam", "soil", cohesion_pa=3.3e3, friction_angle_rad=33.7 * _DEG,
-        n_exp=1.10, k_c=74.6e3, k_phi=2080.0e3, shear_modulus_m=0.0084, residual_ratio=0.85, free_slip=0.1854,
-        slip_sinkage=0.3,
-        lateral_mu=0.5, lateral_alpha0_rad=0.18, roughness_rms_m=0.004,
-        sources="upland sandy loam (Wong, Bekker values); K and free slip calibrated"),
-    TerrainParams(
-        6, "dry_sand", "soil", cohesion_pa=1.04e3, friction_angle_rad=28.0 * _DEG,
-        n_exp=1.1, k_c=0.99e3, k_phi=1528.43e3, shear_modulus_m=0.0143, residual_ratio=0.7, free_slip=0.2682,
-        slip_sinkage=0.1,
-        lateral_mu=0.45, lateral_alpha0_rad=0.2, roughness_rms_m=0.003,
-        roughness_wavelength_min_m=0.3, roughness_wavelength_max_m=1.5,
-        sources="dry sand, Land Locomotion Lab (Wong); K and free slip calibrated"),
-    TerrainParams(
-        7, "wet_mud", "soil", cohesion_pa=4.14e3, friction_angle_rad=13.0 * _DEG,
-        n_exp=0.5, k_c=13.19e3, k_phi=692.15e3, shear_modulus_m=0.0077, residual_ratio=0.7, free_slip=0.4011,
-        slip_sinkage=0.15,
-        lateral_mu=0.35, lateral_alpha0_rad=0.22, roughness_rms_m=0.004,
-        roughness_wavelength_min_m=0.2, roughness_wavelength_max_m=1.2,
-        sources="clayey soil 38% moisture (Wong); K and free slip calibrated"),
-)
+# The nominal values live once, in the reference terrain catalogue (lookup/catalogues/
+# reference.yaml, every value with its source); calibrated values (K, layer depths, slip-sinkage
+# gains, free slip) come from benchmarks/sim_calibration.py.
+_NOMINAL: tuple[TerrainParams, ...] = tuple(
+    replace(c.params, class_id=i) for i, c in enumerate(load_catalogue("reference").classes))
 assert tuple(p.name for p in _NOMINAL) == TERRAIN_CLASSES
 
 # parameters perturbed by sample_params (multiplicative, uniform in [1 - spread, 1 + spread])
