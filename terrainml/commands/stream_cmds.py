@@ -20,6 +20,10 @@ Examples:
 
   terrainml predict --model runs/svm --trusted-key keys/release.pub --source - --sink stdout
 
+  terrainml predict --model runs/husky --source test1.bag --robot husky --topics husky_robot_localization
+
+  terrainml predict --model runs/boreal --source borealtc/ICE/pro_03.csv --format borealtc
+
   (live view: in Foxglove, open connection -> Foxglove WebSocket -> ws://127.0.0.1:8765)
 """
 
@@ -34,7 +38,8 @@ def register(app: typer.Typer) -> None:
     def predict(
         model: Path = typer.Option(..., "--model", help="Trained model folder (runs/NAME)."),
         source: str = typer.Option(..., "--source",
-                                   help="RUN.mcap|.bag|.parquet|.csv, udp://HOST:PORT, or - (stdin JSON lines)."),
+                                   help="RUN.mcap|.bag|.parquet|.csv, a ROS 2 bag folder, udp://HOST:PORT, "
+                                        "or - (stdin JSON lines)."),
         sink: List[str] = typer.Option(["stdout"], "--sink",
                                        help="stdout, udp://HOST:PORT, can://IFACE/CHANNEL, "
                                             "mcap:OUT.mcap or foxglove://HOST:PORT (live view "
@@ -56,12 +61,22 @@ def register(app: typer.Typer) -> None:
             None, "--trusted-key",
             help="Public key (KEY.pub from `terrainml model keygen`); the model must be signed by it "
                  "(`terrainml model sign`), else it is refused. Repeat for several."),
+        topics: Optional[str] = typer.Option(
+            None, "--topics",
+            help="Log source: topic map YAML (or built-in name: default, husky_robot_localization) "
+                 "saying which topics feed which columns, as for `terrainml ingest`."),
+        fmt: Optional[str] = typer.Option(
+            None, "--format", "--spec",
+            help="CSV/Parquet source: dataset spec (built-in name: borealtc, or SPEC.yaml) giving its "
+                 "column names, units and scales (e.g. m/s wheel speeds -> rad/s) and side-to-wheel "
+                 "mapping; the source is one file of a run, as for `terrainml ingest --format`."),
     ) -> None:
         from terrainml.stream.runner import run_predict
 
         code = run_predict(model=model, source=source, sinks=list(sink), realtime=realtime,
                            robot=robot, preset=preset, idle_timeout_s=idle_timeout_s,
                            verbose=verbose, max_clock_gap_s=max_clock_gap_s,
-                           reanchor_after=reanchor_after, trusted_keys=trusted_key or None)
+                           reanchor_after=reanchor_after, trusted_keys=trusted_key or None,
+                           topics=topics, dataset=fmt)
         if code:
             raise typer.Exit(code)

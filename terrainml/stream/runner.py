@@ -75,8 +75,13 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
                 robot: str | None = None, preset: str | None = None,
                 idle_timeout_s: float | None = None, verbose: bool = False,
                 max_clock_gap_s: float = MAX_GAP_S, reanchor_after: int = REANCHOR_AFTER,
-                trusted_keys: Sequence[str | Path] | None = None) -> int:
+                trusted_keys: Sequence[str | Path] | None = None, topics: Any = None,
+                dataset: Any = None) -> int:
     """Run ``terrainml predict``; return the process exit code (0 ok, 2 unusable input).
+
+    ``topics`` (a topic map for an MCAP/bag source) and ``dataset`` (a dataset spec for a
+    CSV/Parquet source: names, units, sides) say how a log file is read, as for ``terrainml
+    ingest`` (:func:`terrainml.stream.sources.open_source`).
 
     ``trusted_keys``: public keys (``KEY.pub``); the model must be signed by one of them, else it
     is refused (exit 2, the message names the folder and the reason) before anything is served.
@@ -112,7 +117,8 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
 
     try:
         samples = open_source(source, robot=predictor.robot, realtime=realtime, counters=counters,
-                              idle_timeout_s=idle_timeout_s, ready=ready)
+                              idle_timeout_s=idle_timeout_s, ready=ready, topic_map=topics,
+                              dataset=dataset)
     except SourceError as exc:
         console.print(f"[red]error:[/] {exc}")
         for s in opened:

@@ -7,11 +7,18 @@ A *sample* is a dict with ``t_s`` and canonical run-table column names (design Â
 Source specs (``terrainml predict --source``)::
 
     RUN.mcap | RUN.bag | RUN.parquet | RUN.csv   a recorded log (as fast as possible, or --realtime)
+    BAG_FOLDER/                                  a ROS 2 bag folder (.mcap or .db3 inside)
     udp://HOST:PORT                              one JSON object per datagram (default 127.0.0.1:9870)
     -                                            JSON lines on stdin
 
 Log files are read through the io owner's ingest (:func:`terrainml.io.ingest.load_run`), i.e. the
-very same topic decoding, frame mapping and resampling to the base rate as training used.
+very same topic decoding, frame mapping and resampling to the base rate as training used. A log
+of another robot gets in the way ``terrainml ingest`` takes it: ``topic_map`` (``predict --topics``:
+a topic map YAML or built-in name, :mod:`terrainml.io.topicmap`) says which topics and fields of an
+MCAP/bag log feed which canonical columns, and ``dataset`` (``predict --format``: a dataset spec,
+:mod:`terrainml.io.dataset_spec`) reads a CSV/Parquet file as one run of that dataset, with its
+column names, units and scales (m/s wheel speeds become rad/s through the wheel radius, mA become
+A, ms stamps become s) and its side-to-wheel mapping.
 A datagram or line ``{"eos": true}`` ends the stream.
 
 Parsing cannot be crashed (:func:`parse_sample`): every datagram or line is one UTF-8 JSON
@@ -196,25 +203,29 @@ def parse_sample(data: bytes | str, counters: SourceCounters | None = None, *,
 
 # --------------------------------------------------------------------------- log files
 def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = 100.0,
-                     realtime: bool = False, topic_map: Any = None,
+                     realtime: bool = False, topic_map: Any = None, dataset: Any = None,
                      counters: SourceCounters | None = None) -> Iterator[dict]:
     """Samples of a recorded log at the base rate (ingest + resampling of the io owner).
 
+    ``topic_map`` and ``dataset`` are :func:`terrainml.io.ingest.load_run`'s: a topic map (name,
+    YAML path or dict) for an MCAP/bag log, a dataset spec (built-in name, YAML path or dict) for
+    a CSV/Parquet file of one run (module docstring); None: the defaults of ``terrainml ingest``.
     With ``realtime`` each sample is released at its ``t_s`` relative to the start (wall clock).
     What ingest could not read (corrupt messages, bad cells, a truncated tail) is warned about
     before the first sample and kept in ``counters.damage`` for the end-of-run summary; the ticks
     it left without data are invalid in the table, so they are served as flagged fallbacks.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise SourceError(f"{path}: file not found")
     try:
-        res = load_run(path, robot=robot, topic_map=topic_map, rate_hz=rate_hz)
+        res = load_run(path, robot=robot, topic_map=topic_map, rate_hz=rate_hz, dataset=dataset)
     except Exception as exc:  # noqa: BLE001 - ingest raises named errors; report them cleanly
         raise SourceError(f"{path}: cannot read log ({exc})") from None
     report = getattr(res, "report", None)
     if report is not None and getattr(report, "usable", True) is False:
-        raise SourceError(f"{path}: log is not usable ({getattr(report, 'warnings', '')})")
+        why = list(getattr(report, "errors", []) or []) + list(getattr(report, "warnings", []) or [])
+        raise SourceError(f"{path}: log is not usable ({'; '.join(map(str, why)) or 'no usable table'})")
     damage = damage_summary(res.table)
     if counters is not None:
         counters.damage = damage
@@ -321,9 +332,17 @@ def iter_line_samples(stream: IO[Any] | None = None, *, counters: SourceCounters
 
 def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
                 counters: SourceCounters | None = None, idle_timeout_s: float | None = None,
-                rate_hz: float = 100.0, ready: Any = None) -> Iterator[dict]:
-    """Iterator of samples for a ``--source`` spec (see the module docstring)."""
+                rate_hz: float = 100.0, ready: Any = None, topic_map: Any = None,
+                dataset: Any = None) -> Iterator[dict]:
+    """Iterator of samples for a ``--source`` spec (see the module docstring).
+
+    ``topic_map`` / ``dataset``: how a log file is read (:func:`iter_log_samples`); refused
+    (SourceError) for UDP and stdin, whose samples already carry canonical names.
+    """
     s = spec.strip()
+    if (topic_map is not None or dataset is not None) and (s == "-" or s == "udp" or s.startswith("udp://")):
+        raise SourceError(f"source {spec!r}: --topics and --format apply to a log file; UDP and stdin "
+                          "samples carry canonical column names and SI units already")
     if s == "-":
         if ready is not None:
             ready(None)
@@ -341,8 +360,9 @@ def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
         return iter_udp_samples(host, port, counters=counters, idle_timeout_s=idle_timeout_s,
                                 sock=sock, ready=ready)
     path = Path(s)
-    if not path.is_file():
+    if not path.exists():
         raise SourceError(f"source {spec!r}: no such file (expected RUN.mcap, udp://HOST:PORT or -)")
     if ready is not None:
         ready(None)
-    return iter_log_samples(path, robot, rate_hz=rate_hz, realtime=realtime, counters=counters)
+    return iter_log_samples(path, robot, rate_hz=rate_hz, realtime=realtime, topic_map=topic_map,
+                            dataset=dataset, counters=counters)

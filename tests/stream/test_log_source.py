@@ -60,3 +60,91 @@ def test_replay_summary_segments_cover_every_tick(sim_log, model_dir):
     segs = replay_summary(model_dir, sim_log)
     assert sum(s["ticks"] for s in segs) == len(load_run(sim_log, robot=load_robot()).table)
     assert segs[0]["fallback_reason"] == "no_classification" and segs[0]["true_class"] == 0
+
+
+# ------------------------------------------------------------ another robot's logs: --topics, --format
+R_HUSKY = 0.1651  # m, the Husky spec's wheel radius (terrainml/robots/husky.yaml)
+
+CSV_SPEC = {  # a single-file CSV layout: ms stamps, m/s side speeds, mA side currents
+    "name": "side_csv", "robot": "husky", "run_id": "{run}",
+    "sides": {"left": [1, 3], "right": [2, 4]},
+    "label": {"from": "none"},
+    "files": {"w": {"pattern": "drive_{run}.csv", "time": {"column": "stamp_ms", "unit": "ms"},
+                    "columns": {"v_left": {"to": "wheel{i}_omega_radps", "wheels": "left", "unit": "m/s"},
+                                "v_right": {"to": "wheel{i}_omega_radps", "wheels": "right", "unit": "m/s"},
+                                "i_left": {"to": "wheel{i}_current_a", "wheels": "left", "unit": "mA"},
+                                "i_right": {"to": "wheel{i}_current_a", "wheels": "right", "unit": "mA"}}}},
+}
+
+
+def _side_csv(tmp_path):
+    import numpy as np
+    import pandas as pd
+    import yaml
+
+    t_ms = np.arange(0, 2000, 10)  # 2 s at 100 Hz, constant values: resampling changes nothing
+    pd.DataFrame({"stamp_ms": t_ms, "v_left": 0.33, "v_right": 0.66, "i_left": 1500.0,
+                  "i_right": 2500.0}).to_csv(tmp_path / "drive_01.csv", index=False)
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(yaml.safe_dump(CSV_SPEC, sort_keys=False))
+    return tmp_path / "drive_01.csv", spec
+
+
+def test_csv_source_with_a_dataset_spec_gets_si_units_and_sides(tmp_path):
+    """--format SPEC: m/s side speeds become rad/s = v / R on both wheels of a side, mA become A."""
+    from terrainml.stream.sources import open_source
+
+    csv, spec = _side_csv(tmp_path)
+    samples = list(open_source(str(csv), robot=load_robot("husky"), dataset=str(spec)))
+    assert len(samples) == 200
+    s = samples[50]
+    assert s["t_s"] == pytest.approx(0.5)                       # 500 ms
+    for i, v in ((1, 0.33), (3, 0.33), (2, 0.66), (4, 0.66)):   # left -> 1, 3; right -> 2, 4
+        assert s[f"wheel{i}_omega_radps"] == pytest.approx(v / R_HUSKY)  # 0.33 / 0.1651 = 1.9988 rad/s
+    assert s["wheel1_current_a"] == pytest.approx(1.5) and s["wheel4_current_a"] == pytest.approx(2.5)
+    # without the spec the file's columns mean nothing to the canonical table: refused, named
+    from terrainml.stream.sources import SourceError
+
+    with pytest.raises(SourceError, match="drive_01.csv"):
+        next(iter(open_source(str(csv), robot=load_robot("husky"))))
+
+
+def test_topic_map_reads_a_log_with_other_topic_names(tmp_path):
+    """--topics MAP: a log whose topics are named differently is read through the map."""
+    import yaml
+
+    from terrainml.io import topics
+    from terrainml.io.mcap_writer import RosMcapWriter
+    from terrainml.io.topicmap import load_topic_map
+    from terrainml.stream.sources import SourceError, open_source
+
+    names = {topics.IMU: "/robot/imu", topics.WHEEL_JOINTS: "/robot/joints",
+             topics.MOTOR_CURRENT: "/robot/currents"}
+    log = tmp_path / "other.mcap"
+    with RosMcapWriter(log, 3, topic_names=names) as w:
+        for k in range(200):
+            t = k / 100.0
+            w.write_imu(t, (0.0, 0.0, 9.81), (0.0, 0.0, 0.2))
+            w.write_wheel_joints(t, [i + t for i in range(1, 4)], [0.0, 0.0, 0.0])
+            w.write_motor_current(t, [2.0 + i for i in range(1, 4)])
+    doc = load_topic_map("default").to_dict()
+    for src in doc["sources"]:
+        src["topic"] = names.get(src["topic"], src["topic"])
+    tmap = tmp_path / "map.yaml"
+    tmap.write_text(yaml.safe_dump(doc, sort_keys=False))
+    with pytest.raises(SourceError):  # the default map finds none of the required topics
+        next(iter(open_source(str(log), robot=load_robot())))
+    samples = list(open_source(str(log), robot=load_robot(), topic_map=str(tmap)))
+    s = samples[100]
+    assert s["t_s"] == pytest.approx(1.0)
+    assert [s[f"wheel{i}_omega_radps"] for i in (1, 2, 3)] == pytest.approx([2.0, 3.0, 4.0])  # i + t
+    assert [s[f"wheel{i}_current_a"] for i in (1, 2, 3)] == pytest.approx([3.0, 4.0, 5.0])    # 2 + i
+    assert s["imu_yaw_rate_radps"] == pytest.approx(0.2)
+
+
+def test_topics_and_format_are_refused_for_udp_and_stdin():
+    from terrainml.stream.sources import SourceError, open_source
+
+    for src in ("-", "udp://127.0.0.1:0"):
+        with pytest.raises(SourceError, match="apply to a log file"):
+            open_source(src, topic_map="default")
