@@ -6,7 +6,8 @@ Steps, each a small function taking and returning plain objects:
    back (the data contract, no simulator involved);
 2. the simulator writes a small labelled dataset of ROS 2 MCAP logs (every terrain class, mixed
    scenarios);
-3. ``dataset build``: ingest -> 12-state EKF -> slip and wheel state -> 2 s steady windows;
+3. ``dataset build``: ingest -> 12-state EKF -> slip and wheel state -> windows of the default
+   spec (``short``: 1 s windows that exist in stop-and-go, design §8);
 4. ``train``: SVM under grouped cross-validation by run, report and artifact with manifest;
 5. ``predict``: a held-out mixed-terrain course (terrain transitions, a seed never trained on)
    replayed through the online predictor; what it served is printed against the truth.
@@ -133,14 +134,16 @@ def step_simulate(out: Path, seed: int, console: Console, runs_per_class: int = 
 
 
 def step_build(logs: Path, out: Path, robot: RobotSpec, console: Console, n_jobs: int = 2):
-    """3. ingest -> EKF -> slip/state -> steady windows, with the rejection counts."""
+    """3. ingest -> EKF -> slip/state -> windows (default spec), with the rejection counts."""
     with _progress(console) as bar:
         task = bar.add_task("build windows", total=None)
         ds = build_dataset(logs, robot, n_jobs=n_jobs,
                            progress=lambda done, total, name: bar.update(task, completed=done, total=total))
     write_windows(ds, out / "windows.parquet")
     counts = np.bincount(ds.windows.y, minlength=8)
-    console.print(f"windows: {len(ds.windows)} steady 2 s windows from {len(set(ds.windows.groups))} runs; "
+    sp = ds.spec
+    console.print(f"windows: {len(ds.windows)} `{sp.name}` {sp.window_s:g} s windows from "
+                  f"{len(set(ds.windows.groups))} runs; "
                   "per class " + ", ".join(str(int(c)) for c in counts), highlight=False)
     return ds
 
@@ -191,7 +194,7 @@ def run_demo(out: Path, seed: int = 0, console: Console | None = None) -> None:
     step_contract(out, robot, seed, console)
     console.rule("2. simulator: labelled ROS 2 logs on eight terrains")
     logs = step_simulate(out, seed, console)
-    console.rule("3. dataset build: ingest -> EKF -> slip and wheel state -> steady windows")
+    console.rule("3. dataset build: ingest -> EKF -> slip and wheel state -> short windows")
     ds = step_build(logs, out, robot, console)
     console.rule("4. train: SVM, grouped CV by run, report and manifest")
     model_dir = step_train(ds, out, seed, console)

@@ -121,12 +121,12 @@ def _restrict(spec, robot, sensors):
     """``spec`` with its channels restricted to the sensor groups (unchanged when None)."""
     from dataclasses import replace
 
-    from terrainml.features.windows import WindowSpec
-    from terrainml.pipeline.dataset import dataset_channels
+    from terrainml.features.windows import window_spec
+    from terrainml.pipeline.dataset import DEFAULT_WINDOWS, dataset_channels
 
     if sensors is None:
         return spec
-    spec = spec or WindowSpec()
+    spec = spec or window_spec(DEFAULT_WINDOWS)
     try:
         return replace(spec, channels=dataset_channels(robot, spec, sensors))
     except ValueError as exc:
@@ -145,7 +145,8 @@ def build(
     robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec YAML or built-in name "
                                         "(agrimaro, husky). Default: agrimaro (husky for borealtc)."),
     fmt: str = typer.Option("auto", "--format", help="auto (logs) or borealtc (<CLASS>/pro_XX.csv layout)."),
-    windows: str = typer.Option("steady", "--windows", help="Window spec: steady (design §8 rules), chunks "
+    windows: str = typer.Option("short", "--windows", help="Window spec: short (default: 1 s windows in any "
+                                "wheel state, which exist in stop-and-go), steady (design §8 rules), chunks "
                                 "(the BorealTC authors' 1.7 s windows in 5 s chunks), state (any moving "
                                 "wheel state), or another name of terrainml.features.windows.WINDOW_SPECS."),
     sensors: Optional[str] = typer.Option(None, "--sensors", help="Sensor groups to use, e.g. wheels,currents "

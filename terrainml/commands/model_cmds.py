@@ -44,7 +44,8 @@ def train(
     out: Path = typer.Option(..., "--out", "-o", help="Model folder to create, e.g. runs/NAME."),
     model: str = typer.Option("svm", "--model", "-m", help="svm, cnn, hgb, all (svm and cnn), an average "
                               "such as svm+hgb, or several comma-separated."),
-    windows: str = typer.Option("steady", "--windows", help="Window spec when --data is a folder: steady, "
+    windows: str = typer.Option("short", "--windows", help="Window spec when --data is a folder: short "
+                                "(default), steady, "
                                 "chunks (BorealTC authors' windows), state."),
     sensors: Optional[str] = typer.Option(None, "--sensors", help="Sensor groups the model may use, e.g. "
                                           "wheels,currents (of wheels, currents, imu, cam; default all). "

@@ -79,6 +79,7 @@ import json
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
+from functools import lru_cache
 from typing import Any, Iterable, Sequence
 
 import numpy as np
@@ -371,6 +372,51 @@ def _bool_col(est: Any, name: str, n: int) -> np.ndarray:
     return np.isfinite(f) & (f != 0)
 
 
+class _Columns:
+    """Typed, memoised column access for one :func:`cut_windows` call.
+
+    Each column is converted once (validity flags are shared by many channels) and the
+    DataFrame-or-mapping test is made once, not per column: on the serving path (one short
+    window cut from the ring's arrays) these conversions were most of an update's cost.
+    """
+
+    def __init__(self, est: Any):
+        self.est = est
+        self.is_map = isinstance(est, Mapping)
+        self.names = est if self.is_map else frozenset(est.columns)
+        self.n = _n_rows(est)
+        self._float: dict[str, np.ndarray] = {}
+        self._bool: dict[str, np.ndarray] = {}
+
+    def has(self, name: str) -> bool:
+        return name in self.names
+
+    def float(self, name: str) -> np.ndarray:
+        """Column as float64 (n,), NaN where missing or unparsable (read-only: shared)."""
+        v = self._float.get(name)
+        if v is None:
+            raw = self.est[name] if self.is_map and name in self.names else None
+            if name not in self.names:
+                v = np.full(self.n, np.nan)
+            elif isinstance(raw, np.ndarray) and raw.dtype == np.float64:
+                v = raw  # the ring's float columns: used as they are
+            else:
+                v = _float_col(self.est, name, self.n)
+            self._float[name] = v
+        return v
+
+    def bool(self, name: str) -> np.ndarray:
+        """Flag column (n,): true where finite and non-zero; all true when missing."""
+        v = self._bool.get(name)
+        if v is None:
+            v = self._bool[name] = (_bool_col(self.est, name, self.n) if name in self.names
+                                    else np.ones(self.n, dtype=bool))
+        return v
+
+    def text(self, name: str) -> np.ndarray:
+        return _text_col(self.est, name)
+
+
 # ------------------------------------------------------------------------------ container
 @dataclass
 class Windows:
@@ -463,6 +509,10 @@ def _window_starts(n_rows: int, T: int, hop: int, online: bool) -> np.ndarray:
 
 def _steer_std(steer: np.ndarray) -> np.ndarray:
     """Std per wheel (rows) over finite samples; 0 where a wheel has none."""
+    if not steer.shape[1] or (steer == steer[:, :1]).all():  # wheels held still (or none): 0
+        return np.zeros(steer.shape[0])
+    if np.isfinite(steer).all():  # the usual case: one vectorised reduction
+        return steer.std(axis=1)
     out = np.zeros(steer.shape[0])
     for i, row in enumerate(steer):
         row = row[np.isfinite(row)]
@@ -481,6 +531,30 @@ def _fill_invalid(x: np.ndarray, ok: np.ndarray) -> np.ndarray:
     out = x.copy()
     out[~ok] = np.interp(idx[~ok], idx[ok], x[ok])
     return out
+
+
+def _channel_plan(channels: tuple[str, ...], robot: RobotSpec
+                  ) -> tuple[tuple[str, tuple[str, ...], float], ...]:
+    """Each channel's (column, validity columns, scale), memoised per channel set and robot."""
+    try:
+        return _channel_plan_cached(channels, robot)
+    except TypeError:  # a robot spec that cannot be hashed: work it out every time
+        return _channel_plan_cached.__wrapped__(channels, robot)
+
+
+@lru_cache(maxsize=64)
+def _channel_plan_cached(channels: tuple[str, ...], robot: RobotSpec
+                         ) -> tuple[tuple[str, tuple[str, ...], float], ...]:
+    """Each channel's (column, validity columns, scale) for ``robot``, worked out once.
+
+    Raises ValueError for a channel that names a wheel the robot does not have.
+    """
+    N = robot.n_wheels
+    for c in channels:
+        if c.startswith(("slip_", "current_")) and c.split("_")[1].isdigit() and int(c.split("_")[1]) > N:
+            raise ValueError(f"channel {c!r} names a wheel the robot '{robot.name}' does not have "
+                             f"(N = {N})")
+    return tuple(channel_column(ch, robot) for ch in channels)
 
 
 def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec | str | None = None,
@@ -511,7 +585,8 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec |
     robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
     channels = tuple(spec.channels) if spec.channels is not None else default_channels(robot)
     N = robot.n_wheels
-    n = _n_rows(est)
+    cols = _Columns(est)
+    n = cols.n
     T = spec.n_samples
     starts = _window_starts(n, T, spec.hop_samples(online), online)
     counts = {"n_windows": int(len(starts)), "n_kept": 0, "n_rejected": 0}
@@ -522,25 +597,28 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec |
                        spec.rate_hz), counts
 
     # ---- per-row arrays (elementwise only: identical whatever rows surround a window)
-    t = _float_col(est, "t_s", n)
-    vx = _float_col(est, "ekf_vx_mps", n)
-    vy = _float_col(est, "ekf_vy_mps", n)
-    r = _float_col(est, "ekf_yaw_rate_radps", n)
-    ax = _float_col(est, "ekf_ax_mps2", n)
-    ay = _float_col(est, "ekf_ay_mps2", n)
+    t = cols.float("t_s")
+    vx = cols.float("ekf_vx_mps")
+    vy = cols.float("ekf_vy_mps")
+    r = cols.float("ekf_yaw_rate_radps")
+    ax = cols.float("ekf_ax_mps2")
+    ay = cols.float("ekf_ay_mps2")
     if spec.remove_centripetal:
         ax, ay = ax - r * vy, ay + r * vx
     speed = np.hypot(vx, vy)
     active = spec.active_rules
+    # a share of ticks is never below 0: with min_steady_fraction <= 0 (``short``) the wheel-state
+    # rule cannot reject a window, so the state columns are not read at all
+    check_states = "wheel_state" in active and spec.min_steady_fraction > 0
     steady = np.ones((N, n), dtype=bool)
     # "dominant" mode: per wheel, one boolean row per moving state (the window keeps the
     # state that holds >= min_steady_fraction of its ticks)
     moving = np.zeros((len(MOVING_STATES), N, n), dtype=bool)
-    if "wheel_state" in active:
+    if check_states:
         for i in range(1, N + 1):
             col = f"state{i}"
-            if _has(est, col):
-                st = _text_col(est, col)
+            if cols.has(col):
+                st = cols.text(col)
                 steady[i - 1] = (st == STEADY_STATES[0]) | (st == STEADY_STATES[1])
                 for k, name in enumerate(MOVING_STATES):
                     moving[k, i - 1] = st == name
@@ -548,35 +626,27 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec |
                 steady[i - 1] = False
     steer = np.empty((N, n))
     for i in range(1, N + 1):
-        name = f"ekf_steer{i}_rad" if _has(est, f"ekf_steer{i}_rad") else f"wheel{i}_steer_rad"
-        steer[i - 1] = _float_col(est, name, n) if _has(est, name) else 0.0
-    if _has(est, "terrain"):
-        lab = _float_col(est, "terrain", n)
+        name = f"ekf_steer{i}_rad" if cols.has(f"ekf_steer{i}_rad") else f"wheel{i}_steer_rad"
+        steer[i - 1] = cols.float(name) if cols.has(name) else 0.0
+    labelled = cols.has("terrain")
+    if labelled:
+        lab = cols.float("terrain")
         lab = np.where(np.isfinite(lab) & (lab >= 0), lab, np.nan)
-    else:
-        lab = np.full(n, np.nan)
-    if _has(est, "run_id") and n:
-        run_ids = _text_col(est, "run_id")
-    else:
-        run_ids = np.full(n, run_id if run_id is not None else "", dtype=object)
+    plan = _channel_plan(channels, robot)  # ValueError: a channel names a missing wheel
     data = np.empty((C, n))
     valid = np.empty((C, n), dtype=bool)
-    for k, ch in enumerate(channels):
-        col, vcols, scale = channel_column(ch, robot)
-        x = _float_col(est, col, n)
+    for k, (col, vcols, scale) in enumerate(plan):
+        x = cols.float(col)
         if scale != 1.0:
             x = x * scale
         ok = np.isfinite(x)
         for vc in vcols:
-            ok &= _bool_col(est, vc, n)
+            ok &= cols.bool(vc)
         data[k], valid[k] = x, ok
-    for c in channels:
-        if c.startswith(("slip_", "current_")) and c.split("_")[1].isdigit() and int(c.split("_")[1]) > N:
-            raise ValueError(f"channel {c!r} names a wheel the robot '{robot.name}' does not have "
-                             f"(N = {N})")
 
     # ---- per-window rules
     dt = 1.0 / spec.rate_hz
+    no_labels = np.zeros(0)
     X_kept, meta_rows = [], []
     for s in starts:
         e = s + T
@@ -585,7 +655,7 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec |
         span = tw[-1] - tw[0]
         if not (np.all(np.isfinite(tw)) and abs(span - (T - 1) * dt) <= 0.5 * dt):
             fails.append("time_gap")
-        if "wheel_state" in active:
+        if check_states:
             if spec.wheel_state_mode == "dominant":
                 frac = moving[:, :, s:e].mean(axis=2).max(axis=0)  # (N,) share of each wheel's top state
                 if N and np.any(frac < spec.min_steady_fraction):
@@ -603,11 +673,16 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec |
             fails.append("acceleration")
         if N and np.any(_steer_std(steer[:, s:e]) >= spec.max_steer_std_rad):
             fails.append("steering")
-        lw = lab[s:e]
-        labels = np.unique(lw[np.isfinite(lw)])
+        if labelled:
+            lw = lab[s:e]
+            labels = np.unique(lw[np.isfinite(lw)])
+        else:  # no label column (the serving path): nothing to check
+            labels = no_labels
         if labels.size > 1:
             fails.append("terrain_label")
-        if C and np.any(valid[:, s:e].mean(axis=1) < spec.min_valid_fraction):
+        vw = valid[:, s:e]
+        all_valid = bool(vw.all())
+        if C and not all_valid and np.any(vw.mean(axis=1) < spec.min_valid_fraction):
             fails.append("channel_valid")
         if spec.rules is not None:
             fails = [f for f in fails if f in active]
@@ -616,19 +691,27 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec |
             for f in fails:
                 counts[f] += 1
             continue
-        xw = np.empty((C, T))
-        for k in range(C):
-            xw[k] = _fill_invalid(data[k, s:e], valid[k, s:e])
+        if all_valid:  # nothing to fill: one copy of the window
+            xw = data[:, s:e].copy()
+        else:
+            xw = np.empty((C, T))
+            for k in range(C):
+                xw[k] = _fill_invalid(data[k, s:e], vw[k])
         X_kept.append(xw)
-        meta_rows.append((str(run_ids[s]), int(labels[0]) if labels.size else -1,
-                          float(tw[0]), float(tw[-1]), int(s)))
+        meta_rows.append((int(s), int(labels[0]) if labels.size else -1, float(tw[0]), float(tw[-1])))
     counts["n_kept"] = len(X_kept)
     if not with_meta:
         X = np.stack(X_kept) if X_kept else np.zeros((0, C, T))
         return Windows(X, channels, None, spec.rate_hz), counts  # type: ignore[arg-type]
     if not X_kept:
         return Windows(np.zeros((0, C, T)), channels, _empty_meta(), spec.rate_hz), counts
-    meta = pd.DataFrame(meta_rows, columns=["run_id", "terrain", "t_start_s", "t_end_s", "start_index"])
+    # run ids only for the metadata (the serving path has none to read)
+    if cols.has("run_id") and n:
+        run_ids = cols.text("run_id")
+    else:
+        run_ids = np.full(n, run_id if run_id is not None else "", dtype=object)
+    meta = pd.DataFrame([(str(run_ids[s]), lab_, t0, t1, s) for s, lab_, t0, t1 in meta_rows],
+                        columns=["run_id", "terrain", "t_start_s", "t_end_s", "start_index"])
     meta["run_id"] = meta["run_id"].astype(object)
     return Windows(np.stack(X_kept), channels, meta, spec.rate_hz), counts
 

@@ -33,10 +33,11 @@ import logging
 import math
 import time
 from collections import deque
+from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable, Mapping, Protocol, Sequence
+from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 import pandas as pd
@@ -100,6 +101,7 @@ class RingBuffer:
         self._obj: np.ndarray | None = None
         self._i = 0
         self.count = 0
+        self._index: dict[str, tuple[int, int]] | None = None
 
     def _init(self, row: dict) -> None:
         num, obj = [], []
@@ -171,6 +173,20 @@ class RingBuffer:
         """Rows in time order, oldest first: DataFrame, shape (count, n_fields)."""
         return self.to_frame(self.snapshot())
 
+    def column_view(self, snap: tuple[np.ndarray, np.ndarray] | None,
+                    skip: Callable[[str], bool] = lambda k: False) -> "SnapshotColumns":
+        """Read-only mapping name -> column array (count,) of a :meth:`snapshot`, built on access.
+
+        The same values as :meth:`to_columns` (flags as bool), but a column is sliced out only
+        when the window code reads it: a short window reads about 20 of the ring's 70-odd fields.
+        """
+        if snap is None:
+            return SnapshotColumns({}, set(), snap, skip)
+        if self._index is None:
+            self._index = {k: (0, j) for j, k in enumerate(self._num_keys)}  # type: ignore[arg-type]
+            self._index.update({k: (1, j) for j, k in enumerate(self._obj_keys)})
+        return SnapshotColumns(self._index, self._bool_keys, snap, skip)
+
     def to_columns(self, snap: tuple[np.ndarray, np.ndarray] | None,
                    skip: Callable[[str], bool] = lambda k: False) -> dict[str, np.ndarray]:
         """Column arrays (count,) of a :meth:`snapshot`, the same values as :meth:`to_frame`'s
@@ -187,6 +203,38 @@ class RingBuffer:
             if not skip(k):
                 cols[k] = obj[:, j]
         return cols
+
+
+class SnapshotColumns(Mapping):
+    """Mapping name -> column of a ring snapshot (:meth:`RingBuffer.column_view`), lazy.
+
+    Fields where ``skip(name)`` is true (labels) are absent. Numeric columns are views of the
+    snapshot (float64), flags bool, other fields object arrays.
+    """
+
+    def __init__(self, index: Mapping[str, tuple[int, int]], bool_keys: set,
+                 snap: tuple[np.ndarray, np.ndarray] | None, skip: Callable[[str], bool]):
+        self._keys = [k for k in index if not skip(k)]
+        self._index = index
+        self._set = frozenset(self._keys)
+        self._bool_keys = bool_keys
+        self._snap = snap
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._set
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name not in self._set:
+            raise KeyError(name)
+        part, j = self._index[name]
+        col = self._snap[part][:, j]  # type: ignore[index]
+        return col > 0.5 if name in self._bool_keys else col
+
+    def __iter__(self):
+        return iter(self._keys)
+
+    def __len__(self) -> int:
+        return len(self._keys)
 
 
 # --------------------------------------------------------------------------- predictor
@@ -266,6 +314,9 @@ class Predictor:
         self.health = HealthMonitor(robot, silent_s=silent_s, sensors=sensors)
         self.sensors = None if sensors is None else list(sensors)
         self._estimator_flag = "imu" in self.health.monitored
+        # fixed wheels constrain only forward speed and yaw rate: without steering or an IMU the
+        # EKF's lateral speed is unobserved and drifts (180 m/s on a BorealTC run without IMU)
+        self._lateral_observed = robot.has_steering or self._estimator_flag
         self._raw_columns = tuple(getattr(classifier, "raw_columns", ()) or ())
         self.health.counters = self.counters
         self.ring = RingBuffer(int(round(self.window_s * self.rate_hz)))
@@ -414,6 +465,9 @@ class Predictor:
     def _advance_odometer(self, t: float, row: dict | None) -> None:
         """Integrate the EKF's body speed over the tick; the fusion filter ages by that distance.
 
+        The lateral speed counts only where it is observed (steered wheels or an IMU); a
+        skid-steer robot without IMU integrates |v_x|.
+
         An unhealthy tick adds nothing (its speed is not trusted); dt is bounded by the clock
         policy (<= max_clock_gap_s)."""
         dt = 0.0 if self._t_prev is None else t - self._t_prev
@@ -421,7 +475,8 @@ class Predictor:
         if row is None or not dt > 0:
             return
         try:
-            v = math.hypot(float(row.get("ekf_vx_mps", 0.0)), float(row.get("ekf_vy_mps", 0.0)))
+            vx, vy = float(row.get("ekf_vx_mps", 0.0)), float(row.get("ekf_vy_mps", 0.0))
+            v = math.hypot(vx, vy) if self._lateral_observed else abs(vx)
         except (TypeError, ValueError):
             return
         if math.isfinite(v):
@@ -601,12 +656,20 @@ class Predictor:
     def _timed_classify(self, snap: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
         c0 = time.perf_counter()
         try:
-            fast = getattr(self.classifier, "classify_columns", None)
-            if fast is not None:  # column arrays straight from the ring: no DataFrame
-                return fast(self.ring.to_columns(snap, _is_label))
-            return self.classifier.classify(self.ring.to_frame(snap))  # type: ignore[union-attr]
+            return self.classify_snapshot(snap)
         finally:
             self.classify_ms.append((time.perf_counter() - c0) * 1e3)
+
+    def classify_snapshot(self, snap: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
+        """Probabilities for the latest window of a ring :meth:`~RingBuffer.snapshot` (or None).
+
+        The serving path: the classifier reads the snapshot's columns in place
+        (:meth:`RingBuffer.column_view`, labels left out), no DataFrame is built.
+        """
+        fast = getattr(self.classifier, "classify_columns", None)
+        if fast is not None:  # column arrays straight from the ring: no DataFrame
+            return fast(self.ring.column_view(snap, _is_label))
+        return self.classifier.classify(self.ring.to_frame(snap))  # type: ignore[union-attr]
 
     def _apply(self, probs: Any, t_win: float) -> None:
         if probs is None:  # latest window not steady: keep the previous classification

@@ -268,3 +268,35 @@ def test_estimator_raising_is_an_unhealthy_tick_not_a_crash(robot, fake_predicto
     assert all(not m.estimator_ok and m.fallback_reason == "estimator_unhealthy" for m in bad)
     assert out[-1].estimator_ok and not out[-1].fallback
     assert pred.stats()["estimator_errors"] == 10
+
+
+class _DriftingLateralEstimator(FakeEstimator):
+    """A wheels-only EKF on fixed wheels: v_x right, the unobserved lateral speed drifting away."""
+
+    def step(self, s):
+        row = super().step({**s, "cam_vx_mps": 0.5})        # v_x = 0.5 m/s, observed
+        row["ekf_vy_mps"] = 50.0 * self.k / 100.0   # grows 50 m/s per second of log
+        return row
+
+
+def test_odometer_ignores_an_unobserved_lateral_speed():
+    """Husky (fixed wheels) served without IMU: 10 s at 0.5 m/s is 5 m of travel (hand value),
+    not the drifting v_y's kilometres; with the IMU monitored v_y counts again."""
+    from terrainml.robot import load_robot
+    from terrainml.stream.predictor import Predictor
+    from stream_fakes import FakeTable
+
+    husky = load_robot("husky")
+    samples = [{"t_s": k / 100.0,
+                **{f"wheel{i}_omega_radps": 0.5 / husky.wheel_radius_m for i in range(1, 5)},
+                **{f"wheel{i}_current_a": 1.0 for i in range(1, 5)},
+                "imu_ax_mps2": 0.0, "imu_ay_mps2": 0.0, "imu_az_mps2": 9.81,
+                "imu_yaw_rate_radps": 0.0} for k in range(1001)]
+    wheels_only = Predictor(husky, FakeTable(), FakeClassifier(), _DriftingLateralEstimator(husky),
+                            sensors=["wheels", "currents"])
+    _run(wheels_only, samples)
+    assert wheels_only.odometer_m == pytest.approx(5.0, rel=1e-6)
+    with_imu = Predictor(husky, FakeTable(), FakeClassifier(), _DriftingLateralEstimator(husky),
+                         sensors=["wheels", "currents", "imu"])
+    _run(with_imu, samples)
+    assert with_imu.odometer_m > 100.0

@@ -42,8 +42,15 @@ def test_short_windows_online_equal_offline_bit_for_bit(course_est):
         start = k + 1 - T
         if start < 0 or start % hop:
             continue
-        on, _ = cut_windows(ring.to_columns(ring.snapshot(), _is_label), robot, spec, online=True)
+        snap = ring.snapshot()
+        on, c_on = cut_windows(ring.to_columns(snap, _is_label), robot, spec, online=True)
         assert len(on) == (1 if start in kept_unlabelled else 0)
+        # the serving path reads the snapshot's columns in place (no dict, no DataFrame): same cut
+        view = ring.column_view(snap, _is_label)
+        assert not any(_is_label(k) for k in view) and set(view) == set(ring.to_columns(snap, _is_label))
+        lazy, c_lazy = cut_windows(view, robot, spec, online=True, with_meta=False)
+        assert c_lazy == c_on
+        np.testing.assert_array_equal(lazy.X, on.X)
         if start in by_start:
             np.testing.assert_array_equal(on.X[0], off.X[by_start[start]])
             matched += 1
@@ -87,3 +94,4 @@ def test_uncertain_posterior_is_a_fallback():
     out = [pred.step(s) for s in make_samples(robot, 3.0)]
     assert out[-1].fallback and out[-1].fallback_reason == "uncertain_classification"
     assert out[-1].terrain_name == "none"
+
