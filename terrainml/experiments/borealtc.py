@@ -239,13 +239,20 @@ IMU_COLUMNS = ("imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2", "imu_yaw_rate_radps"
                "imu_pitch_rate_radps", "imu_valid")
 
 
-def course_runs(tables: Sequence[pd.DataFrame]) -> list[str]:
-    """The held-out runs of the course: the last run (by id) of every class (a fixed rule)."""
-    last: dict[int, str] = {}
+def runs_by_class(tables: Sequence[pd.DataFrame]) -> dict[int, list[str]]:
+    """Run ids of every class (by label code), sorted by id."""
+    by: dict[int, list[str]] = {}
     for df in tables:
-        c, rid = int(df["terrain"].iloc[0]), str(df["run_id"].iloc[0])
-        last[c] = max(last.get(c, rid), rid)
-    return [last[c] for c in sorted(last)]
+        by.setdefault(int(df["terrain"].iloc[0]), []).append(str(df["run_id"].iloc[0]))
+    return {c: sorted(by[c]) for c in sorted(by)}
+
+
+def course_runs(tables: Sequence[pd.DataFrame], k: int = -1) -> list[str]:
+    """The held-out runs of a course, in class order: the ``k``-th run (by id) of every class.
+
+    ``k = -1`` (default) is the last run of every class; ``k = 0, 1, ...`` the rotation of
+    ``benchmarks/bench_course_sweep.py`` (up to the run count of the smallest class)."""
+    return [ids[k] for ids in runs_by_class(tables).values()]
 
 
 def make_course(tables: Sequence[pd.DataFrame], run_ids: Sequence[str], segment_s: float = 30.0,
