@@ -23,10 +23,11 @@ control_app = typer.Typer(help="Traction control in the simulator.", no_args_is_
 @control_app.command("closed-loop", help=(
     "Simulate a straight run on one terrain with a traction-control policy and report energy "
     "per metre, mean speed, mean tractive efficiency and stuck events (JSON).\n\n"
-    "Policies: none (no traction control), fixed (slip PID to 0.1), terrain-aware (slip PID to "
-    "the served desired slip: the online predictor with --model, else the true class with the "
-    "lookup table, reported as an oracle). The slip PID is the simulator-tuned limiter with "
-    "feed-forward (docs/control.md); --thesis-pid uses the thesis's P controller instead.\n\n"
+    "Policies: none (no traction control), fixed (slip cap 0.1), terrain-aware (cap at the "
+    "served desired slip: the online predictor with --model, else the true class with the "
+    "lookup table, reported as an oracle). The control law is the per-wheel slip limiter "
+    "(docs/control.md), which acts from rest to cruise; --kp/--ki select the simulator-tuned "
+    "slip PID with those gains and --thesis-pid the thesis's P controller instead.\n\n"
     "Example: terrainml control closed-loop --terrain dry_sand --policy terrain-aware "
     "--model runs/svm --duration-s 60 --seed 0 --out sand_aware.json"))
 def closed_loop(
@@ -64,7 +65,9 @@ def closed_loop(
         check_output_writable(out)  # before the simulation, not after it
     try:
         over = {k: v for k, v in (("kp", kp), ("ki", ki)) if v is not None}
-        pid = (SlipPIDConfig(**over) if thesis_pid else tuned_config(load_robot(), **over))
+        # the limiter is the default law; a PID only when its gains or the thesis form are asked
+        pid = (SlipPIDConfig(**over) if thesis_pid
+               else tuned_config(load_robot(), **over) if over else None)
     except ValueError as exc:
         fail(str(exc))
     with Progress(console=console, transient=True) as bar:

@@ -52,7 +52,7 @@ from terrainml.robot import RobotSpec
 from terrainml.stream.predictor import Predictor
 
 __all__ = ["AccelLimitController", "CurrentLimitController", "LimiterController", "fixed_cap",
-           "no_control", "oracle", "oracle_cap", "terrain_aware"]
+           "mission_limiter_config", "no_control", "oracle", "oracle_cap", "terrain_aware"]
 
 _SLIP = np.linspace(0.0, 0.99, 991)
 
@@ -62,17 +62,18 @@ def _nominal_params(name: str):
 
 
 class _ClassCurves:
-    """Per class (by name): traction and braking targets, thrust-peak offset, peak coefficients."""
+    """Per class (by name): traction and braking targets, thrust-peak offsets, peak coefficients."""
 
     def __init__(self, robot: RobotSpec, table: Any, refiner_cfg: CapRefinerConfig) -> None:
         self.robot = robot
         self.table = table
         self.cfg = refiner_cfg
         self.w_mean = float(np.mean(robot.static_wheel_loads_n()))
-        self._cache: dict[int, tuple[float, float, float, float, float]] = {}
+        self._cache: dict[int, tuple[float, float, Any, float, float]] = {}
 
-    def get(self, cid: int) -> tuple[float, float, float, float, float]:
-        """(s_T, s_B, thrust-peak offset, mu_net peak, gross-thrust peak H/W) of class ``cid``."""
+    def get(self, cid: int) -> tuple[float, float, Any, float, float]:
+        """(s_T, s_B, thrust-peak offsets, mu_net peak, gross-thrust peak H/W) of class ``cid``;
+        the offsets are :func:`thrust_peak_offset`'s (L,) array, NaN without a nominal curve."""
         if cid not in self._cache:
             s_t = float(self.table.target(cid, "traction"))
             s_b = float(self.table.target(cid, "braking"))
@@ -86,6 +87,27 @@ class _ClassCurves:
                 self._cache[cid] = (s_t, s_b, thrust_peak_offset(_SLIP, h, s_t, self.cfg),
                                     float(np.max(mu)), float(np.max(h)) / self.w_mean)
         return self._cache[cid]
+
+
+def mission_limiter_config(robot: RobotSpec, **overrides: Any) -> SlipLimiterConfig:
+    """Slip-limiter settings of the mission policies (tuned on the tuning seeds only).
+
+    The limiter's defaults with ``kp_mps`` 2.0 (as :func:`terrainml.control.traction.limiter_config`)
+    and a build-up gain ``kp_build_mps`` of 6.0 m/s per unit slip. Why (greenhouse, level ground,
+    tuning seeds 5000-5011, oracle-cap against none): the wheel drive is a PI speed loop whose
+    torque needs a speed error; at kp 0.5 a start from rest lost 4-13 % route time (the wheel sat
+    in its rut on a ceiling a few cm/s above the body), at kp 2.0 still 3-10 % on step starts, with
+    the build-up gain 6.0 the ceiling lies above the command until the shear slip nears the cap
+    (tilled loam step starts +0.4-0.9 % time). ``rest_relax_s`` 0.5 s: a shear slip left above the
+    cap while wheel and body are at rest decays (field tuning seed tilled_loam 5004, 3.4 deg with a
+    tool: a speed estimate biased low drove the estimate to 0.2 against a 0.15 cap, the robot
+    stopped and the wheels were held at rest for 13 s; with 1.0 s +5.1 % time, with 0.5 s +4.1 %).
+    ``overrides`` replace fields.
+    """
+    base: dict[str, Any] = dict(wheel_radius_m=float(robot.wheel_radius_m), kp_mps=2.0,
+                                kp_build_mps=6.0, rest_relax_s=0.5)
+    base.update(overrides)
+    return SlipLimiterConfig(**base)
 
 
 class _Measured:
@@ -119,7 +141,7 @@ class LimiterController:
         traction cap and braking floor per wheel, and the class whose nominal curve the refiner
         may use (None: serve unrefined, e.g. the safe cap on fallback).
     refine : refine the traction cap online (:class:`~terrainml.control.cap_refiner.CapRefiner`).
-    limiter : :class:`SlipLimiterConfig` (default: the robot's wheel radius, defaults otherwise).
+    limiter : :class:`SlipLimiterConfig` (default :func:`mission_limiter_config`).
     refiner : :class:`CapRefinerConfig`.
     table : desired-slip table (default ``DesiredSlipTable.build(robot)``).
     predictor : a :class:`~terrainml.stream.predictor.Predictor` stepping the estimator (the
@@ -136,7 +158,7 @@ class LimiterController:
         self.targets = targets
         self.table = table if table is not None else (
             predictor.table if predictor is not None else DesiredSlipTable.build(robot))
-        self.limiter = SlipLimiter(n, limiter or SlipLimiterConfig(wheel_radius_m=robot.wheel_radius_m))
+        self.limiter = SlipLimiter(n, limiter or mission_limiter_config(robot))
         self.refiner = CapRefiner(n, refiner) if refine else None
         self.curves = _ClassCurves(robot, self.table, refiner or CapRefinerConfig())
         self.predictor = predictor

@@ -3,10 +3,25 @@
 :class:`SlipController` is what runs on the robot (or in the simulator's closed-loop hook, see
 :mod:`terrainml.experiments.closed_loop`): every control tick (100 Hz) it takes one measured sample (the
 canonical run-table columns of design §5 plus ``t_s``), estimates slip, wheel states and
-wheel-centre speeds with the online estimator, picks the desired slip per wheel and returns the
-slip PID's output ``PID_out`` (rad/s, shape (N,)), to be added to the low-level wheel-speed
-set-points: ``omega_cmd = omega_low_level + PID_out`` (eq. 8.3). It knows nothing about the
-simulator.
+wheel-centre speeds with the online estimator, picks the targets per wheel and returns a
+per-wheel correction (rad/s, shape (N,)) to be added to the low-level wheel-speed set-points:
+``omega_cmd = omega_low_level + out`` (eq. 8.3). It knows nothing about the simulator.
+
+Control law (``law``)
+---------------------
+``"limiter"`` (default; issue 20)  the per-wheel slip limiter
+                   (:class:`terrainml.control.slip_limiter.SlipLimiter`): caps each wheel's
+                   shear-displacement slip at the class's traction target s_T and floors it at the
+                   braking target s_B; it keeps acting at a stall and from rest, releases smoothly
+                   and never resets while driving. ``out`` is its command offset.
+``"pid"``          the slip PID of thesis §8.3 (:class:`terrainml.control.pid.SlipPID`, settings
+                   ``pid``, default :func:`tuned_config`); ``out`` is ``PID_out``. Kept for the
+                   thesis configuration (Table 8.1) and the former ``*-pid`` mission policies.
+                   Passing a ``pid`` configuration selects it (``law=None``).
+
+Why the limiter is the default (measured, docs/control.md): the PID's enable rule (body and wheel
+>= 0.05 m/s, reset when disabled) lets go exactly at a stall, and its feed-forward from a lagging
+speed estimate holds a start from rest back (dry sand, seed 2: 6.2 % slower than no control).
 
 Policies
 --------
@@ -37,9 +52,16 @@ they are at the served class's peak otherwise (D35). ``on_fallback="release"`` (
 the former behaviour (departure D36, retired: it existed because the fallback used to be the
 least aggressive row, pavement, which stalled the robot on soft soil; design §12).
 
+On the limiter path the targets are the served class's *pair* (s_T, s_B) per wheel, whatever
+the wheel state: the limiter picks the cap or the floor from the command against the ground speed
+itself, so a stalled wheel (v_long ~ 0, no sign) is still capped. ``steady_target="served"`` caps
+wheels in ``steady`` at the class's s_S instead; on fallback the pair is the safe cap's
+(``"serve"``) or none at all (``"release"``: the limiter lets go at its release rate, no reset).
+
 Measured slip, wheel states and v_long always come from the online estimator. The low-level
 set-points ``omega_low_level`` are read from the sample's optional ``wheel{i}_cmd_omega_radps``
-columns (design §5); the PID's feed-forward (``SlipPIDConfig.wheel_radius_m``) needs them.
+columns (design §5); the limiter and the PID's feed-forward (``SlipPIDConfig.wheel_radius_m``)
+need them.
 """
 
 from __future__ import annotations
@@ -52,17 +74,20 @@ from typing import Any, Callable
 import numpy as np
 
 from terrainml.control.pid import SlipPID, SlipPIDConfig
+from terrainml.control.slip_limiter import SlipLimiter, SlipLimiterConfig
 from terrainml.estimation.ekf import I_VX, I_VY
 from terrainml.estimation.online import OnlineEstimator
 from terrainml.lookup.policy import desired_slip_per_wheel
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
+from terrainml.stream.policy import safe_cap_for
 from terrainml.stream.predictor import Predictor
 
-__all__ = ["FIXED_TARGET", "ON_FALLBACK", "POLICIES", "STEADY_TARGETS", "FixedTargetTable", "SlipController",
-           "tuned_config"]
+__all__ = ["FIXED_TARGET", "LAWS", "ON_FALLBACK", "POLICIES", "STEADY_TARGETS", "FixedTargetTable",
+           "SlipController", "limiter_config", "tuned_config"]
 
 POLICIES = ("none", "fixed", "terrain-aware")
+LAWS = ("limiter", "pid")
 STEADY_TARGETS = ("peak", "served")
 ON_FALLBACK = ("release", "serve")
 FIXED_TARGET = 0.1
@@ -80,6 +105,22 @@ def tuned_config(robot: RobotSpec, **overrides: Any) -> SlipPIDConfig:
                 mode="limit")
     base.update(overrides)
     return SlipPIDConfig(**base)
+
+
+def limiter_config(robot: RobotSpec, **overrides: Any) -> SlipLimiterConfig:
+    """Slip-limiter settings of :class:`SlipController`'s default law (docs/control.md).
+
+    The limiter's defaults with a build-up gain ``kp_mps`` of 2.0 m/s per unit slip instead of 0.5.
+    Why (measured, dry sand, seed 2, 1 m/s^2 ramp start): the wheel drive is a PI speed loop, so
+    its torque needs a speed error; with 0.5 the ceiling at a start from rest (the body still at
+    rest, the shear slip 0.28 of a 0.42 cap) leaves the wheel only ~0.07 m/s above the body, the
+    drive's torque builds through its integrator alone and the start is delayed by ~1.3 s (-13.5 %
+    mean speed, one stuck event). With 2.0 the start keeps no control's speed (-0.5 %) and the
+    towed-load stall case still holds the shear slip at the peak. ``overrides`` replace fields.
+    """
+    base: dict[str, Any] = dict(wheel_radius_m=float(robot.wheel_radius_m), kp_mps=2.0)
+    base.update(overrides)
+    return SlipLimiterConfig(**base)
 
 
 @dataclass
@@ -105,7 +146,7 @@ class FixedTargetTable:
 
 
 class SlipController:
-    """Per-wheel slip control from measured samples (callable: ``ctrl(sample) -> PID_out``).
+    """Per-wheel slip control from measured samples (callable: ``ctrl(sample) -> out``).
 
     Parameters
     ----------
@@ -115,34 +156,58 @@ class SlipController:
     true_class : class id for the oracle terrain-aware policy (no model).
     class_lookup : callable ``t_s -> class id`` (oracle on mixed terrain), overrides
         ``true_class``.
-    pid : SlipPIDConfig (default :func:`tuned_config`).
+    law : one of :data:`LAWS` or None (default: ``"pid"`` when ``pid`` is given, else
+        ``"limiter"``; module docstring).
+    pid : SlipPIDConfig of the PID law (default :func:`tuned_config`).
+    limiter : SlipLimiterConfig of the limiter law (default :func:`limiter_config`).
     preset : EKF preset.
     table : desired-slip table for the oracle policy (default ``DesiredSlipTable.build(robot)``).
     on_fallback : with a model, what to do while the predictor serves its fallback:
         ``"serve"`` (default: limit the slip to the served safe cap, design §10) or
         ``"release"`` (no correction, the wheels follow the low-level command; the former D36).
     steady_target : ``"peak"`` (default: the class's traction target also in steady and idle
-        states) or ``"served"`` (the served targets of design §10: s_S when steady, 0 when idle).
+        states) or ``"served"`` (the served targets of design §10: s_S when steady, 0 when idle;
+        the limiter has no "0" cap and keeps the traction target for idle wheels).
+
+    Attributes
+    ----------
+    law : the control law in use.
+    pid : :class:`SlipPID` (PID law) or None; ``config`` its settings.
+    limiter : :class:`SlipLimiter` (limiter law) or None.
+    trace : None, or a list that receives ``(t, target, measured slip, out)`` per tick (the
+        limiter law records its traction cap and its shear slip).
     """
 
     def __init__(self, robot: RobotSpec, policy: str, *, model: str | Path | None = None,
                  true_class: int | None = None, class_lookup: Callable[[float], int] | None = None,
-                 pid: SlipPIDConfig | None = None, preset: str = "robust", table: Any = None,
-                 steady_target: str = "peak", on_fallback: str = "serve"):
+                 law: str | None = None, pid: SlipPIDConfig | None = None,
+                 limiter: SlipLimiterConfig | None = None, preset: str = "robust",
+                 table: Any = None, steady_target: str = "peak", on_fallback: str = "serve"):
         if policy not in POLICIES:
             raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
         if steady_target not in STEADY_TARGETS:
             raise ValueError(f"steady_target must be one of {', '.join(STEADY_TARGETS)}, "
                              f"got {steady_target!r}")
-        self.steady_target = steady_target
         if on_fallback not in ON_FALLBACK:
             raise ValueError(f"on_fallback must be one of {', '.join(ON_FALLBACK)}, "
                              f"got {on_fallback!r}")
+        law = ("pid" if pid is not None else "limiter") if law is None else law
+        if law not in LAWS:
+            raise ValueError(f"law must be one of {', '.join(LAWS)}, got {law!r}")
+        self.steady_target = steady_target
         self.on_fallback = on_fallback
         self.robot = robot
         self.policy = policy
-        self.config = pid if pid is not None else tuned_config(robot)
-        self.pid = SlipPID(robot.n_wheels, self.config)
+        self.law = law
+        n = robot.n_wheels
+        self.config: SlipPIDConfig | None = None
+        self.pid: SlipPID | None = None
+        self.limiter: SlipLimiter | None = None
+        if law == "pid":
+            self.config = pid if pid is not None else tuned_config(robot)
+            self.pid = SlipPID(n, self.config)
+        else:
+            self.limiter = SlipLimiter(n, limiter or limiter_config(robot))
         self.predictor = None
         self.estimator = None
         self.class_lookup = class_lookup
@@ -156,9 +221,11 @@ class SlipController:
             self.table = FixedTargetTable()
         elif policy == "terrain-aware" and self.predictor is None:
             self.table = table if table is not None else DesiredSlipTable.build(robot)
-        n = robot.n_wheels
         self._cmd_keys = [f"wheel{i}_cmd_omega_radps" for i in range(1, n + 1)]
+        self._omega_keys = [f"wheel{i}_omega_radps" for i in range(1, n + 1)]
         self._t_prev: float | None = None
+        self._v_last = np.zeros(n)      # last finite wheel-centre speeds (the limiter's input)
+        self._out = np.zeros(n)         # last correction (served again on a dropped sample)
         self.n_fallback = 0
         self.n_ticks = 0
         # per-tick record for analysis: t, desired slip, measured slip, PID_out (lists)
@@ -182,10 +249,10 @@ class SlipController:
     def _omega_low_level(self, s: dict) -> np.ndarray:
         vals = [s.get(k) for k in self._cmd_keys]
         if any(v is None for v in vals):
-            if self.config.wheel_radius_m is not None:
+            if self.limiter is not None or self.config.wheel_radius_m is not None:  # type: ignore[union-attr]
                 missing = self._cmd_keys[[v is None for v in vals].index(True)]
-                raise ValueError(f"sample lacks column {missing!r}: the slip PID's feed-forward "
-                                 "needs the low-level wheel-speed set-points")
+                raise ValueError(f"sample lacks column {missing!r}: the slip limiter and the "
+                                 "PID's feed-forward need the low-level wheel-speed set-points")
             return np.zeros(self.robot.n_wheels)
         return np.array(vals, dtype=float)
 
@@ -203,6 +270,29 @@ class SlipController:
             return s_des
         return np.where(steady, np.sign(v_long) * peak, s_des)
 
+    def _target_pair(self, table: Any, cid: int, states) -> tuple[np.ndarray, np.ndarray]:
+        """Limiter law: (traction cap s_T > 0, braking floor s_B < 0) per wheel, any wheel state."""
+        n = self.robot.n_wheels
+        s_t = np.full(n, abs(float(table.target(int(cid), "traction"))))
+        s_b = np.full(n, -abs(float(table.target(int(cid), "braking"))))
+        if self.steady_target == "served":
+            steady = np.array([st == "steady" for st in states])
+            s_t = np.where(steady, abs(float(table.target(int(cid), "steady"))), s_t)
+        return s_t, s_b
+
+    def _safe_cap_pair(self) -> tuple[np.ndarray, np.ndarray]:
+        """Limiter law on fallback: the safe cap's (s_T, s_B) over the model's classes (design §10),
+        taken exactly as the predictor takes it for its fallback messages."""
+        pred = self.predictor
+        ids = getattr(pred.classifier, "class_ids", None)  # type: ignore[union-attr]
+        ids = range(len(pred.class_names)) if ids is None else ids  # type: ignore[union-attr]
+        names = [pred.class_names[int(c)] for c in ids]  # type: ignore[union-attr]
+        cap = safe_cap_for(pred.table, ids, names).safe_cap(  # type: ignore[union-attr]
+            names if hasattr(pred.table, "class_names") else None)  # type: ignore[union-attr]
+        n = self.robot.n_wheels
+        return (np.full(n, abs(float(cap.target("traction")))),
+                np.full(n, -abs(float(cap.target("braking")))))
+
     def __call__(self, sample: dict) -> np.ndarray | None:
         if self.policy == "none":
             return None
@@ -213,25 +303,33 @@ class SlipController:
         n = self.robot.n_wheels
         omega_ll = self._omega_low_level(s)
         self.n_ticks += 1
+        pair: tuple[np.ndarray, np.ndarray] | None = None     # the limiter's targets
         if self.predictor is not None:
             msg = self.predictor.step(s)
-            if msg is None:
-                return None
+            if msg is None:  # a dropped sample (clock policy): keep the last correction
+                return None if self.limiter is None else self._out.copy()
             est = self.predictor.estimator
             s_des = np.asarray(msg.slip_desired, dtype=float)
             s_meas = np.array([float(v) for v in est.slip])  # NaN when unavailable: PID disables
             self.n_fallback += int(msg.fallback)
             v_long = np.asarray(est.v_long, dtype=float)
             if msg.fallback and self.on_fallback == "release":
-                self.pid.reset()
-                self._trace(t, s_des, s_meas, np.zeros(n))
-                return np.zeros(n)
-            if msg.fallback:  # the safe cap: steady and idle moving wheels at its traction target
+                if self.pid is not None:
+                    self.pid.reset()
+                    self._trace(t, s_des, s_meas, np.zeros(n))
+                    return np.zeros(n)
+                pair = (np.full(n, np.nan), np.full(n, np.nan))  # no targets: the limiter lets go
+            elif msg.fallback:  # the safe cap: steady and idle moving wheels at its traction target
                 s_des = self._steady_at_peak(s_des, msg.wheel_state, v_long, 0,
                                              _CapAsTable(self.predictor.safe_cap_traction()))
+                if self.limiter is not None:
+                    pair = self._safe_cap_pair()
             else:
                 s_des = self._steady_at_peak(s_des, msg.wheel_state, v_long, msg.terrain_class,
                                              self.predictor.table)
+                if self.limiter is not None:
+                    pair = self._target_pair(self.predictor.table, msg.terrain_class,
+                                             msg.wheel_state)
             x = est.ekf.x
             ok = msg.estimator_ok
         else:
@@ -244,12 +342,28 @@ class SlipController:
             s_des = np.asarray(desired_slip_per_wheel(cid or 0, states, v_long, self.table))
             s_des = self._steady_at_peak(s_des, states, v_long, cid or 0, self.table)
             s_meas = np.array([row[f"slip{i}"] for i in range(1, n + 1)], dtype=float)
+            if self.limiter is not None:
+                pair = self._target_pair(self.table, cid or 0, states)
             x = self.estimator.ekf.x  # type: ignore[union-attr]
             ok = bool(row["estimator_ok"])
+        if self.limiter is not None:
+            return self._limit(t, s, omega_ll, v_long, pair, dt)  # type: ignore[arg-type]
         body = math.hypot(float(x[I_VX]), float(x[I_VY])) if ok else float("nan")
-        step = self.pid.step(s_des, s_meas, v_long, body, omega_ll, dt)
+        step = self.pid.step(s_des, s_meas, v_long, body, omega_ll, dt)  # type: ignore[union-attr]
         self._trace(t, s_des, s_meas, step.pid_out_radps)
         return step.pid_out_radps
+
+    def _limit(self, t: float, s: dict, omega_ll: np.ndarray, v_long: np.ndarray,
+               pair: tuple[np.ndarray, np.ndarray], dt: float) -> np.ndarray:
+        """One tick of the limiter law: measured wheel speeds against the served (s_T, s_B)."""
+        # an unhealthy estimate keeps the last good wheel-centre speed (a NaN would release)
+        self._v_last = np.where(np.isfinite(v_long), v_long, self._v_last)
+        omega = np.array([s.get(k, math.nan) for k in self._omega_keys], dtype=float)
+        s_t, s_b = pair
+        out = self.limiter.step_pair(omega, omega_ll, self._v_last, s_t, s_b, dt)  # type: ignore[union-attr]
+        self._out = out.offset_radps
+        self._trace(t, s_t, out.slip_shear, out.offset_radps)
+        return out.offset_radps
 
     def _trace(self, t: float, s_des, s_meas, out) -> None:
         if self.trace is not None:

@@ -31,6 +31,7 @@ import numpy as np
 
 from terrainml.classes import class_id
 from terrainml.control.pid import SlipPIDConfig
+from terrainml.control.slip_limiter import SlipLimiterConfig
 from terrainml.control.traction import POLICIES, SlipController
 from terrainml.lookup import terramechanics as tm
 from terrainml.robot import RobotSpec, load_robot
@@ -119,17 +120,20 @@ SCENARIOS = ("straight", "step_stop_and_go")
 def run_closed_loop(terrain: str | int, policy: str, *, model: str | Path | None = None,
                     duration_s: float = 60.0, seed: int = 0, speed_mps: float = 1.0,
                     robot: RobotSpec | str | None = None, pid: SlipPIDConfig | None = None,
+                    law: str | None = None, limiter: SlipLimiterConfig | None = None,
                     steady_target: str = "peak", scenario: str = "straight",
                     progress: Callable[[float], None] | None = None,
                     return_result: bool = False) -> dict[str, Any] | tuple[dict[str, Any], SimResult]:
     """Simulate one run on ``terrain`` under ``policy``; return the report dict.
 
     ``scenario``: ``"straight"`` (the default: 1 m/s^2 start, cruise, brake; design §6) or
-    ``"step_stop_and_go"`` (:func:`step_stop_and_go`). ``pid`` defaults to
-    :func:`terrainml.control.traction.tuned_config`; ``steady_target`` as in
-    :class:`~terrainml.control.traction.SlipController`. The scenario and the terrain draw depend
-    only on ``seed`` (derived exactly as :func:`terrainml.sim.generate.simulate` derives them), so
-    the policies of one seed drive on the same ground. ``return_result``: also return the
+    ``"step_stop_and_go"`` (:func:`step_stop_and_go`). ``law``, ``pid``, ``limiter`` and
+    ``steady_target`` as in :class:`~terrainml.control.traction.SlipController`: by default the
+    slip limiter (:func:`~terrainml.control.traction.limiter_config`); a ``pid`` configuration
+    (or ``law="pid"``) runs the slip PID (default :func:`~terrainml.control.traction.tuned_config`).
+    The scenario and the terrain draw depend only on ``seed`` (derived exactly as
+    :func:`terrainml.sim.generate.simulate` derives them), so the policies of one seed drive on the
+    same ground. ``return_result``: also return the
     :class:`SimResult`.
     """
     if scenario not in SCENARIOS:
@@ -143,8 +147,8 @@ def run_closed_loop(terrain: str | int, policy: str, *, model: str | Path | None
     else:
         scn = step_stop_and_go(cid, speed_mps, duration_s)
     sim = Simulator(scn, rb, ss_sim)
-    ctrl = SlipController(rb, policy, model=model, true_class=cid, pid=pid,
-                          steady_target=steady_target)
+    ctrl = SlipController(rb, policy, model=model, true_class=cid, law=law, pid=pid,
+                          limiter=limiter, steady_target=steady_target)
     hook = None if policy == "none" else closed_loop_hook(sim, ctrl)
     res = sim.run(controller=hook, progress=progress)
     dist = max(float(res.distance_m), 1e-9)

@@ -72,3 +72,16 @@ def test_limiter_policies_share_the_interface(robot):
 def test_missing_setpoints_are_a_clear_error(robot):
     with pytest.raises(ValueError, match="wheel1_cmd_omega_radps"):
         bl.fixed_cap(robot)({"t_s": 0.0, "wheel1_omega_radps": 0.0})
+
+
+def test_mission_limiter_config_is_the_tuned_build_up():
+    """The mission policies' limiter: kp 2.0, build-up gain 6.0 (docs/control_missions.md);
+    from rest at a stall the ceiling 6.0 * s_T lies above a 0.5 m/s command for any s_T >= 0.1."""
+    from terrainml.control.baselines import mission_limiter_config
+    from terrainml.robot import load_robot
+
+    rb = load_robot(None)
+    cfg = mission_limiter_config(rb, ki=0.5)
+    assert (cfg.kp_mps, cfg.kp_build_mps, cfg.ki) == (2.0, 6.0, 0.5)
+    assert cfg.wheel_radius_m == rb.wheel_radius_m
+    assert cfg.kp_build_mps * 0.1 > 0.5

@@ -7,43 +7,70 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from terrainml.control.cap_refiner import (CapRefiner, CapRefinerConfig, local_quadratic_peak,
-                                           thrust_peak_offset)
+from terrainml.control.cap_refiner import (CapRefiner, CapRefinerConfig, peak_from_rise,
+                                           rise_crossing_slip, thrust_peak_offset)
+
+CFG = CapRefinerConfig()
 
 
-def test_local_quadratic_peak_of_an_exact_parabola():
-    # m(s) = 100 - 400 (s - 0.37)^2: vertex 0.37 exactly, whatever the bins
-    c = np.arange(0.03, 0.6, 0.02)
-    m = 100.0 - 400.0 * (c - 0.37) ** 2
-    assert local_quadratic_peak(c, m, np.ones_like(c), 0.5, 0.08) == pytest.approx(0.37)
+def _ramp(s):
+    """Thrust 0 below slip 0.2, rising linearly to 100 N at 0.3, flat above: the 50 % crossing
+    is 0.25 exactly."""
+    return 100.0 * np.clip((np.asarray(s) - 0.2) / 0.1, 0.0, 1.0)
 
 
-def test_no_peak_while_the_curve_still_rises():
-    c = np.arange(0.03, 0.4, 0.02)
-    assert local_quadratic_peak(c, 50.0 + 100.0 * c, np.ones_like(c), 0.5, 0.08) is None
-    assert local_quadratic_peak(c[:2], c[:2], np.ones(2), 0.5, 0.08) is None   # too few bins
+def test_rise_crossing_of_a_linear_ramp():
+    s = np.linspace(0.0, 0.6, 601)
+    lv = np.array([0.3, 0.5, 0.9])
+    np.testing.assert_allclose(rise_crossing_slip(s, _ramp(s), lv), [0.23, 0.25, 0.29], atol=1e-9)
+    # scale-free: a wheel with twice the load (twice the thrust) has the same crossings
+    np.testing.assert_allclose(rise_crossing_slip(s, 2 * _ramp(s), lv), [0.23, 0.25, 0.29],
+                               atol=1e-9)
+    assert np.isnan(rise_crossing_slip(s, 0 * s, lv)).all()                 # no rise at all
 
 
-def test_offset_cancels_on_the_nominal_curve():
-    """On a parabola peaking at 0.45 with the net peak at 0.42 the offset is 0.03."""
+def _bins(lo, hi, width=0.02, weight=10.0, shift=0.0):
+    """Exact bins of the ramp shifted by ``shift`` over [lo, hi): mean slip, mean thrust, weight."""
+    x = np.arange(lo, hi, width) + width / 2
+    return x, _ramp(x + shift), np.full_like(x, weight)
+
+
+def test_peak_needs_a_bin_on_the_rise_below_a_plateau():
+    off = thrust_peak_offset(np.linspace(0, 0.99, 991), _ramp(np.linspace(0, 0.99, 991)), 0.42)
+    x, y, w = _bins(0.02, 0.4)
+    assert peak_from_rise(x, y, w, off, CFG) == pytest.approx(0.42, abs=1e-6)
+    assert peak_from_rise(*_bins(0.02, 0.27), off, CFG) is None     # data end on the rise
+    assert peak_from_rise(x[:1], y[:1], w[:1], off, CFG) is None    # too few bins
+    holey = np.where((x > 0.2) & (x < 0.3), 0.0, w)                 # no bin on the rise
+    assert peak_from_rise(x, y, holey, off, CFG) is None
+    assert peak_from_rise(x, y, w, np.full_like(off, np.nan), CFG) is None   # no nominal curve
+
+
+def test_offset_is_the_crossing_minus_the_net_peak():
+    """Nominal ramp with the net peak at 0.42: the offset at level r is 0.2 + 0.1 r - 0.42."""
     s = np.linspace(0, 0.99, 991)
-    assert thrust_peak_offset(s, 100 - 400 * (s - 0.45) ** 2, 0.42) == pytest.approx(0.03, abs=1e-6)
+    np.testing.assert_allclose(thrust_peak_offset(s, _ramp(s), 0.42),
+                               0.2 + 0.1 * CFG.levels - 0.42, atol=1e-3)
+    assert np.isnan(thrust_peak_offset(s, 0 * s, 0.42)).all()               # no rise
 
 
-def test_refiner_probes_then_lands_on_the_peak_within_the_band():
-    """Samples of a thrust hump peaking at 0.36 (offset 0): before any data the cap probes at
-    s_T + probe; after enough travel it moves (rate-limited) to 0.36, inside s_T +- band."""
-    cfg = CapRefinerConfig(max_cap_rate_per_m=1.0)
-    ref = CapRefiner(1, cfg)
-    assert ref.cap([0.42], [0.0])[0] == pytest.approx(0.48)
-    for s in np.tile(np.arange(0.2, 0.5, 0.005), 10):
-        ref.update([s], [100 - 400 * (s - 0.36) ** 2], [0.01], 0.01)
-        ref.update([s], [100 - 400 * (s - 0.36) ** 2], [0.01], 0.01)   # slow slip: gate passes
+def test_refiner_moves_the_cap_by_the_measured_shift_within_the_band():
+    """Samples of the ramp shifted by -0.05 (the rise at 0.15-0.25) against a nominal rise at
+    0.2-0.3 (net peak 0.42): before any data the class target; after enough travel the cap moves
+    (rate-limited) to 0.42 - 0.05 = 0.37, and never beyond s_T +- band."""
+    ref = CapRefiner(1, CapRefinerConfig(max_cap_rate_per_m=1.0))
+    s_nom = np.linspace(0, 0.99, 991)
+    off = thrust_peak_offset(s_nom, _ramp(s_nom), 0.42)
+    assert ref.cap([0.42], off)[0] == pytest.approx(0.42)
+    for s in np.tile(np.arange(0.1, 0.45, 0.005), 10):
+        ref.update([s], [_ramp(s + 0.05) + 1.0], [0.01], 0.01)
+        ref.update([s], [_ramp(s + 0.05) + 1.0], [0.01], 0.01)   # slow slip: the gate passes
     for _ in range(10):
-        cap = ref.cap([0.42], [0.0])
+        cap = ref.cap([0.42], off)
         ref.update([np.nan], [np.nan], [1.0], 0.01)                   # 1 m of travel per call
-    assert cap[0] == pytest.approx(0.36, abs=0.005)
-    assert ref.cap([0.42], [np.nan])[0] == 0.42                      # no nominal curve: unrefined
+    assert cap[0] == pytest.approx(0.37, abs=0.005)
+    assert ref.cap([0.42], off - 0.3)[0] == pytest.approx(0.52)      # clipped at s_T + band
+    assert ref.cap([0.42], np.nan)[0] == 0.42                        # no nominal curve: unrefined
 
 
 def test_forgetting_by_distance_not_time():
@@ -76,11 +103,20 @@ def _refined_cap_after_traction(seed: int, traction_m: float = 10.0, load_w: flo
     return ctrl.last_cap.copy(), peak, travel
 
 
+# Tuning draws (the estimator's constants were chosen on these only) and held-out draws (never
+# looked at before the estimator was fixed). Limiter: the mission policies' settings
+# (baselines.mission_limiter_config, build-up gain 6.0). Measured after 10 m of traction, cap - true
+# peak per wheel, * = no confirmed estimate (class target 0.421 served): 5003 +0.015/+0.002/+0.016,
+# 5006 +0.003/-0.022/+0.000, 5027 -0.019*/-0.012/+0.010; held out: 7101 +0.009*/+0.009*/-0.003,
+# 7102 +0.003*/+0.003*/+0.008, 7103 +0.009/-0.005/+0.014, 7104 -0.014*/-0.014*/+0.017,
+# 7105 +0.009/-0.006/+0.010, 7106 +0.005/+0.010*/+0.008. Unconfirmed wheels saw no flat top below
+# the cap (a draw peaking near or above nominal): the documented "rise not finished" case.
+TUNING_SEEDS = [5003, 5006, 5027]      # draw peaks 0.364, 0.393, 0.440 vs 0.421 nominal
+HELD_OUT_SEEDS = [7101, 7102, 7103, 7104, 7105, 7106]   # peaks 0.405-0.435
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(reason="issue 20 acceptance NOT met yet: on these sand draws the thrust-peak "
-                   "fit has not converged after 10 m (caps 0.38-0.48 against true peaks "
-                   "0.364/0.393/0.440); see the issue-20 report", strict=False)
-@pytest.mark.parametrize("seed", [5003, 5006, 5027])   # draw peaks 0.364, 0.393, 0.440 vs 0.421
+@pytest.mark.parametrize("seed", TUNING_SEEDS + HELD_OUT_SEEDS)
 def test_cap_lands_within_003_of_the_true_peak_after_10_m(seed):
     cap, peak, travel = _refined_cap_after_traction(seed)
     assert travel.min() >= 10.0

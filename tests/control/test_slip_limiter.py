@@ -133,3 +133,69 @@ def test_towed_start_on_dry_sand_travels_far_more_than_no_control():
     assert upto == len(res.log)                        # the controlled run stays finite
     assert x_cap > 2.0 and x_cap > 3.0 * x_none
     assert float(np.nanmax(res.wblock("sinkage"))) < 0.1   # no dig-in
+
+
+def test_build_up_gain_lifts_the_ceiling_below_target_only():
+    """kp_build 6 m/s per unit slip, kp 2: from rest at a stall (s = 0, cap 0.4) the ceiling is
+    0 + 6 * 0.4 = 2.4 m/s, above the 0.495 m/s command, so nothing is limited (the drive keeps its
+    full speed error and torque); above target (s = 0.5) the ceiling is 0 + 2 * (0.4 - 0.5) < 0,
+    clipped at 0: the wheel is pulled to rest as before."""
+    lim = _lim(ki=0.0, kp_mps=2.0, kp_build_mps=6.0, clamp_rate_mps2=1e6)
+    out = lim.step([0.0], [3.0], [0.0], [0.4], DT)
+    assert out.offset_radps[0] == 0.0 and not bool(out.limiting[0])
+    lim.slip_shear[:] = 0.5
+    out = lim.step([0.0], [3.0], [0.0], [0.4], DT)     # u = v = 0: the shear slip holds
+    assert bool(out.limiting[0]) and out.omega_out_radps[0] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_build_up_gain_partial_ceiling_hand_worked():
+    """Body at 0.3 m/s, shear slip 0.3, cap 0.4, kp_build 1.0: u_hold = 0.3 / 0.6 = 0.5 m/s,
+    ceiling 0.5 + 1.0 * 0.1 = 0.6 m/s (the shear slip is set directly; the wheel is measured at
+    0.5 m/s, so one tick moves it by a(0.4 - 0.3) with a = 1 - exp(-0.5 * 0.01 / 0.14))."""
+    lim = _lim(ki=0.0, kp_build_mps=1.0, clamp_rate_mps2=1e6)
+    lim.slip_shear[:] = 0.3
+    out = lim.step([0.5 / R], [1.0 / R], [0.3], [0.4], DT)
+    s1 = 0.3 + (-math.expm1(-0.5 * DT / 0.14)) * (0.4 - 0.3)
+    assert lim.slip_shear[0] == pytest.approx(s1)
+    assert out.omega_out_radps[0] * R == pytest.approx(0.5 + 1.0 * (0.4 - s1))
+
+
+def test_build_up_gain_checked():
+    with pytest.raises(ValueError, match="kp_build_mps"):
+        SlipLimiterConfig(wheel_radius_m=R, kp_build_mps=0.0)
+    assert SlipLimiterConfig(wheel_radius_m=R).kp_build_mps is None
+
+
+def test_shear_slip_follows_the_motion_at_a_zero_command():
+    """A stop: command 0, wheel at rest, body still rolling at 0.1 m/s. The shear slip obeys (1)
+    exactly: s(t) = s0 + (-1 - s0)(1 - exp(-v t / L)) with s_inst = (0 - v) / v = -1."""
+    cfg = SlipLimiterConfig(wheel_radius_m=0.165, contact_length_m=0.14)
+    lim = SlipLimiter(1, cfg)
+    lim.slip_shear[:] = 0.4                      # at the cap when the stop begins
+    for _ in range(10):                          # 0.1 s
+        lim.step([0.0], [0.0], [0.1], [0.4], dt_s=0.01)
+    want = 0.4 + (-1.0 - 0.4) * (1.0 - math.exp(-0.1 * 0.1 / 0.14))
+    assert lim.slip_shear[0] == pytest.approx(want, rel=1e-9)
+
+
+def test_a_reversal_flips_the_shear_slip_into_the_new_direction():
+    """0.4 of traction slip driving forward is -0.4 in the frame of a backward command."""
+    lim = SlipLimiter(1, SlipLimiterConfig(wheel_radius_m=0.165))
+    lim.slip_shear[:] = 0.4
+    out = lim.step([0.0], [-1.0], [0.0], [0.4], dt_s=0.01)  # everything at rest: (1) holds
+    assert lim.slip_shear[0] == pytest.approx(-0.4)
+    assert out.slip_shear[0] == pytest.approx(0.4)             # signed like the wheel: unchanged
+
+
+def test_rest_relaxation_decays_the_shear_slip_at_rest_only():
+    """Wheel and body at rest: s decays as exp(-t / rest_relax_s); without it (None) s holds."""
+    hold = SlipLimiter(1, SlipLimiterConfig(wheel_radius_m=0.165))
+    relax = SlipLimiter(1, SlipLimiterConfig(wheel_radius_m=0.165, rest_relax_s=0.5))
+    for lim in (hold, relax):
+        lim.slip_shear[:] = 0.3
+        for _ in range(50):                                    # 0.5 s, a command of 1 rad/s
+            lim.step([0.0], [1.0], [0.0], [0.15], dt_s=0.01)
+    assert hold.slip_shear[0] == pytest.approx(0.3)
+    assert relax.slip_shear[0] == pytest.approx(0.3 * math.exp(-1.0), rel=1e-9)
+    with pytest.raises(ValueError):
+        SlipLimiterConfig(wheel_radius_m=0.165, rest_relax_s=0.0)

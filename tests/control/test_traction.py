@@ -77,3 +77,38 @@ def test_feedforward_without_setpoints_is_a_clear_error(robot):
 def test_bad_policy_rejected(robot):
     with pytest.raises(ValueError, match="policy"):
         SlipController(robot, "aggressive")
+
+
+def test_default_law_is_the_slip_limiter_and_a_pid_config_selects_the_pid(robot):
+    """Issue 20: the limiter is the default; the thesis PID stays reachable explicitly."""
+    assert SlipController(robot, "fixed").law == "limiter"
+    assert SlipController(robot, "fixed").pid is None
+    assert SlipController(robot, "fixed", pid=tuned_config(robot)).law == "pid"
+    assert SlipController(robot, "fixed", law="pid").config == tuned_config(robot)
+    with pytest.raises(ValueError, match="law"):
+        SlipController(robot, "fixed", law="bang-bang")
+
+
+def _stalled_sample(robot, t_s: float, omega_radps: float) -> dict:
+    """The robot at rest (no camera motion, no acceleration) with every wheel spinning."""
+    n = robot.n_wheels
+    s = {"t_s": t_s, "imu_ax_mps2": 0.0, "imu_ay_mps2": 0.0, "imu_az_mps2": 9.81,
+         "imu_yaw_rate_radps": 0.0, "cam_vx_mps": 0.0, "cam_vy_mps": 0.0,
+         "cam_yaw_rate_radps": 0.0, "cam_yaw_rad": 0.0, "cam_confidence": 3.0}
+    for i in range(1, n + 1):
+        s.update({f"wheel{i}_omega_radps": omega_radps, f"wheel{i}_steer_rad": 0.0,
+                  f"wheel{i}_current_a": 5.0, f"wheel{i}_cmd_omega_radps": omega_radps})
+    return s
+
+
+def test_limiter_law_holds_a_wheel_spinning_at_a_stall_where_the_pid_lets_go(robot):
+    """Wheels commanded and spinning at 3 rad/s (0.5 m/s surface) while the body stays at rest
+    (slip 1 against the wet-mud cap 0.52): the PID's enable rule (body >= 0.05 m/s) keeps it off;
+    the limiter pulls every wheel down, and keeps holding for as long as the stall lasts."""
+    outs = {}
+    for law in ("limiter", "pid"):
+        ctrl = SlipController(robot, "terrain-aware", true_class=7, law=law)
+        outs[law] = np.array([ctrl(_stalled_sample(robot, 0.01 * k, 3.0)) for k in range(300)])
+    assert np.all(outs["pid"] == 0.0)
+    assert np.all(outs["limiter"][-100:] < -2.0)         # most of the 3 rad/s taken back
+    assert np.all(outs["limiter"] <= 0.0)                # a limiter never spins a wheel up
