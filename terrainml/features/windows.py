@@ -30,7 +30,11 @@ rejected):
                    window's net acceleration is what says "not speeding up or slowing down".
 ``steering``       std of every wheel's steering angle (ekf_steer{i}_rad, else the encoder)
                    < 0.05 rad
-``terrain_label``  at most one terrain label among the rows (unlabelled rows are ignored)
+``terrain_label``  at most one terrain label among the rows (unlabelled rows are ignored);
+                   with ``spec.label_at = "end"`` a window straddling a terrain change is kept
+                   and labelled with the terrain of its newest labelled row (the terrain under
+                   the robot when the window ends, what serving must report), so a classifier
+                   learns that a mixed signature belongs to one of the two real classes
 ``channel_valid``  every used channel valid (finite, its sensor group valid) for >= 95% of ticks
 
 Raw windows (the CNN's input and the feature sets' input) hold the channels
@@ -105,6 +109,9 @@ _GYRO_COLUMNS = {"imu_wx": "imu_roll_rate_radps", "imu_wy": "imu_pitch_rate_radp
 #: ``steady``: every wheel steady or idle; ``dominant``: every wheel in one moving state
 WHEEL_STATE_MODES = ("steady", "dominant")
 MOVING_STATES = ("steady", "traction", "braking")
+#: ``only``: a window with two terrain labels is rejected (``terrain_label``); ``end``: kept,
+#: labelled with the terrain of its newest labelled row
+LABEL_AT = ("only", "end")
 
 
 @dataclass(frozen=True)
@@ -125,6 +132,8 @@ class WindowSpec:
     remove_centripetal : bool, test dv/dt (ax - r vy, ay + r vx) instead of the EKF's
         acceleration states (False: the design's literal rule).
     channels : tuple of str or None, channels to cut (None: all the robot has).
+    label_at : str, ``only`` (a window with two terrain labels is rejected) or ``end`` (kept,
+        labelled with the terrain of its newest labelled row; offline only, serving has no labels).
     name : str, the named spec this one was made from (:data:`WINDOW_SPECS`; "steady" by
         default). Recorded with datasets and model artifacts, so the predictor cuts exactly
         what the model was trained on.
@@ -147,6 +156,7 @@ class WindowSpec:
     chunk_s: float | None = None
     windows_per_chunk: int = 11
     homogeneous: bool = True
+    label_at: str = "only"
 
     def __post_init__(self) -> None:
         for name in ("window_s", "hop_s", "online_hop_s", "rate_hz"):
@@ -170,6 +180,8 @@ class WindowSpec:
             raise ValueError(f"WindowSpec.chunk_s ({self.chunk_s}) must be >= window_s ({self.window_s})")
         if int(self.windows_per_chunk) < 1:
             raise ValueError("WindowSpec.windows_per_chunk must be >= 1")
+        if self.label_at not in LABEL_AT:
+            raise ValueError(f"WindowSpec.label_at must be one of {LABEL_AT}, got {self.label_at!r}")
 
     @property
     def active_rules(self) -> tuple[str, ...]:
@@ -189,6 +201,8 @@ class WindowSpec:
         d = asdict(self)
         d["channels"] = None if self.channels is None else list(self.channels)
         d["rules"] = None if self.rules is None else list(self.rules)
+        if d["label_at"] == "only":  # the default is left out: specs, caches and artifacts made
+            del d["label_at"]        # before the field existed keep their keys
         return d
 
     @classmethod
@@ -214,11 +228,14 @@ class WindowSpec:
 #: made for stop-and-go: 1 s windows in any wheel state (traction phases included, so the
 #: features see the soil while the robot accelerates), kept when the robot moves (mean body
 #: speed >= 0.3 m/s, i.e. >= 0.3 m travelled) and its net acceleration is moderate; online a
-#: new window every 0.1 s. A legacy artifact without a name is ``steady``.
+#: new window every 0.1 s; offline a window across a terrain change is kept with the terrain at
+#: its end (``label_at="end"``: trained on such windows the classifier names one of the two real
+#: classes where a 1 s window straddles them, not a third one). A legacy artifact without a name
+#: is ``steady``.
 WINDOW_SPECS: dict[str, dict[str, Any]] = {
     "steady": {},
     "short": {"window_s": 1.0, "hop_s": 0.5, "online_hop_s": 0.1, "min_steady_fraction": 0.0,
-              "min_speed_mps": 0.3, "max_mean_abs_accel_mps2": 0.5},
+              "min_speed_mps": 0.3, "max_mean_abs_accel_mps2": 0.5, "label_at": "end"},
     # issue #17: the BorealTC authors' fixed windows, and windows conditioned on the dynamic state
     "chunks": {"window_s": 1.7, "hop_s": 1.7, "online_hop_s": 0.5, "chunk_s": 5.0,
                "windows_per_chunk": 11, "homogeneous": True, "min_valid_fraction": 1.0,
@@ -679,7 +696,10 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec |
         else:  # no label column (the serving path): nothing to check
             labels = no_labels
         if labels.size > 1:
-            fails.append("terrain_label")
+            if spec.label_at == "end":  # the terrain under the robot when the window ends
+                labels = lw[np.isfinite(lw)][-1:]
+            else:
+                fails.append("terrain_label")
         vw = valid[:, s:e]
         all_valid = bool(vw.all())
         if C and not all_valid and np.any(vw.mean(axis=1) < spec.min_valid_fraction):

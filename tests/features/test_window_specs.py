@@ -70,3 +70,29 @@ def test_state_spec_keeps_an_accelerating_window_the_steady_rules_reject():
     mixed = _est(["traction"] * 100 + ["braking"] * 100)
     assert cut_windows(mixed, robot, window_spec("state"))[1]["wheel_state"] == 1
     assert set(window_spec("state").active_rules) < set(RULES)
+
+
+def test_label_at_end_keeps_a_straddling_window_with_the_newest_terrain():
+    """Issue #19: a window across a terrain change is labelled with the terrain under the robot
+    when it ends (what serving must report); ``only`` (every other spec) rejects it."""
+    robot = load_robot(None)
+    est = _est(["steady"] * 100, n=100)
+    est["terrain"] = [3] * 70 + [-1] * 5 + [5] * 25  # 3 then 5, a few unlabelled rows between
+    spec = window_spec("short", label_at="only")  # 1 s windows: one window over the 100 ticks
+    _, counts = cut_windows(est, robot, spec)
+    assert counts["n_kept"] == 0 and counts["terrain_label"] == 1
+    assert window_spec("short").label_at == "end" and window_spec("steady").label_at == "only"
+    wins, counts = cut_windows(est, robot, window_spec("short"))
+    assert counts["n_kept"] == 1 and counts["terrain_label"] == 0
+    assert wins.meta["terrain"].tolist() == [5]
+    est["terrain"] = [5] * 90 + [3] * 8 + [-1] * 2  # newest LABELLED row decides, not the last row
+    assert cut_windows(est, robot, window_spec("short", label_at="end"))[0].meta["terrain"].tolist() == [3]
+    # a homogeneous window keeps its one label; the field round-trips, and the default is left
+    # out of the dict so specs made before it existed keep their keys
+    est["terrain"] = 4
+    assert cut_windows(est, robot, window_spec("short", label_at="end"))[0].meta["terrain"].tolist() == [4]
+    end = window_spec("short", label_at="end")
+    assert WindowSpec.from_dict(end.to_dict()) == end
+    assert "label_at" not in window_spec("steady").to_dict()
+    with pytest.raises(ValueError, match="label_at"):
+        WindowSpec(label_at="start")
