@@ -83,6 +83,19 @@ def test_no_chatter_on_a_noisy_constant_class():
     assert f.n_changes == 0
 
 
+def test_change_detector_fires_when_the_cusum_says():
+    """Windows that deny the held class outright (p = 0) add ln(1 / eps) - drift nats each; with a
+    near-flat temper the Bayes update barely moves, so the alarm comes at the first n with
+    n (ln 20 - 2) > 12 (eps 0.05, drift 2, threshold 12) and restarts from the window."""
+    f = TerrainFilter(K, alpha=0.01, eps=0.05, drift=2.0, threshold=12.0)
+    f.update(_p(0, 0.85))
+    deny = np.array([0.0, 0.0, 1.0, 0.0])
+    fired = [f.update(deny) for _ in range(30)]
+    n_expected = math.floor(12.0 / (math.log(20.0) - 2.0)) + 1
+    assert fired.index(True) + 1 == n_expected
+    assert f.n_changes == 1 and f.best()[0] == 2
+
+
 def test_raw_argmax_would_chatter_where_the_filter_does_not():
     """The same kind of sequence: the raw argmax switches often, the fused class at most once."""
     rng = np.random.default_rng(1)
