@@ -22,24 +22,15 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import replace
-from pathlib import Path
-from tempfile import TemporaryDirectory
 
 import numpy as np
 
+from benchmarks.bench_real_robots import DATA, SHORT, _pct, served_course
 from terrainml.evaluation.report import markdown_table
-from terrainml.experiments.borealtc import course_runs, course_score, make_course, runs_by_class
-from terrainml.features.windows import window_spec
+from terrainml.experiments.borealtc import course_runs, runs_by_class
 from terrainml.io.borealtc import load_borealtc
-from terrainml.pipeline.dataset import build_from_tables, dataset_channels
-from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
-from terrainml.stream.predictor import Predictor
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "datasets" / "borealtc"
-SHORT = {"ASPHALT": "ASP", "FLOORING": "FLO", "ICE": "ICE", "SANDY_LOAM": "SAN", "SNOW": "SNO"}
-SENSORS = ["wheels", "currents"]
 SEGMENT_S = 30.0
 
 
@@ -47,30 +38,12 @@ def _log(msg: str) -> None:
     print(f"[bench_course_sweep] {msg}", file=sys.stderr, flush=True)
 
 
-def _pct(x: float) -> str:
-    return f"{100 * x:.1f}" if np.isfinite(x) else "n/a"
-
-
-def served_course(tables, report, robot, held: list[str], model_dir: Path) -> dict:
-    """Train on every run but ``held`` (the test's options), serve their course, score it."""
-    spec = window_spec("chunks")
-    spec = replace(spec, channels=dataset_channels(robot, spec, SENSORS))
-    ds = build_from_tables([t for t in tables if str(t["run_id"].iloc[0]) not in held], robot, spec=spec)
-    train(ds, model_dir, ["hgb"], folds=2, seed=0, ablation=False)
-    course = make_course(tables, held, segment_s=SEGMENT_S)
-    p = Predictor.from_model_dir(model_dir)
-    cols = list(course.columns)
-    served = [p.step(dict(zip(cols, row))).to_dict() for row in course.itertuples(index=False)]
-    return course_score(course, served, report.classes, robot)
-
-
 def sweep(tables, report, robot, ks) -> list[dict]:
     rows = []
     for k in ks:
         held = course_runs(tables, k)
         t0 = time.perf_counter()
-        with TemporaryDirectory() as tmp:
-            score = served_course(tables, report, robot, held, Path(tmp) / "m")
+        score = served_course(tables, report, robot, "hgb", held=held, folds=2)
         score.update(k=k, held=held, secs=time.perf_counter() - t0)
         _log(f"k={k} {held}: share {_pct(score['share'])}% of {score['n_ticks']} moving ticks "
              f"({score['secs']:.0f} s)")

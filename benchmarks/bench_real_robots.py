@@ -71,14 +71,16 @@ def compare_paths(tables, report, robot, models, windows_per_chunk: int) -> tupl
                   "names": names, "kept": ds.class_report[["class", "runs", "kept"]].values.tolist()}
 
 
-def served_course(tables, report, robot, model: str) -> dict:
-    held = course_runs(tables)
+def served_course(tables, report, robot, model: str, held: list[str] | None = None, folds: int = 5) -> dict:
+    """Train ``model`` on wheels + currents of every run but ``held`` (default: the last run of
+    every class), serve the 30 s course of the held runs tick by tick, score it (course_score)."""
+    held = course_runs(tables) if held is None else held
     spec = window_spec("chunks")
     spec = replace(spec, channels=dataset_channels(robot, spec, ["wheels", "currents"]))
     ds = build_from_tables([t for t in tables if str(t["run_id"].iloc[0]) not in held], robot, spec=spec)
     course = make_course(tables, held, segment_s=30.0)
     with TemporaryDirectory() as tmp:
-        train(ds, Path(tmp) / "m", [model], folds=5, seed=0, ablation=False, progress=_log)
+        train(ds, Path(tmp) / "m", [model], folds=folds, seed=0, ablation=False, progress=_log)
         p = Predictor.from_model_dir(Path(tmp) / "m")
         cols = list(course.columns)
         t0 = time.perf_counter()

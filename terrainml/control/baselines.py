@@ -172,6 +172,9 @@ class LimiterController:
         self.n_ticks = 0
         self.n_fallback = 0
         self.last_cap = np.full(n, np.nan)
+        self.limiting = np.zeros(n, dtype=bool)   # the limit bound on the previous tick, per wheel
+        self.dt_s = 0.01
+        self.cmd_radps = np.zeros(n)
         # per-tick record for analysis: (t, cap, slip_shear, offset) when a list
         self.trace: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] | None = None
 
@@ -199,12 +202,14 @@ class LimiterController:
         self.n_ticks += 1
         om, cmd, cur = self._io.read(s)
         v = self._wheel_speeds(s)
+        self.dt_s, self.cmd_radps = dt, cmd      # what a stateful target source may read
         s_t, s_b, cid = self.targets(self, s)
         s_t = np.asarray(s_t, dtype=float)
         if self.refiner is not None:
             off = self.curves.get(cid)[2] if cid is not None else math.nan
             s_t = self.refiner.cap(s_t, off)
         out = self.limiter.step_pair(om, cmd, v, s_t, s_b, dt)
+        self.limiting = out.limiting
         if self.refiner is not None:
             rw = self.robot.wheel_radius_m
             d = np.where(cmd < 0.0, -1.0, 1.0)
@@ -223,20 +228,73 @@ def _class_targets(ctrl: LimiterController, cid: int) -> tuple[np.ndarray, np.nd
     return np.full(n, s_t), np.full(n, s_b), int(cid)
 
 
-def _served_targets(ctrl: LimiterController, sample: dict):
-    """The predictor's class; on fallback the class-free safe cap (design §10), unrefined."""
+def _safe_cap_targets(ctrl: LimiterController) -> tuple[np.ndarray, np.ndarray, None]:
+    """The class-free safe cap (design §10) of the predictor's classes, on every wheel, unrefined."""
     n = ctrl.robot.n_wheels
     pred = ctrl.predictor
-    msg = ctrl.msg
-    if msg is None or msg.fallback or msg.terrain_class < 0:
-        names = getattr(pred, "class_names", None) or None
-        try:
-            cap = ctrl.table.safe_cap(names)
-            return np.full(n, cap.traction), np.full(n, cap.braking), None
-        except Exception:  # noqa: BLE001 - a table without safe_cap: the predictor's own cap
-            s = pred.safe_cap_traction()  # type: ignore[union-attr]
-            return np.full(n, s), np.full(n, -s), None
-    return _class_targets(ctrl, msg.terrain_class)
+    names = getattr(pred, "class_names", None) or None
+    try:
+        cap = ctrl.table.safe_cap(names)
+        return np.full(n, cap.traction), np.full(n, cap.braking), None
+    except Exception:  # noqa: BLE001 - a table without safe_cap: the predictor's own cap
+        s = pred.safe_cap_traction()  # type: ignore[union-attr]
+        return np.full(n, s), np.full(n, -s), None
+
+
+class ServedTargets:
+    """Target source of the served policy: the predictor's class; the safe cap on fallback or
+    after a stall at the served cap.
+
+    The class comes from windows of past travel, fused over distance (design §10-11), so it lags
+    a terrain change by metres, and its staleness counts distance: at a stall nothing is
+    travelled, no window completes and the class never goes stale. Entering a softer patch
+    (mission suite, greenhouse tuning seeds: dry sand into wet mud) the limiter held every wheel
+    at dry sand's 0.42 on mud whose peak lies near 0.52, the body crept at 0.02 m/s for up to
+    48 s, and the fused posterior still read dry sand at 0.93. A wheel held at the served cap
+    while the body is stalled is the evidence that the cap is below what the soil needs, so after
+    ``stall_s`` of it the class-free safe cap (the largest traction peak of the classes: no known
+    class is stalled) is served until the robot has travelled ``hold_m``, then the class again.
+
+    Parameters
+    ----------
+    stall_speed_mps : m/s, a wheel is stalled at its cap while the limit binds, its estimated
+        ground speed is below this and its command above it (*assumption*: 0.1 m/s, a fifth of
+        the greenhouse cruise speed).
+    stall_s : s, how long any wheel must be stalled at its cap before the safe cap is served
+        (*assumption*: 0.5 s; a start from rest on the right class builds up within it).
+    hold_m : m, distance (mean estimated wheel-centre speed integrated) the safe cap is held after
+        a stall (*assumption*: 2.0 m: a soft patch plus the wheelbase, below the fusion's 3 m).
+    """
+
+    def __init__(self, stall_speed_mps: float = 0.1, stall_s: float = 0.5, hold_m: float = 2.0):
+        for name, v in (("stall_speed_mps", stall_speed_mps), ("stall_s", stall_s), ("hold_m", hold_m)):
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"ServedTargets.{name} must be finite and > 0, got {v!r}")
+        self.stall_speed_mps = float(stall_speed_mps)
+        self.stall_s = float(stall_s)
+        self.hold_m = float(hold_m)
+        self.stalled_s = 0.0           # how long some wheel has been stalled at its cap
+        self.hold_left_m = 0.0         # > 0: the safe cap is served for this much more travel
+        self.n_escalations = 0
+
+    def _update(self, ctrl: LimiterController) -> None:
+        dt = max(float(ctrl.dt_s), 0.0) if math.isfinite(ctrl.dt_s) else 0.0
+        v = np.abs(ctrl._v)
+        u_cmd = np.abs(ctrl.cmd_radps) * ctrl.robot.wheel_radius_m
+        stalled = ctrl.limiting & (v < self.stall_speed_mps) & (u_cmd > self.stall_speed_mps)
+        self.stalled_s = self.stalled_s + dt if np.any(stalled) else 0.0
+        self.hold_left_m = max(self.hold_left_m - float(np.mean(v)) * dt, 0.0)
+        if self.stalled_s >= self.stall_s:
+            if self.hold_left_m <= 0.0:
+                self.n_escalations += 1
+            self.hold_left_m = self.hold_m
+
+    def __call__(self, ctrl: LimiterController, sample: dict):
+        self._update(ctrl)
+        msg = ctrl.msg
+        if msg is None or msg.fallback or msg.terrain_class < 0 or self.hold_left_m > 0.0:
+            return _safe_cap_targets(ctrl)
+        return _class_targets(ctrl, msg.terrain_class)
 
 
 # ------------------------------------------------------------------ factories
@@ -260,13 +318,17 @@ def oracle(robot: RobotSpec, class_lookup: Callable[[float], int], *, refine: bo
 
 def terrain_aware(robot: RobotSpec, model: str | Path | None = None, *,
                   predictor: Predictor | None = None, refine: bool = True,
-                  preset: str | None = None, **kw: Any) -> LimiterController:
-    """The limiter at the target the online predictor serves from ``model`` (or ``predictor``)."""
+                  preset: str | None = None, escalation: dict | None = None,
+                  **kw: Any) -> LimiterController:
+    """The limiter at the target the online predictor serves from ``model`` (or ``predictor``),
+    with the safe cap after a stall at the served cap (:class:`ServedTargets`; ``escalation``
+    its keyword arguments)."""
     if predictor is None:
         if model is None:
             raise ValueError("terrain_aware needs a model folder or a Predictor")
         predictor = Predictor.from_model_dir(model, robot=robot, preset=preset)
-    return LimiterController(robot, _served_targets, refine=refine, predictor=predictor, **kw)
+    return LimiterController(robot, ServedTargets(**(escalation or {})), refine=refine,
+                             predictor=predictor, **kw)
 
 
 def oracle_cap(robot: RobotSpec, peak_per_wheel: Callable[[], Sequence[float]],

@@ -85,3 +85,56 @@ def test_mission_limiter_config_is_the_tuned_build_up():
     assert (cfg.kp_mps, cfg.kp_build_mps, cfg.ki) == (2.0, 6.0, 0.5)
     assert cfg.wheel_radius_m == rb.wheel_radius_m
     assert cfg.kp_build_mps * 0.1 > 0.5
+
+
+class _FirmClassPredictor:
+    """Stands in for the online predictor: always a confident class, body speed ``v_mps``."""
+
+    def __init__(self, robot, class_id, v_mps=0.0):
+        from terrainml.lookup.table import DesiredSlipTable
+        from types import SimpleNamespace
+        self.table = DesiredSlipTable.build(robot)
+        self.class_names = None
+        self.estimator = SimpleNamespace(v_long=np.full(robot.n_wheels, float(v_mps)))
+        self._msg = SimpleNamespace(terrain_class=int(class_id), fallback=False, fallback_reason="")
+
+    def step(self, sample):
+        return self._msg
+
+
+def test_served_firm_class_at_a_stall_escalates_to_the_safe_cap(robot):
+    """Issue 20 (greenhouse tuning seeds, dry sand into wet mud): the fused class lags a terrain
+    change and never goes stale at a stall, so a firm class's cap held the wheels short of the
+    soil's peak for up to 48 s. A wheel held at the served cap with the body stalled must get the
+    largest traction target of all classes after ``stall_s``, and the class again after ``hold_m``."""
+    from terrainml.classes import TERRAIN_CLASSES
+    pred = _FirmClassPredictor(robot, 1)          # compacted_dirt, s_T 0.142
+    ctrl = bl.terrain_aware(robot, predictor=pred, refine=False)
+    firm = pred.table.target(1, "traction")
+    largest = max(pred.table.target(c, "traction") for c in range(len(TERRAIN_CLASSES)))
+    assert largest > firm + 0.2
+    caps = []
+    for k in range(100):                          # 1 s: wheel spins at 3 rad/s, body at rest
+        ctrl(_sample(robot, k * 0.01, 3.0, 3.0))
+        caps.append(float(ctrl.last_cap[0]))
+    assert np.allclose(caps[:40], firm)           # within stall_s (0.5 s) the class is served
+    assert np.allclose(caps[-40:], largest)       # then the safe cap
+    # the body moves at the command (no stall): the safe cap holds for 2 m, then the class again
+    pred.estimator.v_long[:] = 0.5
+    t0 = 1.0
+    caps = []
+    for k in range(600):                          # 6 s at 0.5 m/s = 3 m
+        ctrl(_sample(robot, t0 + k * 0.01, 3.0, 0.5 / robot.wheel_radius_m))
+        caps.append(float(ctrl.last_cap[0]))
+    travelled_m = 0.5 * 0.01 * np.arange(1, 601)
+    assert np.allclose(np.array(caps)[travelled_m < 1.9], largest)
+    assert np.allclose(np.array(caps)[travelled_m > 2.1], firm)
+
+
+def test_served_class_is_kept_at_a_start_that_builds_up(robot):
+    """No stall at the cap (the wheel follows its command, the limit does not bind): no escalation."""
+    pred = _FirmClassPredictor(robot, 6, v_mps=0.0)   # dry_sand
+    ctrl = bl.terrain_aware(robot, predictor=pred, refine=False)
+    for k in range(200):
+        ctrl(_sample(robot, k * 0.01, 0.0, 0.0))      # standing, zero command: nothing binds
+    assert np.allclose(ctrl.last_cap, pred.table.target(6, "traction"))
