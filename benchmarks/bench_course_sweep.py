@@ -73,6 +73,12 @@ def run(quick: bool = False) -> str:
     table = [[str(r["k"]), ", ".join(r["held"]), _pct(r["share"]), str(r["n_ticks"])]
              + [_pct(r["per_class"].get(n, np.nan)) for n in names] + [str(r["estimator_unhealthy"])]
              for r in rows]
+    header = ["k", "held-out runs", "served %", "moving ticks", *(f"{SHORT.get(n, n)} %" for n in names),
+              "unhealthy ticks"]
+    n_ticks, n_unhealthy = (sum(r[key] for r in rows) for key in ("n_ticks", "estimator_unhealthy"))
+    summary = (f"Mean share over {len(rows)} courses: tick-weighted {_pct(w_mean)}%, unweighted "
+               f"{_pct(u_mean)}% ({n_ticks} moving ticks in all); `estimator_unhealthy` ticks in all: "
+               f"{n_unhealthy}.")
     out = ["## Course rotation sweep", "",
            "Issue 17, measured over every held-out course rather than one: for k = 0 .. "
            f"{n_k - 1} (the class with the fewest runs has {n_k}), the k-th run (by id) of every class is held "
@@ -81,11 +87,7 @@ def run(quick: bool = False) -> str:
            "tick by `Predictor`. Score: share of moving ticks (> 0.2 m/s, 3 s after each label change "
            "excluded) served the labelled class; per-class shares are `n/a` where a run's segment has no "
            "moving tick. Acceptance asks >= 80%." + (" Quick: k = 0, 1 only." if quick else ""), "",
-           markdown_table(["k", "held-out runs", "served %", "moving ticks"]
-                          + [f"{SHORT.get(n, n)} %" for n in names] + ["unhealthy ticks"], table),
-           "", f"Mean share over {len(rows)} courses: tick-weighted {_pct(w_mean)}%, unweighted {_pct(u_mean)}% "
-           f"({sum(r['n_ticks'] for r in rows)} moving ticks in all); `estimator_unhealthy` ticks in all: "
-           f"{sum(r['estimator_unhealthy'] for r in rows)}.", ""]
+           markdown_table(header, table), "", summary, ""]
     return "\n".join(out)
 
 
