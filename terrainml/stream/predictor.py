@@ -191,18 +191,9 @@ class RingBuffer:
                    skip: Callable[[str], bool] = lambda k: False) -> dict[str, np.ndarray]:
         """Column arrays (count,) of a :meth:`snapshot`, the same values as :meth:`to_frame`'s
         columns (flags as bool), without building a DataFrame; fields where ``skip(name)`` is
-        true are left out (labels, which the serving path must not see)."""
-        if snap is None:
-            return {}
-        num, obj = snap
-        cols: dict[str, np.ndarray] = {}
-        for j, k in enumerate(self._num_keys):  # type: ignore[arg-type]
-            if not skip(k):
-                cols[k] = num[:, j] > 0.5 if k in self._bool_keys else num[:, j]
-        for j, k in enumerate(self._obj_keys):
-            if not skip(k):
-                cols[k] = obj[:, j]
-        return cols
+        true are left out (labels, which the serving path must not see). The eager form of
+        :meth:`column_view`."""
+        return dict(self.column_view(snap, skip))
 
 
 class SnapshotColumns(Mapping):
