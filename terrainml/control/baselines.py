@@ -45,6 +45,7 @@ import numpy as np
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.control.cap_refiner import CapRefiner, CapRefinerConfig, thrust_peak_offset
 from terrainml.control.slip_limiter import SlipLimiter, SlipLimiterConfig
+from terrainml.control.traction import limiter_config
 from terrainml.estimation.online import OnlineEstimator
 from terrainml.lookup import terramechanics as tm
 from terrainml.lookup.table import DesiredSlipTable
@@ -92,8 +93,8 @@ class _ClassCurves:
 def mission_limiter_config(robot: RobotSpec, **overrides: Any) -> SlipLimiterConfig:
     """Slip-limiter settings of the mission policies (tuned on the tuning seeds only).
 
-    The limiter's defaults with ``kp_mps`` 2.0 (as :func:`terrainml.control.traction.limiter_config`)
-    and a build-up gain ``kp_build_mps`` of 6.0 m/s per unit slip. Why (greenhouse, level ground,
+    :func:`terrainml.control.traction.limiter_config` (``kp_mps`` 2.0) with a build-up gain
+    ``kp_build_mps`` of 6.0 m/s per unit slip. Why (greenhouse, level ground,
     tuning seeds 5000-5011, oracle-cap against none): the wheel drive is a PI speed loop whose
     torque needs a speed error; at kp 0.5 a start from rest lost 4-13 % route time (the wheel sat
     in its rut on a ceiling a few cm/s above the body), at kp 2.0 still 3-10 % on step starts, with
@@ -104,10 +105,7 @@ def mission_limiter_config(robot: RobotSpec, **overrides: Any) -> SlipLimiterCon
     stopped and the wheels were held at rest for 13 s; with 1.0 s +5.1 % time, with 0.5 s +4.1 %).
     ``overrides`` replace fields.
     """
-    base: dict[str, Any] = dict(wheel_radius_m=float(robot.wheel_radius_m), kp_mps=2.0,
-                                kp_build_mps=6.0, rest_relax_s=0.5)
-    base.update(overrides)
-    return SlipLimiterConfig(**base)
+    return limiter_config(robot, **{"kp_build_mps": 6.0, "rest_relax_s": 0.5, **overrides})
 
 
 class _Measured:
