@@ -139,10 +139,9 @@ class SlipLimiterConfig:
                                                   and self.kp_build_mps > 0.0):
             raise ValueError("SlipLimiterConfig.kp_build_mps must be None or finite and > 0, "
                              f"got {self.kp_build_mps!r}")
-        for name in ("rest_relax_s",):
-            v = getattr(self, name)
-            if v is not None and not (math.isfinite(v) and v > 0.0):
-                raise ValueError(f"SlipLimiterConfig.{name} must be None or finite and > 0, got {v!r}")
+        v = self.rest_relax_s
+        if v is not None and not (math.isfinite(v) and v > 0.0):
+            raise ValueError(f"SlipLimiterConfig.rest_relax_s must be None or finite and > 0, got {v!r}")
         if not (math.isfinite(self.rest_speed_mps) and self.rest_speed_mps >= 0.0):
             raise ValueError("SlipLimiterConfig.rest_speed_mps must be finite and >= 0, got "
                              f"{self.rest_speed_mps!r}")
