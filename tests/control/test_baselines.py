@@ -138,3 +138,36 @@ def test_served_class_is_kept_at_a_start_that_builds_up(robot):
     for k in range(200):
         ctrl(_sample(robot, k * 0.01, 0.0, 0.0))      # standing, zero command: nothing binds
     assert np.allclose(ctrl.last_cap, pred.table.target(6, "traction"))
+
+
+def test_class_from_before_an_unhealthy_episode_is_not_served_until_reclassified(robot):
+    """Issue 20 (greenhouse tuning seed compacted_dirt 5004): the estimator went unhealthy while
+    the robot drove onto a tilled-loam patch; the odometer counts no unhealthy tick, so the class
+    held from before (compacted dirt, s_T 0.142) came back unaged after it and stalled the wheels
+    on the patch (+4.9% energy against no control). The class is served again only once a window
+    has been classified after the episode."""
+    from types import SimpleNamespace
+    from terrainml.classes import TERRAIN_CLASSES
+    pred = _FirmClassPredictor(robot, 1)
+    ctrl = bl.terrain_aware(robot, predictor=pred, refine=False)
+    firm = pred.table.target(1, "traction")
+    largest = max(pred.table.target(c, "traction") for c in range(len(TERRAIN_CLASSES)))
+
+    def tick(t, fallback, reason, age_s):
+        pred._msg = SimpleNamespace(terrain_class=-1 if fallback else 1, fallback=fallback,
+                                    fallback_reason=reason, classification_age_s=age_s)
+        ctrl(_sample(robot, t, 0.0, 0.0))
+        return float(ctrl.last_cap[0])
+
+    assert tick(0.00, False, "", 0.05) == pytest.approx(firm)
+    caps_sick = [tick(0.01 * k, True, "estimator_unhealthy", 0.05 + 0.01 * k) for k in range(1, 51)]
+    # healthy again, but the last classification (age 0.55 s and growing) predates the episode
+    caps_old = [tick(0.5 + 0.01 * k, False, "", 0.55 + 0.01 * k) for k in range(1, 101)]
+    cap_new = tick(1.51, False, "", 0.005)       # a window classified 5 ms ago: after the episode
+    assert np.allclose(caps_sick, largest)
+    assert np.allclose(caps_old, largest)
+    assert cap_new == pytest.approx(firm)
+    # without the rule the old class comes straight back (what the tuning seed did)
+    ctrl = bl.terrain_aware(robot, predictor=pred, refine=False, escalation={"relearn": False})
+    tick(0.0, True, "estimator_unhealthy", 0.05)
+    assert tick(0.01, False, "", 0.06) == pytest.approx(firm)
