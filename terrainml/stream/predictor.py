@@ -102,6 +102,7 @@ class RingBuffer:
         self._i = 0
         self.count = 0
         self._index: dict[str, tuple[int, int]] | None = None
+        self._view_keys: dict[Callable[[str], bool], tuple[list[str], frozenset]] = {}
 
     def _init(self, row: dict) -> None:
         num, obj = [], []
@@ -185,7 +186,13 @@ class RingBuffer:
         if self._index is None:
             self._index = {k: (0, j) for j, k in enumerate(self._num_keys)}  # type: ignore[arg-type]
             self._index.update({k: (1, j) for j, k in enumerate(self._obj_keys)})
-        return SnapshotColumns(self._index, self._bool_keys, snap, skip)
+        # the fields ``skip`` leaves are the same on every call (names are fixed by the first
+        # row): filter them once per skip function, not on every update
+        keys = self._view_keys.get(skip)
+        if keys is None:
+            kept = [k for k in self._index if not skip(k)]
+            keys = self._view_keys[skip] = (kept, frozenset(kept))
+        return SnapshotColumns(self._index, self._bool_keys, snap, skip, keys)
 
     def to_columns(self, snap: tuple[np.ndarray, np.ndarray] | None,
                    skip: Callable[[str], bool] = lambda k: False) -> dict[str, np.ndarray]:
@@ -204,10 +211,13 @@ class SnapshotColumns(Mapping):
     """
 
     def __init__(self, index: Mapping[str, tuple[int, int]], bool_keys: set,
-                 snap: tuple[np.ndarray, np.ndarray] | None, skip: Callable[[str], bool]):
-        self._keys = [k for k in index if not skip(k)]
+                 snap: tuple[np.ndarray, np.ndarray] | None, skip: Callable[[str], bool],
+                 keys: tuple[list[str], frozenset] | None = None):
+        if keys is None:  # (names kept, the same as a set): worked out here unless given
+            kept = [k for k in index if not skip(k)]
+            keys = (kept, frozenset(kept))
+        self._keys, self._set = keys
         self._index = index
-        self._set = frozenset(self._keys)
         self._bool_keys = bool_keys
         self._snap = snap
 
