@@ -171,3 +171,30 @@ def test_class_from_before_an_unhealthy_episode_is_not_served_until_reclassified
     ctrl = bl.terrain_aware(robot, predictor=pred, refine=False, escalation={"relearn": False})
     tick(0.0, True, "estimator_unhealthy", 0.05)
     assert tick(0.01, False, "", 0.06) == pytest.approx(firm)
+
+
+def test_served_cap_that_loses_speed_escalates_before_the_stall(robot):
+    """Issue 20 (greenhouse tuning seeds): a firm class's cap on softer ground holds the wheels
+    below the slip the soil needs to keep the speed, and the body slows under a steady command.
+    A wheel held at its cap while the body loses speed faster than ``lag_decel_mps2`` behind its
+    command escalates to the safe cap after ``lag_s``, while the body still moves, instead of
+    waiting for the stall (below 0.1 m/s for 0.5 s)."""
+    from terrainml.classes import TERRAIN_CLASSES
+
+    def run(**escalation):
+        pred = _FirmClassPredictor(robot, 1, v_mps=0.45)   # compacted_dirt, s_T 0.142
+        ctrl = bl.terrain_aware(robot, predictor=pred, refine=False, escalation=escalation)
+        largest = max(pred.table.target(c, "traction") for c in range(len(TERRAIN_CLASSES)))
+        cmd = 0.5 / robot.wheel_radius_m                     # 0.5 m/s asked throughout
+        for k in range(60):                                  # 0.6 s, the body slows at 0.6 m/s^2
+            v = 0.45 - 0.006 * k
+            pred.estimator.v_long[:] = v
+            ctrl(_sample(robot, k * 0.01, cmd, cmd))
+            if abs(float(ctrl.last_cap[0]) - largest) < 1e-12:
+                return v
+        return None
+
+    v_at = run()
+    assert v_at is not None and v_at > 0.15    # escalated while the body still moved (stall: < 0.1)
+    assert run(lag_decel_mps2=None) is None    # the stall rule alone has not fired yet
+    assert run(lag_decel_mps2=1.0) is None     # slowing below the threshold: no escalation
