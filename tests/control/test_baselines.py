@@ -102,6 +102,12 @@ class _FirmClassPredictor:
         return self._msg
 
 
+def _peak_current_a(robot, ctrl, cid):
+    """Motor current (A) per wheel at the class's gross-thrust peak: H/W x W_i x R / k_t."""
+    h_w = ctrl.curves.get(cid)[4]
+    return h_w * np.asarray(robot.static_wheel_loads_n()) * robot.wheel_radius_m / robot.torque_constant_nm_per_a
+
+
 def test_served_firm_class_at_a_stall_escalates_to_the_safe_cap(robot):
     """Issue 20 (greenhouse tuning seeds, dry sand into wet mud): the fused class lags a terrain
     change and never goes stale at a stall, so a firm class's cap held the wheels short of the
@@ -114,8 +120,9 @@ def test_served_firm_class_at_a_stall_escalates_to_the_safe_cap(robot):
     largest = max(pred.table.target(c, "traction") for c in range(len(TERRAIN_CLASSES)))
     assert largest > firm + 0.2
     caps = []
+    i_peak = float(np.max(_peak_current_a(robot, ctrl, 1)))   # the wheel pulls at the class's peak
     for k in range(100):                          # 1 s: wheel spins at 3 rad/s, body at rest
-        ctrl(_sample(robot, k * 0.01, 3.0, 3.0))
+        ctrl(_sample(robot, k * 0.01, 3.0, 3.0, current=i_peak))
         caps.append(float(ctrl.last_cap[0]))
     assert np.allclose(caps[:40], firm)           # within stall_s (0.5 s) the class is served
     assert np.allclose(caps[-40:], largest)       # then the safe cap
@@ -124,7 +131,7 @@ def test_served_firm_class_at_a_stall_escalates_to_the_safe_cap(robot):
     t0 = 1.0
     caps = []
     for k in range(600):                          # 6 s at 0.5 m/s = 3 m
-        ctrl(_sample(robot, t0 + k * 0.01, 3.0, 0.5 / robot.wheel_radius_m))
+        ctrl(_sample(robot, t0 + k * 0.01, 3.0, 0.5 / robot.wheel_radius_m, current=i_peak))
         caps.append(float(ctrl.last_cap[0]))
     travelled_m = 0.5 * 0.01 * np.arange(1, 601)
     assert np.allclose(np.array(caps)[travelled_m < 1.9], largest)
@@ -186,10 +193,11 @@ def test_served_cap_that_loses_speed_escalates_before_the_stall(robot):
         ctrl = bl.terrain_aware(robot, predictor=pred, refine=False, escalation=escalation)
         largest = max(pred.table.target(c, "traction") for c in range(len(TERRAIN_CLASSES)))
         cmd = 0.5 / robot.wheel_radius_m                     # 0.5 m/s asked throughout
+        i_peak = float(np.max(_peak_current_a(robot, ctrl, 1)))
         for k in range(60):                                  # 0.6 s, the body slows at 0.6 m/s^2
             v = 0.45 - 0.006 * k
             pred.estimator.v_long[:] = v
-            ctrl(_sample(robot, k * 0.01, cmd, cmd))
+            ctrl(_sample(robot, k * 0.01, cmd, cmd, current=i_peak))
             if abs(float(ctrl.last_cap[0]) - largest) < 1e-12:
                 return v
         return None
@@ -198,3 +206,35 @@ def test_served_cap_that_loses_speed_escalates_before_the_stall(robot):
     assert v_at is not None and v_at > 0.15    # escalated while the body still moved (stall: < 0.1)
     assert run(lag_decel_mps2=None) is None    # the stall rule alone has not fired yet
     assert run(lag_decel_mps2=1.0) is None     # slowing below the threshold: no escalation
+
+
+def test_served_cap_on_weak_thrust_contradicts_the_class(robot):
+    """Issue 20 (greenhouse tuning seed compacted_dirt 5004): on its own ground a wheel reaches the
+    class's traction-peak slip only near the class's peak thrust. Held at compacted dirt's cap on
+    a tilled-loam patch it pulled about a third of that, and the cap held the robot back at low
+    demand. A wheel held at its cap for 0.1 s on less than ``thrust_gate`` (0.5) of the class's
+    gross-thrust peak escalates to the safe cap; at the peak thrust it keeps the class."""
+    from terrainml.classes import TERRAIN_CLASSES
+
+    def run(share, **escalation):
+        pred = _FirmClassPredictor(robot, 1, v_mps=0.4)       # compacted_dirt, s_T 0.142
+        ctrl = bl.terrain_aware(robot, predictor=pred, refine=False, escalation=escalation)
+        largest = max(pred.table.target(c, "traction") for c in range(len(TERRAIN_CLASSES)))
+        i = share * _peak_current_a(robot, ctrl, 1)          # (N,) A
+        cmd = 0.5 / robot.wheel_radius_m                      # slip 0.2 > 0.142: the cap binds
+        first, hit = None, None
+        for k in range(50):                                   # 0.5 s at a steady 0.4 m/s
+            s = _sample(robot, k * 0.01, cmd, cmd)
+            s.update({f"wheel{j}_current_a": float(i[j - 1]) for j in range(1, robot.n_wheels + 1)})
+            ctrl(s)
+            if first is None and ctrl.limiting.any():
+                first = k
+            if hit is None and abs(float(ctrl.last_cap[0]) - largest) < 1e-12:
+                hit = k
+        return first, hit
+
+    first, hit = run(0.3)                 # a third of the class's peak thrust: the class is wrong
+    assert first is not None and hit is not None and 9 <= hit - first <= 12    # 0.1 s at the cap
+    assert run(1.0)[1] is None            # at the class's peak thrust: the class is kept
+    assert run(0.6)[1] is None            # above the gate: kept
+    assert run(0.3, thrust_gate=None)[1] is None   # without the gate the cap holds (the old way)
