@@ -242,11 +242,15 @@ def _safe_cap_targets(ctrl: LimiterController) -> tuple[np.ndarray, np.ndarray, 
 
 #: m/s, a wheel's command must lead its estimated ground speed by this for it to count as held back
 LAG_MARGIN_MPS = 0.05
+#: s, how long a wheel must be held at its cap on weak thrust before the class counts as contradicted
+#: (*assumption*: one online classification hop, so one noisy current sample does not count)
+WEAK_THRUST_S = 0.1
 
 
 class ServedTargets:
-    """Target source of the served policy: the predictor's class; the safe cap on fallback, after
-    a stall at the served cap, and after an estimator-unhealthy episode until reclassified.
+    """Target source of the served policy: the predictor's class; the class-free safe cap on
+    fallback, after an estimator-unhealthy episode until reclassified, and for ``hold_m`` after a
+    wheel at the served cap shows the class too firm (a stall, speed lost, or weak thrust).
 
     The class comes from windows of past travel, fused over distance (design §10-11), so it lags
     a terrain change by metres, and its staleness counts distance: at a stall nothing is
@@ -286,7 +290,7 @@ class ServedTargets:
         classification hops).
     thrust_gate : share of the served class's gross-thrust peak, or None (off). On the served
         class a wheel reaches the cap (its traction-peak slip) only under near-peak thrust; a
-        wheel held at the cap for 0.1 s while its gross thrust (k_t i / R over its static load)
+        wheel held at the cap for ``WEAK_THRUST_S`` (0.1 s) while its gross thrust (k_t i / R over its static load)
         is below this share of the class's peak H/W contradicts the class: the ground is softer
         than served and needs more slip for the same thrust, so the cap only holds the robot
         back (low demand, design §12 "What is served"). It escalates as at a stall
@@ -351,50 +355,50 @@ class ServedTargets:
         self.losing_s = self.losing_s + dt if (np.any(behind) and decel > self.lag_decel_mps2) else 0.0
         return self.losing_s >= self.lag_s
 
-    def _update(self, ctrl: LimiterController) -> None:
-        dt = max(float(ctrl.dt_s), 0.0) if math.isfinite(ctrl.dt_s) else 0.0
-        v = np.abs(ctrl._v)
-        u_cmd = np.abs(ctrl.cmd_radps) * ctrl.robot.wheel_radius_m
+    def _stalled(self, ctrl: LimiterController, v: np.ndarray, u_cmd: np.ndarray, dt: float) -> bool:
+        """True once some wheel has been stalled at its cap for ``stall_s``, or sooner when the
+        body loses speed at the cap (``lag_decel_mps2``)."""
         stalled = ctrl.limiting & (v < self.stall_speed_mps) & (u_cmd > self.stall_speed_mps)
         self.stalled_s = self.stalled_s + dt if np.any(stalled) else 0.0
         if self.lag_decel_mps2 is not None and dt > 0.0 and self._losing_speed(ctrl, v, u_cmd, dt):
             self.stalled_s = max(self.stalled_s, self.stall_s)   # a stall on its way: act now
-        self.hold_left_m = max(self.hold_left_m - float(np.mean(v)) * dt, 0.0)
-        if self.stalled_s >= self.stall_s:
-            if self.hold_left_m <= 0.0:
-                self.n_escalations += 1
-            self.hold_left_m = self.hold_m
+        return self.stalled_s >= self.stall_s
 
     def _weak_at_cap(self, ctrl: LimiterController, cid: int, dt: float) -> bool:
-        """True once some wheel has been held at the served cap for 0.1 s with a gross thrust
-        (motor current) below ``thrust_gate`` of the served class's peak: on the served class the
-        cap is reached only near its peak thrust, so the class is contradicted there."""
+        """True once some wheel has been held at the served cap for ``WEAK_THRUST_S`` with a gross
+        thrust (motor current) below ``thrust_gate`` of the served class's peak: on the served
+        class the cap is reached only near its peak thrust, so the class is contradicted there."""
         h_peak_w = ctrl.curves.get(int(cid))[4]
         if not math.isfinite(h_peak_w):
             return False
         rb = ctrl.robot
         d = np.where(ctrl.cmd_radps < 0.0, -1.0, 1.0)
-        thrust_w = d * ctrl.current_a * rb.torque_constant_nm_per_a / rb.wheel_radius_m / self._loads(rb)
+        loads_n = np.asarray(rb.static_wheel_loads_n(), dtype=float)
+        thrust_w = d * ctrl.current_a * rb.torque_constant_nm_per_a / rb.wheel_radius_m / loads_n
         weak = ctrl.limiting & np.isfinite(thrust_w) & (thrust_w < self.thrust_gate * h_peak_w)
         self.weak_s = self.weak_s + dt if np.any(weak) else 0.0
-        return self.weak_s >= 0.1
+        return self.weak_s >= WEAK_THRUST_S
 
-    @staticmethod
-    def _loads(rb: RobotSpec) -> np.ndarray:
-        return np.asarray(rb.static_wheel_loads_n(), dtype=float)
+    def _escalate(self) -> None:
+        """Serve the safe cap for the next ``hold_m`` of travel (counted once per episode)."""
+        if self.hold_left_m <= 0.0:
+            self.n_escalations += 1
+        self.hold_left_m = self.hold_m
 
     def __call__(self, ctrl: LimiterController, sample: dict):
-        self._update(ctrl)
-        msg = ctrl.msg
-        if (self.thrust_gate is not None and msg is not None and not msg.fallback and msg.terrain_class >= 0
-                and self.hold_left_m <= 0.0):
-            dt0 = max(float(ctrl.dt_s), 0.0) if math.isfinite(ctrl.dt_s) else 0.0
-            if self._weak_at_cap(ctrl, msg.terrain_class, dt0):
-                self.n_escalations += 1
-                self.hold_left_m = self.hold_m
         dt = max(float(ctrl.dt_s), 0.0) if math.isfinite(ctrl.dt_s) else 0.0
+        msg = ctrl.msg
+        v = np.abs(ctrl._v)
+        u_cmd = np.abs(ctrl.cmd_radps) * ctrl.robot.wheel_radius_m
+        self.hold_left_m = max(self.hold_left_m - float(np.mean(v)) * dt, 0.0)
+        classed = msg is not None and not msg.fallback and msg.terrain_class >= 0
+        if self._stalled(ctrl, v, u_cmd, dt):
+            self._escalate()
+        elif (self.thrust_gate is not None and classed and self.hold_left_m <= 0.0
+              and self._weak_at_cap(ctrl, msg.terrain_class, dt)):
+            self._escalate()
         stale = self._stale_after_unhealthy(msg, dt)
-        if msg is None or msg.fallback or msg.terrain_class < 0 or self.hold_left_m > 0.0 or stale:
+        if not classed or self.hold_left_m > 0.0 or stale:
             return _safe_cap_targets(ctrl)
         return _class_targets(ctrl, msg.terrain_class)
 
