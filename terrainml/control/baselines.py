@@ -278,6 +278,9 @@ class ServedTargets:
         the estimator (greenhouse tuning seed compacted_dirt 5004: compacted dirt's 0.142 served
         on a tilled-loam patch, a 0.5 s stall, +4.9% energy against no control; with the rule
         +2.5%; 8 of 48 greenhouse tuning missions changed, no tuning-seed criterion worse).
+        Here and not in the predictor: the class after an episode is usually still right (the
+        serving benchmark counts it), and in stop-and-go the next window may come only a second
+        after the restart; a consumer that caps wheels on it reads ``classification_age_s``.
     lag_decel_mps2 : m/s^2 or None (off), a wheel held at its cap while its command leads its
         ground speed and the body slows faster than this is a stall on its way; after ``lag_s``
         the safe cap is served as at a stall, while the body still moves (*assumption*: 0.3
