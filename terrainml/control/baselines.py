@@ -330,6 +330,7 @@ class ServedTargets:
             raise ValueError(f"ServedTargets.thrust_gate must be None or in (0, 1), got {thrust_gate!r}")
         self.thrust_gate = None if thrust_gate is None else float(thrust_gate)
         self.weak_s = 0.0              # how long some wheel has been held at its cap on weak thrust
+        self._loads_n: np.ndarray | None = None
 
     def _stale_after_unhealthy(self, msg: Any, dt: float) -> bool:
         """True while the served class predates the last estimator-unhealthy episode."""
@@ -376,8 +377,9 @@ class ServedTargets:
             return False
         rb = ctrl.robot
         d = np.where(ctrl.cmd_radps < 0.0, -1.0, 1.0)
-        loads_n = np.asarray(rb.static_wheel_loads_n(), dtype=float)
-        thrust_w = d * ctrl.current_a * rb.torque_constant_nm_per_a / rb.wheel_radius_m / loads_n
+        if self._loads_n is None:   # the robot's static wheel loads: fixed, worked out once
+            self._loads_n = np.asarray(rb.static_wheel_loads_n(), dtype=float)
+        thrust_w = d * ctrl.current_a * rb.torque_constant_nm_per_a / rb.wheel_radius_m / self._loads_n
         weak = ctrl.limiting & np.isfinite(thrust_w) & (thrust_w < self.thrust_gate * h_peak_w)
         self.weak_s = self.weak_s + dt if np.any(weak) else 0.0
         return self.weak_s >= WEAK_THRUST_S
