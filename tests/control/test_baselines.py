@@ -238,3 +238,15 @@ def test_served_cap_on_weak_thrust_contradicts_the_class(robot):
     assert run(1.0)[1] is None            # at the class's peak thrust: the class is kept
     assert run(0.6)[1] is None            # above the gate: kept
     assert run(0.3, thrust_gate=None)[1] is None   # without the gate the cap holds (the old way)
+
+
+def test_weak_thrust_gate_needs_a_measured_current(robot):
+    """A robot that logs no motor current (NaN) gives no thrust: the gate cannot contradict the
+    class, so the class is kept (the other escalations still apply)."""
+    pred = _FirmClassPredictor(robot, 1, v_mps=0.4)
+    ctrl = bl.terrain_aware(robot, predictor=pred, refine=False)
+    cmd = 0.5 / robot.wheel_radius_m
+    for k in range(50):
+        ctrl(_sample(robot, k * 0.01, cmd, cmd, current=float("nan")))
+    assert ctrl.limiting.any()                                   # held at the cap throughout
+    assert np.allclose(ctrl.last_cap, pred.table.target(1, "traction"))
