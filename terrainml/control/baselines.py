@@ -89,6 +89,12 @@ class _ClassCurves:
                                     float(np.max(mu)), float(np.max(h)) / self.w_mean)
         return self._cache[cid]
 
+    def peak_current_a(self, cid: int, loads_n: np.ndarray) -> np.ndarray:
+        """(N,) motor current at class ``cid``'s gross-thrust peak per wheel, A: mu_H* W_i R / k_t
+        (NaN without a nominal curve)."""
+        rb = self.robot
+        return self.get(int(cid))[4] * loads_n * rb.wheel_radius_m / rb.torque_constant_nm_per_a
+
 
 def mission_limiter_config(robot: RobotSpec, **overrides: Any) -> SlipLimiterConfig:
     """Slip-limiter settings of the mission policies (tuned on the tuning seeds only).
@@ -159,6 +165,7 @@ class LimiterController:
         self.limiter = SlipLimiter(n, limiter or mission_limiter_config(robot))
         self.refiner = CapRefiner(n, refiner) if refine else None
         self.curves = _ClassCurves(robot, self.table, refiner or CapRefinerConfig())
+        self.wheel_loads_n = np.asarray(robot.static_wheel_loads_n(), dtype=float)
         self.predictor = predictor
         self.estimator = None if predictor is not None else OnlineEstimator(robot, preset,
                                                                              has_imu_yaw=False)
@@ -307,7 +314,8 @@ class ServedTargets:
     def __init__(self, stall_speed_mps: float = 0.1, stall_s: float = 0.5, hold_m: float = 2.0,
                  relearn: bool = True, lag_decel_mps2: float | None = 0.3, lag_s: float = 0.2,
                  thrust_gate: float | None = 0.5):
-        for name, v in (("stall_speed_mps", stall_speed_mps), ("stall_s", stall_s), ("hold_m", hold_m)):
+        for name, v in (("stall_speed_mps", stall_speed_mps), ("stall_s", stall_s), ("hold_m", hold_m),
+                        ("lag_s", lag_s), ("lag_decel_mps2", 1.0 if lag_decel_mps2 is None else lag_decel_mps2)):
             if not (math.isfinite(v) and v > 0.0):
                 raise ValueError(f"ServedTargets.{name} must be finite and > 0, got {v!r}")
         self.stall_speed_mps = float(stall_speed_mps)
@@ -318,10 +326,6 @@ class ServedTargets:
         self.n_escalations = 0
         self.relearn = bool(relearn)
         self.unhealthy_gap_s: float | None = None   # s since an estimator-unhealthy episode ended
-        if lag_decel_mps2 is not None and not (math.isfinite(lag_decel_mps2) and lag_decel_mps2 > 0.0):
-            raise ValueError(f"ServedTargets.lag_decel_mps2 must be None or finite and > 0, got {lag_decel_mps2!r}")
-        if not (math.isfinite(lag_s) and lag_s > 0.0):
-            raise ValueError(f"ServedTargets.lag_s must be finite and > 0, got {lag_s!r}")
         self.lag_decel_mps2 = None if lag_decel_mps2 is None else float(lag_decel_mps2)
         self.lag_s = float(lag_s)
         self.losing_s = 0.0            # how long some wheel at its cap has been losing speed
@@ -330,7 +334,6 @@ class ServedTargets:
             raise ValueError(f"ServedTargets.thrust_gate must be None or in (0, 1), got {thrust_gate!r}")
         self.thrust_gate = None if thrust_gate is None else float(thrust_gate)
         self.weak_s = 0.0              # how long some wheel has been held at its cap on weak thrust
-        self._loads_n: np.ndarray | None = None
 
     def _stale_after_unhealthy(self, msg: Any, dt: float) -> bool:
         """True while the served class predates the last estimator-unhealthy episode."""
@@ -369,18 +372,13 @@ class ServedTargets:
         return self.stalled_s >= self.stall_s
 
     def _weak_at_cap(self, ctrl: LimiterController, cid: int, dt: float) -> bool:
-        """True once some wheel has been held at the served cap for ``WEAK_THRUST_S`` with a gross
-        thrust (motor current) below ``thrust_gate`` of the served class's peak: on the served
-        class the cap is reached only near its peak thrust, so the class is contradicted there."""
-        h_peak_w = ctrl.curves.get(int(cid))[4]
-        if not math.isfinite(h_peak_w):
-            return False
-        rb = ctrl.robot
+        """True once some wheel has been held at the served cap for ``WEAK_THRUST_S`` with a motor
+        current (gross thrust) below ``thrust_gate`` of the current at the served class's thrust
+        peak: on the served class the cap is reached only near that peak, so the class is
+        contradicted there. No logged current (NaN) contradicts nothing."""
         d = np.where(ctrl.cmd_radps < 0.0, -1.0, 1.0)
-        if self._loads_n is None:   # the robot's static wheel loads: fixed, worked out once
-            self._loads_n = np.asarray(rb.static_wheel_loads_n(), dtype=float)
-        thrust_w = d * ctrl.current_a * rb.torque_constant_nm_per_a / rb.wheel_radius_m / self._loads_n
-        weak = ctrl.limiting & np.isfinite(thrust_w) & (thrust_w < self.thrust_gate * h_peak_w)
+        i_peak = ctrl.curves.peak_current_a(cid, ctrl.wheel_loads_n)
+        weak = ctrl.limiting & np.isfinite(ctrl.current_a) & (d * ctrl.current_a < self.thrust_gate * i_peak)
         self.weak_s = self.weak_s + dt if np.any(weak) else 0.0
         return self.weak_s >= WEAK_THRUST_S
 
@@ -522,8 +520,7 @@ class CurrentLimitController(_CommandShaper):
 
     def limit_a(self, cid: int) -> np.ndarray:
         """(N,) current limit per wheel, A."""
-        mu_h = self.curves.get(int(cid))[4]
-        return mu_h * self.loads * self.robot.wheel_radius_m / self.robot.torque_constant_nm_per_a
+        return self.curves.peak_current_a(cid, self.loads)
 
     def __call__(self, sample: dict) -> np.ndarray:
         t, dt, om, cmd, cur = self._tick(sample)
