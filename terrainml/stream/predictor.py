@@ -182,7 +182,7 @@ class RingBuffer:
         when the window code reads it: a short window reads about 20 of the ring's 70-odd fields.
         """
         if snap is None:
-            return SnapshotColumns({}, set(), snap, skip)
+            return SnapshotColumns({}, set(), snap, ([], frozenset()))
         if self._index is None:
             self._index = {k: (0, j) for j, k in enumerate(self._num_keys)}  # type: ignore[arg-type]
             self._index.update({k: (1, j) for j, k in enumerate(self._obj_keys)})
@@ -192,7 +192,7 @@ class RingBuffer:
         if keys is None:
             kept = [k for k in self._index if not skip(k)]
             keys = self._view_keys[skip] = (kept, frozenset(kept))
-        return SnapshotColumns(self._index, self._bool_keys, snap, skip, keys)
+        return SnapshotColumns(self._index, self._bool_keys, snap, keys)
 
     def to_columns(self, snap: tuple[np.ndarray, np.ndarray] | None,
                    skip: Callable[[str], bool] = lambda k: False) -> dict[str, np.ndarray]:
@@ -206,17 +206,13 @@ class RingBuffer:
 class SnapshotColumns(Mapping):
     """Mapping name -> column of a ring snapshot (:meth:`RingBuffer.column_view`), lazy.
 
-    Fields where ``skip(name)`` is true (labels) are absent. Numeric columns are views of the
+    Fields the view was asked to skip (labels) are absent. Numeric columns are views of the
     snapshot (float64), flags bool, other fields object arrays.
     """
 
     def __init__(self, index: Mapping[str, tuple[int, int]], bool_keys: set,
-                 snap: tuple[np.ndarray, np.ndarray] | None, skip: Callable[[str], bool],
-                 keys: tuple[list[str], frozenset] | None = None):
-        if keys is None:  # (names kept, the same as a set): worked out here unless given
-            kept = [k for k in index if not skip(k)]
-            keys = (kept, frozenset(kept))
-        self._keys, self._set = keys
+                 snap: tuple[np.ndarray, np.ndarray] | None, keys: tuple[list[str], frozenset]):
+        self._keys, self._set = keys     # the names kept (skip already applied), and as a set
         self._index = index
         self._bool_keys = bool_keys
         self._snap = snap
