@@ -50,7 +50,7 @@ from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import WHEEL_STATES
 from terrainml.stream.classify import load_serving_model
 from terrainml.stream.clock import ACCEPT, JUMP, MAX_GAP_S, REANCHOR, REANCHOR_AFTER, ClockGate
-from terrainml.stream.fusion import TerrainFilter
+from terrainml.stream.fusion import TerrainFilter, confirm_windows_for
 from terrainml.stream.health import HealthMonitor, InputCounters
 from terrainml.stream.message import DesiredSlip
 from terrainml.stream.policy import NO_CLASS_ID, NO_CLASS_NAME, SERVE_P, decide, safe_cap_for
@@ -256,7 +256,8 @@ class Predictor:
         integrated over ticks), not time: a robot standing still keeps its class.
     serve_p : fused posterior below this → ``uncertain_classification`` fallback (default 0.6).
     fusion : dict of :class:`~terrainml.stream.fusion.TerrainFilter` settings (``length_m``,
-        ``alpha``, ``eps``, ``drift``, ``threshold``).
+        ``alpha``, ``eps``, ``drift``, ``threshold``, ``confirm_windows``; the last defaults to
+        :func:`~terrainml.stream.fusion.confirm_windows_for` the hop: 3 at 0.1 s, 1 at 0.5 s).
     max_age_s : s or None (default None: off). An optional wall-time limit on the age of the
         last classification, on top of ``stale_m``. silent_s : s, health rule.
     classify_lag_ticks : 0 (default) classifies inline on the hop tick. L > 0 runs the
@@ -344,7 +345,8 @@ class Predictor:
         self.odometer_m = 0.0
         self._t_prev: float | None = None
         self._odo_at_attempt: float | None = None
-        self.filter = TerrainFilter(len(self._class_ids()), stale_m=stale_m, **dict(fusion or {}))
+        fusion = {"confirm_windows": confirm_windows_for(self.hop_s), **dict(fusion or {})}
+        self.filter = TerrainFilter(len(self._class_ids()), stale_m=stale_m, **fusion)
         cap_names = [self._name(c) for c in self._class_ids()]
         self._cap_classes = cap_names if hasattr(table, "class_names") else None
         self._cap_table = safe_cap_for(table, self._class_ids(), cap_names)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from terrainml.stream.fusion import TerrainFilter
+from terrainml.stream.fusion import TerrainFilter, confirm_windows_for
 
 K = 4
 
@@ -49,9 +49,14 @@ def test_ages_with_distance_and_goes_stale():
     assert f.age_m == 0.0 and not f.stale
 
 
-def test_switches_fast_after_a_real_transition():
-    """Class 0 for 40 windows (one per 0.1 m), then class 3: served within 5 windows (0.5 m)."""
-    f = TerrainFilter(K)
+@pytest.mark.parametrize("confirm", [1, 3])
+def test_switches_fast_after_a_real_transition(confirm):
+    """Class 0 for 40 windows (one per 0.1 m), then class 3 at p 0.85. Hand-worked: each class-3
+    window adds -ln(0.05 + 0.02) - 1.5 = 1.16 nats to the CUSUM of the held class 0, so the alarm
+    (> 4 nats) comes on the 4th window (index 3), before the tempered Bayes update alone would
+    have moved the posterior (odds 57:1 for class 0, / 2.4 per window); with K = ``confirm``
+    windows to agree, class 3 is served from index 3 + K - 1 on, and stays."""
+    f = TerrainFilter(K, confirm_windows=confirm)
     for _ in range(40):
         f.predict(0.1)
         f.update(_p(0, 0.85))
@@ -62,8 +67,30 @@ def test_switches_fast_after_a_real_transition():
         f.update(_p(3, 0.85))
         served.append(f.best()[0])
     first = served.index(3)
-    assert first <= 4
-    assert all(c == 3 for c in served[first:])  # and stays
+    assert first == 3 + confirm - 1
+    assert all(c == 0 for c in served[:first])  # the class from before is held meanwhile
+    assert all(c == 3 for c in served[first:])  # and the new one stays
+    assert f.n_changes == 1 and not f.pending
+
+
+def test_a_third_class_from_straddling_windows_is_not_served():
+    """Class 0, then 4 windows naming a third class 2 (a window straddling a 0 -> 3 transition;
+    the alarm comes on the 4th, as above), then class 3. Confirming over 3 windows serves 0 until
+    class 3 is confirmed: one switch, never class 2; restarting at once (K = 1) serves class 2."""
+    def run(confirm):
+        f = TerrainFilter(K, confirm_windows=confirm)
+        served = []
+        for c, n in ((0, 40), (2, 4), (3, 20)):
+            for _ in range(n):
+                f.predict(0.1)
+                f.update(_p(c, 0.85))
+                served.append(f.best()[0])
+        return served
+
+    served = run(3)
+    assert set(served) == {0, 3} and sum(a != b for a, b in zip(served[1:], served[:-1])) == 1
+    assert served.index(3) == 44 + 2  # the 3rd class-3 window confirms it
+    assert 2 in run(1)
 
 
 def test_no_chatter_on_a_noisy_constant_class():
@@ -119,3 +146,17 @@ def test_settings_are_checked():
         TerrainFilter(K, alpha=1.5)
     with pytest.raises(ValueError, match="probabilities"):
         TerrainFilter(K).update(np.ones(3) / 3)
+    for bad in (0, 1.5):
+        with pytest.raises(ValueError, match="confirm_windows"):
+            TerrainFilter(K, confirm_windows=bad)
+
+
+def test_the_predictor_confirms_over_a_fifth_of_a_second(fake_predictor):
+    """0.2 s of windows after the alarm one: 3 windows at the ``short`` spec's 0.1 s hop, none at
+    a 0.5 s hop (``steady``, ``chunks``), unless the caller says otherwise."""
+    assert confirm_windows_for(0.1) == 3 and confirm_windows_for(0.5) == 1
+    assert fake_predictor(hop_s=0.1).filter.confirm_windows == 3
+    assert fake_predictor(hop_s=0.5).filter.confirm_windows == 1
+    assert fake_predictor(hop_s=0.1, fusion={"confirm_windows": 1}).filter.confirm_windows == 1
+    with pytest.raises(ValueError, match="hop_s"):
+        confirm_windows_for(0.0)
