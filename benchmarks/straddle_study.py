@@ -1,7 +1,7 @@
 """Study: can a window that straddles a terrain transition name the new terrain? (issue #19)
 
 Not part of ``make bench`` (``python -m benchmarks.straddle_study``, about 3 min on 2 cores); it
-reproduces the offline figures behind the switch limit in docs/stream.md and BENCHMARKS.md
+reproduces the offline figures behind the transition work in docs/stream.md and BENCHMARKS.md
 ("Serving through stop-and-go and transitions"). Training windows: both simulated courses
 (``course_stop_and_go``, ``mixed``) of the training seeds 9501-9508; test windows: the tuning
 courses (seeds 9201-9202, 9301-9312). No held-out serving seed is read. ``short`` windows,
