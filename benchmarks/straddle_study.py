@@ -39,8 +39,8 @@ SCENARIOS = ("course_stop_and_go", "mixed")
 
 
 def _course(scenario: str, seed: int):
-    """Run table of one course and the terrain under each wheel per row (n_rows, N)."""
-    from terrainml.sim import physics as ph
+    """Run table of one course and the terrain under each wheel per row (n_rows, N): the class of
+    the layout cell the simulator's physics used for that wheel (its ``cell`` log block)."""
     from terrainml.sim.generate import simulate
     from terrainml.sim.output import _rows100, run_table
 
@@ -48,10 +48,7 @@ def _course(scenario: str, seed: int):
 
     res = simulate(None, scenario, speed_mps=SPEED_MPS, duration_s=120.0, seed=seed)
     rows = _rows100(res)
-    x, y, psi = res.log[rows, ph.L_X], res.log[rows, ph.L_Y], res.log[rows, ph.L_PSI]
-    wheel_terrain = np.stack([res.terrain.layout.class_at(x + np.cos(psi) * w.x_m - np.sin(psi) * w.y_m,
-                                                          y + np.sin(psi) * w.x_m + np.cos(psi) * w.y_m)
-                              for w in res.robot.wheels], axis=1)
+    wheel_terrain = res.terrain.cell_class[res.wblock("cell")[rows].astype(np.int64)]
     return run_table(res, f"{scenario}{seed}"), wheel_terrain
 
 
@@ -168,8 +165,7 @@ def run(quick: bool = False) -> str:
              f"tuning courses; `short` windows labelled at their end.", ""]
     lines += _families(F_tr, y_tr, F_te, y_te, strad)
     many = _windows(MANY_TRAIN_SEEDS[:4] if quick else MANY_TRAIN_SEEDS, robot, spec)
-    F_many = many[0].windows
-    F_many, y_many = fs.transform(F_many), F_many.y
+    F_many, y_many = fs.transform(many[0].windows), many[0].windows.y
     ok = np.isfinite(F_many).all(axis=1)
     svm = make_pipeline(StandardScaler(), SVC(C=10, gamma="scale", class_weight="balanced")).fit(F_many[ok], y_many[ok])
     p = svm.predict(F_te)
