@@ -133,7 +133,8 @@ def update_cost(model_dir, table, n: int = 200, passes: int = 5) -> dict:
     figure is the code and how much the machine.
     """
     from terrainml.features.windows import cut_windows
-    from terrainml.stream.predictor import Predictor, _is_label
+    from terrainml.stream.predictor import Predictor
+    from terrainml.stream.ring import is_label
     from terrainml.stream.sources import iter_table_samples
 
     inp = table.drop(columns=[c for c in table.columns if c.startswith("gt_") or c in ("terrain", "run_id")])
@@ -148,14 +149,14 @@ def update_cost(model_dir, table, n: int = 200, passes: int = 5) -> dict:
             break
     pred.close()
     for snap in snaps[:5]:  # warm both paths
-        pred.classify_snapshot(snap)
+        pred.scheduler.classify_snapshot(snap)
         clf.classify(pred.ring.to_frame(snap))
     per_pass = []
     for _ in range(passes):
         t_new, t_old, kept = [], [], []
         for snap in snaps:  # thread CPU time: a shared machine's preemption is not the update's cost
             c0 = time.thread_time()
-            p_new = pred.classify_snapshot(snap)  # what the predictor runs: ring columns in place
+            p_new = pred.scheduler.classify_snapshot(snap)  # what the predictor runs: ring columns in place
             c1 = time.thread_time()
             p_old = clf.classify(pred.ring.to_frame(snap))
             c2 = time.thread_time()
@@ -169,7 +170,7 @@ def update_cost(model_dir, table, n: int = 200, passes: int = 5) -> dict:
         per_pass.append({"new_ms": t_new.mean(), "old_ms": t_old.mean(),
                          "new_kept_ms": t_new[kept].mean() if kept.any() else nan,
                          "old_kept_ms": t_old[kept].mean() if kept.any() else nan})
-    cols = pred.ring.to_columns(snaps[0], _is_label)
+    cols = pred.ring.to_columns(snaps[0], is_label)
     assert len(cut_windows(cols, clf.robot, spec=clf.window_spec, online=True)[0]) <= 1
     out = {"n": int(len(snaps)), "n_kept": int(kept.sum()), "passes": passes}
     for key in per_pass[0]:

@@ -109,7 +109,7 @@ def _pacing_amortised(tick_s: np.ndarray, cls_s: np.ndarray, lag: int = 10,
 
     Tick k (cost ``tick_s[k]``) arrives at k x period and has priority; a classification
     released at tick k (cost ``cls_s[k]``) uses the idle time between ticks and must be done by
-    tick k + lag, which otherwise waits for it (as ``Predictor(classify_lag_ticks=lag)`` does).
+    tick k + lag, which otherwise waits for it (as ``Predictor(config=ServingConfig(classify_lag_ticks=lag))`` does).
     """
     from collections import deque
 
@@ -382,6 +382,7 @@ def _cid(name: str) -> int:
 def run(quick: bool = False) -> str:
     from terrainml.estimation.run import estimate_run
     from terrainml.robot import load_robot
+    from terrainml.stream.config import ServingConfig
     from terrainml.stream.predictor import Predictor
 
     robot = load_robot()
@@ -421,7 +422,7 @@ def run(quick: bool = False) -> str:
         proc[k] = time.perf_counter() - c0
         cpu[k] = time.thread_time() - u0
         cls_cpu[k] = timed.last_cpu_s
-        is_cls[k] = pred._last_attempt_t == s["t_s"]
+        is_cls[k] = pred.scheduler.last_attempt_t == s["t_s"]
         if k % 6000 == 5999:
             rss.append(_rss_mb())
     wall = time.perf_counter() - t_start
@@ -429,7 +430,7 @@ def run(quick: bool = False) -> str:
     missed_cpu, worst_cpu = _pacing(cpu)
     missed_am, worst_am = _pacing_amortised(cpu - cls_cpu, cls_cpu)
     n_slow = int(np.count_nonzero(cpu - cls_cpu > 1.0 / RATE_HZ))
-    cls = np.array(pred.classify_ms)
+    cls = np.array(pred.scheduler.classify_ms)
     stats = pred.stats()
     tps = n / wall
     ms = proc * 1e3
@@ -444,7 +445,7 @@ def run(quick: bool = False) -> str:
 
     # ---- amortised for real: background classification, paced at 100 Hz
     paced_s = 10 if quick else 30
-    pred2 = Predictor(robot, table, clf, classify_lag_ticks=10)
+    pred2 = Predictor(robot, table, clf, config=ServingConfig(classify_lag_ticks=10))
     m = int(paced_s * RATE_HZ)
     proc2 = np.empty(m)
     cpu2 = np.empty(m)

@@ -7,6 +7,8 @@ from typing import List, Optional
 
 import typer
 
+from terrainml.commands._common import open_robot
+
 _EXAMPLE = """
 Examples:
 
@@ -71,12 +73,15 @@ def register(app: typer.Typer) -> None:
                  "column names, units and scales (e.g. m/s wheel speeds -> rad/s) and side-to-wheel "
                  "mapping; the source is one file of a run, as for `terrainml ingest --format`."),
     ) -> None:
-        from terrainml.stream.runner import run_predict
+        from terrainml.stream.config import ServingConfig
+        from terrainml.stream.runner import CLASSIFY_LAG_TICKS, run_predict
 
+        # resolved here, once: the stream takes a RobotSpec and a ServingConfig
+        config = ServingConfig(preset=preset, max_clock_gap_s=max_clock_gap_s,
+                               reanchor_after=reanchor_after, classify_lag_ticks=CLASSIFY_LAG_TICKS)
         code = run_predict(model=model, source=source, sinks=list(sink), realtime=realtime,
-                           robot=robot, preset=preset, idle_timeout_s=idle_timeout_s,
-                           verbose=verbose, max_clock_gap_s=max_clock_gap_s,
-                           reanchor_after=reanchor_after, trusted_keys=trusted_key or None,
-                           topics=topics, dataset=fmt)
+                           robot=open_robot(robot) if robot else None, config=config,
+                           idle_timeout_s=idle_timeout_s, verbose=verbose,
+                           trusted_keys=trusted_key or None, topics=topics, dataset=fmt)
         if code:
             raise typer.Exit(code)

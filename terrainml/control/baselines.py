@@ -50,6 +50,7 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.lookup import terramechanics as tm
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
+from terrainml.stream.config import ServingConfig
 from terrainml.stream.predictor import Predictor
 
 __all__ = ["AccelLimitController", "CurrentLimitController", "LimiterController", "fixed_cap",
@@ -435,7 +436,7 @@ def terrain_aware(robot: RobotSpec, model: str | Path | None = None, *,
     if predictor is None:
         if model is None:
             raise ValueError("terrain_aware needs a model folder or a Predictor")
-        predictor = Predictor.from_model_dir(model, robot=robot, preset=preset)
+        predictor = Predictor.from_model_dir(model, robot=robot, config=ServingConfig(preset=preset))
     return LimiterController(robot, ServedTargets(**(escalation or {})), refine=refine,
                              predictor=predictor, **kw)
 

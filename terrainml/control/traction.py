@@ -80,6 +80,7 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.lookup.policy import desired_slip_per_wheel
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
+from terrainml.stream.config import ServingConfig
 from terrainml.stream.policy import safe_cap_for
 from terrainml.stream.predictor import Predictor
 
@@ -214,7 +215,7 @@ class SlipController:
         self.true_class = true_class
         self.table: Any = None
         if policy == "terrain-aware" and model is not None:
-            self.predictor = Predictor.from_model_dir(model, robot=robot, preset=preset)
+            self.predictor = Predictor.from_model_dir(model, robot=robot, config=ServingConfig(preset=preset))
         elif policy != "none":
             self.estimator = OnlineEstimator(robot, preset, has_imu_yaw=False)
         if policy == "fixed":

@@ -6,12 +6,14 @@
   non-overlapping, thesis §8.1) over a whole EST table;
 * online (``online=True``): windows END at the last row and hop ``spec.online_hop_s`` (0.5 s)
   backwards, so a ring buffer holding exactly one window length of rows gives exactly one
-  window, the latest. :class:`OnlineWindower` feeds EST rows one at a time through a ring
-  buffer and calls :func:`cut_windows` every hop.
+  window, the latest. Serving does exactly that: its ring buffer (:mod:`terrainml.stream.ring`)
+  holds one window length of EST rows, and :class:`terrainml.stream.classify.WindowClassifier`
+  cuts the ring's columns every online hop.
 
 Every per-row conversion is elementwise and every per-window reduction runs on the same rows
 in the same order in both paths, so a window cut online is bit-identical to the same window cut
-offline (``tests/features/test_windows.py`` proves it within 1e-9 on features).
+offline (``tests/features/test_windows.py`` and ``tests/stream/test_serving_windows.py``, the
+serving path row by row, prove it within 1e-9 on features).
 
 Steady rules (design §8); a window is kept only if all hold, and every rule counts the windows
 it rejects (a window may fail several rules, so the counts may add up to more than the number
@@ -80,7 +82,6 @@ command line), design §8:
 from __future__ import annotations
 
 import json
-from collections import deque
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields, replace
 from functools import lru_cache
@@ -91,7 +92,7 @@ import pandas as pd
 
 from terrainml.robot import RobotSpec, load_robot
 
-__all__ = ["WindowSpec", "Windows", "cut_windows", "OnlineWindower", "RULES", "WINDOW_SPECS",
+__all__ = ["WindowSpec", "Windows", "cut_windows", "RULES", "WINDOW_SPECS",
            "window_spec", "default_channels", "channel_source", "register_window_spec",
            "SIDE_CHANNEL_NAMES", "WHEEL_STATE_MODES", "channel_sensor_group", "is_side_channel_set",
            "channel_column", "side_wheels"]
@@ -734,45 +735,3 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec |
                         columns=["run_id", "terrain", "t_start_s", "t_end_s", "start_index"])
     meta["run_id"] = meta["run_id"].astype(object)
     return Windows(np.stack(X_kept), channels, meta, spec.rate_hz), counts
-
-
-class OnlineWindower:
-    """Feed EST rows one at a time; get the latest steady window every online hop.
-
-    Parameters
-    ----------
-    robot : RobotSpec, name or path.
-    spec : WindowSpec (None: defaults); windows of ``spec.n_samples`` rows every
-        ``spec.hop_samples(online=True)`` rows once the buffer is full.
-
-    Examples
-    --------
-    >>> w = OnlineWindower("agrimaro")
-    >>> for row in rows:                      # doctest: +SKIP
-    ...     out = w.push(row)                 # Windows with one window, or None
-    """
-
-    def __init__(self, robot: RobotSpec | str | None = None, spec: WindowSpec | None = None):
-        self.robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
-        self.spec = spec or WindowSpec()
-        self._rows: deque[dict[str, Any]] = deque(maxlen=self.spec.n_samples)
-        self.n_pushed = 0
-        self.counts = {"n_windows": 0, "n_kept": 0, "n_rejected": 0, **{r: 0 for r in RULES}}
-        self.last_start_index: int | None = None
-
-    def push(self, row: dict[str, Any]) -> Windows | None:
-        """Append one EST row; return the window ending here when a hop is due and it is steady."""
-        self._rows.append(row)
-        self.n_pushed += 1
-        T = self.spec.n_samples
-        if self.n_pushed < T or (self.n_pushed - T) % self.spec.hop_samples(online=True):
-            return None
-        frame = pd.DataFrame(list(self._rows))
-        wins, counts = cut_windows(frame, self.robot, self.spec, online=True)
-        for k, v in counts.items():
-            self.counts[k] += v
-        self.last_start_index = self.n_pushed - T
-        if len(wins) == 0:
-            return None
-        wins.meta["start_index"] = self.last_start_index
-        return wins

@@ -6,8 +6,9 @@ Classes are known by name: a table is built for the eight simulated classes
 (:meth:`DesiredSlipTable.from_catalogue`, :mod:`terrainml.lookup.catalogue`), whose classes give
 either terramechanics parameters (targets computed as below) or direct targets (served as given).
 Integer ids are storage details (the position of a class in the table); lookups take the name
-or the id, and :meth:`DesiredSlipTable.check_classes` refuses a table whose classes differ from
-a model's. :meth:`DesiredSlipTable.safe_cap` is the class-free fallback target of design §10.
+or the id, and :meth:`DesiredSlipTable.check_classes` refuses a table that does not hold a
+model's classes under the model's ids (what serving checks on load).
+:meth:`DesiredSlipTable.safe_cap` is the class-free fallback target of design §10.
 
 For every terrain class the table evaluates the vehicle's net traction coefficient
 
@@ -353,10 +354,6 @@ class DesiredSlipTable:
                 self._targets[(key, "steady")] = float(r.steady)
                 self._targets[(key, "traction")] = float(r.traction)
                 self._targets[(key, "braking")] = float(r.braking)
-        self._rank = {r.id: (abs(r.traction), abs(r.steady), abs(r.braking)) for r in self.rows}
-        names = {r.name: r.id for r in self.rows}
-        self.fallback_class_id: int = (names["pavement"] if "pavement" in names
-                                       else min(self._rank, key=self._rank.__getitem__))
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -456,27 +453,32 @@ class DesiredSlipTable:
                                  f"{', '.join(STATES)}") from None
             return self._targets[(self.row(cls).id, state)]
 
-    def check_classes(self, class_names: Sequence[str], source: str = "the model") -> None:
-        """Refuse a table whose class set differs from ``class_names`` (e.g. a model's).
+    def check_classes(self, class_ids: Sequence[int], class_names: Sequence[str],
+                      source: str = "the model") -> None:
+        """Refuse a table that does not hold the model's classes under the model's ids.
 
-        Order does not matter (ids are storage details; look targets up by name).
+        The serving policy looks targets up by class id, so the table's class ``cid`` must be
+        the model's class ``cid``, matched by name; a table with more classes is fine (the
+        reference table serves a model trained on some of its classes). Serving runs this check
+        when it opens a model (:func:`terrainml.stream.classify.load_serving_model`).
+
+        Parameters
+        ----------
+        class_ids, class_names : the model's class ids and their names (same length).
+        source : what the message names (the table file or the model folder).
 
         Raises
         ------
-        LookupTableError naming ``source`` and listing both sets and their differences.
+        LookupTableError naming ``source``, listing both class sets and the ids that differ.
         """
-        names = [str(c) for c in class_names]
-        dup = sorted({c for c in names if names.count(c) > 1})
-        if dup:
-            raise LookupTableError(f"{source}: class names {dup} given more than once")
-        mine = set(self.class_names)
-        if set(names) == mine:
-            return
-        raise LookupTableError(
-            f"{source}: classes differ from the desired-slip table's: {source} has "
-            f"{sorted(names)}, the table has {sorted(mine)} (missing from the table: "
-            f"{sorted(set(names) - mine)}; not in {source}: {sorted(mine - set(names))}); build "
-            "a table for these classes with `terrainml lookup build --catalogue CAT.yaml`")
+        rows = list(self.class_names)
+        bad = [(int(c), str(n)) for c, n in zip(class_ids, class_names)
+               if not (0 <= int(c) < len(rows) and rows[int(c)] == str(n))]
+        if bad:
+            raise LookupTableError(
+                f"{source}: the desired-slip table's classes {rows} are not the model's "
+                f"{[str(n) for n in class_names]} (by id: {bad} differ); serve a table built for "
+                "the model's classes (`terrainml lookup build --catalogue ...`)")
 
     def safe_cap(self, classes: Iterable[str] | None = None) -> SafeCap:
         """The class-free fallback target (design §10) over the table's classes.
@@ -496,10 +498,6 @@ class DesiredSlipTable:
         b = min(rows, key=lambda r: r.braking)
         return SafeCap(traction=float(t.traction), braking=float(b.braking),
                        traction_class=t.name, braking_class=b.name)
-
-    def aggressiveness_rank(self, class_id: int) -> tuple[float, float, float]:
-        """(|traction|, |steady|, |braking|): smaller is less aggressive (policy, design §10)."""
-        return self._rank[int(class_id)]
 
     def check_rules(self) -> list[str]:
         """Violations of the design §10 rules (empty when the table is physical)."""

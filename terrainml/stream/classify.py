@@ -25,7 +25,7 @@ from terrainml.features.windows import Windows, WindowSpec, channel_column, cut_
 from terrainml.lookup.catalogue import BUILTIN_CATALOGUES
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import load_artifact
-from terrainml.robot import RobotSpec, load_robot
+from terrainml.robot import RobotSpec
 
 
 class ModelLoadError(ValueError):
@@ -34,15 +34,18 @@ class ModelLoadError(ValueError):
 
 @dataclass
 class ServingModel:
+    """What :func:`load_serving_model` opens: everything the predictor is built from.
+
+    ``window_spec`` is the one spec of serving: the classifier cuts with it and the predictor
+    sizes its ring buffer and classification hop from it (no numbers are split off it).
+    """
+
     robot: RobotSpec
     table: Any
-    classifier: "WindowClassifier | None"
+    classifier: "WindowClassifier"
     preset: str
     class_names: list[str]
-    window_s: float = 2.0
-    hop_s: float = 0.5
-    rate_hz: float = 100.0
-    window_spec: WindowSpec | None = None
+    window_spec: WindowSpec
     #: sensor groups the model needs (None: every group the robot has; design §9)
     sensors: list[str] | None = None
 
@@ -50,24 +53,6 @@ class ServingModel:
 def _raw_columns(channel: str, robot: RobotSpec) -> tuple[str, ...]:
     col, vcols, _ = channel_column(channel, robot)
     return (col, *vcols)
-
-
-def check_table_classes(table: Any, class_ids: Sequence[int], class_names: Sequence[str], source: str) -> None:
-    """Refuse a desired-slip table whose rows are not the model's classes, matched by name.
-
-    The policy looks targets up by class id, so row ``cid`` of the table must be the model's
-    class ``cid`` (a table with more classes is fine: the reference table serves a model trained
-    on some of its classes). Raises ModelLoadError listing both class sets.
-    """
-    rows = list(getattr(table, "class_names", None) or [])
-    if not rows:
-        return
-    bad = [(int(c), str(n)) for c, n in zip(class_ids, class_names)
-           if not (0 <= int(c) < len(rows) and rows[int(c)] == str(n))]
-    if bad:
-        raise ModelLoadError(f"{source}: the desired-slip table's classes {rows} are not the model's "
-                             f"{[str(n) for n in class_names]} (by id: {bad} differ); serve a table "
-                             "built for the model's classes (`terrainml lookup build --catalogue ...`)")
 
 
 def _table_for(art: Any, robot: RobotSpec, names: Sequence[str]) -> Any:
@@ -93,10 +78,11 @@ class WindowClassifier:
     robot : RobotSpec used by the window rules.
     features : fitted/stateless transformer (``FeatureSet``) mapping windows to a feature
         matrix, or None when ``model`` consumes raw windows itself (e.g. the CNN wrapper).
-    window_spec : the artifact's ``WindowSpec`` (None: default).
+    window_spec : the artifact's ``WindowSpec``: the windows are cut with it (the predictor's
+        ring buffer and hop come from the same spec).
     """
 
-    def __init__(self, model: Any, robot: RobotSpec, features: Any = None, window_spec: Any = None,
+    def __init__(self, model: Any, robot: RobotSpec, features: Any, window_spec: WindowSpec,
                  class_ids: Sequence[int] | None = None):
         self.model = model
         self.robot = robot
@@ -108,7 +94,7 @@ class WindowClassifier:
         self.class_ids = [int(c) for c in ids]
         # run-table columns the windows read that the estimator may not pass through (e.g. the
         # gyro roll and pitch rates of the side channels): the predictor copies them into its rows
-        chans = getattr(window_spec, "channels", None) or ()
+        chans = window_spec.channels or ()
         self.raw_columns = tuple(dict.fromkeys(c for ch in chans for c in _raw_columns(ch, robot)))
 
     def classify(self, window: pd.DataFrame) -> np.ndarray | None:
@@ -124,8 +110,8 @@ class WindowClassifier:
         arrays directly (no DataFrame) and the model computes only the features it uses (the
         SVM's selected columns), which keeps one update well under a millisecond.
         """
-        spec = self.window_spec if self.window_spec is not None else WindowSpec()
-        wins, _ = cut_windows(columns, self.robot, spec=spec, online=True, with_meta=False)
+        wins, _ = cut_windows(columns, self.robot, spec=self.window_spec, online=True,
+                              with_meta=False)
         if len(wins) == 0:
             return None
         if len(wins) > 1:  # the latest window only
@@ -135,7 +121,7 @@ class WindowClassifier:
         return p[-1]
 
 
-def load_serving_model(model_dir: str | Path, robot: RobotSpec | str | None = None,
+def load_serving_model(model_dir: str | Path, robot: RobotSpec | None = None,
                        model_name: str | None = None,
                        trusted_keys: Sequence[str | Path] | None = None) -> ServingModel:
     """Open ``runs/NAME`` for serving, verified by :func:`terrainml.models.artifacts.load_artifact`.
@@ -153,7 +139,7 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | str | None = No
         art = load_artifact(model_dir, model_name, trusted_keys=trusted_keys)
     except Exception as exc:  # noqa: BLE001 - Artifact/SignatureError name the file; keep the message
         raise ModelLoadError(str(exc)) from None
-    rb = robot if isinstance(robot, RobotSpec) else (load_robot(robot) if robot else art.robot)
+    rb = robot if robot is not None else art.robot
     if rb.n_wheels != art.robot.n_wheels:
         raise ModelLoadError(f"{model_dir}: model trained for {art.robot.n_wheels} wheels, robot "
                              f"'{rb.name}' has {rb.n_wheels}")
@@ -163,10 +149,10 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | str | None = No
     try:
         table = (DesiredSlipTable.from_json(stored.read_text(), robot=art.robot, source=str(stored))
                  if stored is not None else _table_for(art, rb, own or [TERRAIN_CLASSES[i] for i in ids]))
+        if own:  # the policy looks targets up by id: the table's class cid must be the model's
+            table.check_classes(ids, own, str(stored or model_dir))
     except ValueError as exc:
         raise ModelLoadError(str(exc)) from None
-    if own:
-        check_table_classes(table, ids, own, str(stored or model_dir))
     # names by class id: the reference's eight (a model on some of them keeps their ids), or the
     # model's own class set, so class_probabilities has the model's length and names
     if not own or all(n in TERRAIN_CLASSES for n in own):
@@ -177,8 +163,5 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | str | None = No
         names[cid] = name
     clf = WindowClassifier(art.model, rb, art.features, art.window_spec,
                            class_ids=[int(c) for c in art.model.classes_])
-    return ServingModel(rb, table, clf, art.preset or "robust", names,
-                        window_s=float(art.window_spec.window_s),
-                        hop_s=float(art.window_spec.online_hop_s),
-                        rate_hz=float(art.window_spec.rate_hz), window_spec=art.window_spec,
+    return ServingModel(rb, table, clf, art.preset or "robust", names, art.window_spec,
                         sensors=None if art.sensors is None else list(art.sensors))

@@ -1,6 +1,8 @@
-"""Serving decision of one tick: fused class or the class-free safe cap (design §10-11).
+"""The serving decision of one tick: fused class or the class-free safe cap (design §10-11).
 
-The predictor fuses classifications over distance (:mod:`terrainml.stream.fusion`); this module
+Every fallback rule of serving and its priority live here, in :meth:`ServingPolicy.reason`;
+the predictor (:mod:`terrainml.stream.predictor`) only gathers the facts of the tick. The
+predictor fuses classifications over distance (:mod:`terrainml.stream.fusion`); this module
 turns the fused posterior into what a tick serves:
 
 * **a class**: the argmax of the posterior, with the posterior as confidence, when it is at
@@ -13,24 +15,68 @@ turns the fused posterior into what a tick serves:
   braking, 0 when idle; so no known class is stalled and no wheel runs away. The message names no
   class (``terrain_class`` -1, ``terrain_name`` ``"none"``) and carries the reason.
 
-Reasons, by priority: ``clock_jump`` (the tick's stamp is off the timeline, the chain did not run)
-> ``estimator_unhealthy`` > ``classifier_error`` (the last attempt raised, no fused class) >
-``no_classification`` (none yet) > ``stale_classification`` (more than ``stale_m`` travelled
-since the last classification) > ``uncertain_classification`` (posterior max below ``serve_p``).
+Reasons, by priority (:data:`FALLBACK_REASONS`): ``clock_jump`` (the tick's stamp is off the
+timeline, the chain did not run) > ``estimator_unhealthy`` > ``classifier_error`` (the last
+attempt raised, no fused class) > ``no_classification`` (none yet) > ``stale_classification``
+(more than ``stale_m`` travelled since the last classification, or, when ``max_age_s`` is set,
+an older one) > ``uncertain_classification`` (posterior max below ``serve_p``). A table or
+policy that raises serves zero slip with the tick's reason (``classifier_error`` when none):
+serving never stops on it.
 """
 
 from __future__ import annotations
 
+import logging
+import math
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Protocol, Sequence
 
-from terrainml.lookup.policy import PolicyDecision, desired_slip_per_wheel, safe_cap_per_wheel
+import numpy as np
 
-__all__ = ["NO_CLASS_ID", "NO_CLASS_NAME", "SERVE_P", "GenericSafeCap", "decide", "safe_cap_for"]
+from terrainml.lookup.policy import desired_slip_per_wheel, safe_cap_per_wheel
+
+__all__ = ["FALLBACK_REASONS", "NO_CLASS_ID", "NO_CLASS_NAME", "SERVE_P", "GenericSafeCap",
+           "PolicyDecision", "ServingPolicy", "safe_cap_for"]
+
+log = logging.getLogger("terrainml.stream")
 
 NO_CLASS_ID = -1        # no class served (CAN: 255)
 NO_CLASS_NAME = "none"
 SERVE_P = 0.6           # design §10: serve the fused argmax at or above this posterior
+#: the fallback reasons, highest priority first
+FALLBACK_REASONS = ("clock_jump", "estimator_unhealthy", "classifier_error", "no_classification",
+                    "stale_classification", "uncertain_classification")
+
+
+@dataclass(frozen=True)
+class PolicyDecision:
+    """What one tick serves.
+
+    Attributes
+    ----------
+    class_id, class_name : the served class (:data:`NO_CLASS_ID`, :data:`NO_CLASS_NAME` on
+        fallback).
+    confidence : fused posterior of the served class (0.0 on fallback).
+    slip_desired : tuple of N floats, signed per-wheel desired slip.
+    fallback : True when the safe cap is served.
+    reason : "" or one of :data:`FALLBACK_REASONS`.
+    """
+
+    class_id: int
+    class_name: str
+    confidence: float
+    slip_desired: tuple[float, ...]
+    fallback: bool
+    reason: str
+
+
+class FusedClass(Protocol):
+    """What the policy reads of the fusion filter (:class:`~terrainml.stream.fusion.TerrainFilter`)."""
+
+    posterior: np.ndarray | None
+    stale: bool
+
+    def best(self) -> tuple[int, float]: ...
 
 
 @dataclass(frozen=True)
@@ -60,24 +106,86 @@ def safe_cap_for(table: Any, class_ids: Sequence[int], class_names: Sequence[str
     return GenericSafeCap(table, tuple(int(c) for c in class_ids))
 
 
-def decide(class_id: int | None, confidence: float, reason: str, table: Any, cap_table: Any,
-           cap_classes: Sequence[str] | None, *, states: Sequence[str],
-           v_long: Sequence[float], class_name: str = "") -> PolicyDecision:
-    """Per-wheel desired slip for a served class, or the safe cap when ``reason`` is set.
+class ServingPolicy:
+    """The fallback rules, their priority and the per-wheel targets of a tick.
 
     Parameters
     ----------
-    class_id, confidence : the fused class and its posterior (ignored when ``reason``).
-    reason : "" (serve the class) or a fallback reason.
-    table : the desired-slip table (``target(class_id, state)``).
-    cap_table, cap_classes : from :func:`safe_cap_for` and the model's class names.
-    states, v_long : N wheel states and longitudinal speeds (m/s).
+    table : the desired-slip table (``target(class_id, state)``;
+        :class:`terrainml.lookup.table.DesiredSlipTable`).
+    class_ids : the K class ids of the fused posterior's entries (the classifier's).
+    class_names : names by class id (``class_names[cid]``).
+    serve_p : fused posterior below this → ``uncertain_classification``.
+    max_age_s : s or None (off): a classification older than this → ``stale_classification``,
+        on top of the fusion filter's distance rule.
     """
-    if reason or class_id is None:
-        slip = safe_cap_per_wheel(states, v_long, cap_table, cap_classes)
-        return PolicyDecision(class_id=NO_CLASS_ID, class_name=NO_CLASS_NAME, confidence=0.0,
-                              slip_desired=tuple(slip), fallback=True,
-                              reason=reason or "no_classification")
-    slip = desired_slip_per_wheel(int(class_id), states, v_long, table)
-    return PolicyDecision(class_id=int(class_id), class_name=class_name, confidence=float(confidence),
-                          slip_desired=tuple(slip), fallback=False, reason="")
+
+    def __init__(self, table: Any, class_ids: Sequence[int], class_names: Sequence[str], *,
+                 serve_p: float = SERVE_P, max_age_s: float | None = None):
+        self.table = table
+        self.class_ids = [int(c) for c in class_ids]
+        self.class_names = list(class_names)
+        self.serve_p = float(serve_p)
+        self.max_age_s = None if max_age_s is None else float(max_age_s)
+        cap_names = [self.name(c) for c in self.class_ids]
+        self.cap_classes = cap_names if hasattr(table, "class_names") else None
+        self.cap_table = safe_cap_for(table, self.class_ids, cap_names)
+
+    def name(self, cid: int) -> str:
+        """Name of a class id (``"none"`` for :data:`NO_CLASS_ID`, the id as text if unnamed)."""
+        if cid == NO_CLASS_ID:
+            return NO_CLASS_NAME
+        return self.class_names[cid] if 0 <= cid < len(self.class_names) else str(cid)
+
+    def safe_cap_traction(self) -> float:
+        """Traction target of the safe cap served on fallback (design §10)."""
+        return float(self.cap_table.safe_cap(self.cap_classes).target("traction"))
+
+    def reason(self, fused: FusedClass, *, estimator_ok: bool, classifier_error: bool,
+               age_s: float | None, clock_jump: bool = False) -> str:
+        """The reason this tick cannot serve a class ("" when it can), by priority (design §11)."""
+        if clock_jump:
+            return "clock_jump"
+        if not estimator_ok:
+            return "estimator_unhealthy"
+        if classifier_error and fused.posterior is None:
+            return "classifier_error"
+        if fused.posterior is None:
+            return "no_classification"
+        if fused.stale or (self.max_age_s is not None and age_s is not None
+                           and age_s > self.max_age_s):
+            return "stale_classification"
+        if fused.best()[1] < self.serve_p:
+            return "uncertain_classification"
+        return ""
+
+    def decide(self, fused: FusedClass, *, estimator_ok: bool, classifier_error: bool,
+               age_s: float | None, states: Sequence[str], v_long: Sequence[float],
+               clock_jump: bool = False, t_s: float = math.nan) -> PolicyDecision:
+        """What the tick serves: the fused class's targets, or the safe cap with its reason.
+
+        Parameters
+        ----------
+        fused : the fusion filter (posterior, staleness, argmax).
+        estimator_ok, classifier_error, age_s, clock_jump : facts of the tick (:meth:`reason`).
+        states, v_long : N wheel states and longitudinal speeds (m/s).
+        t_s : s, the tick's time (for the log line when the table fails).
+        """
+        reason = self.reason(fused, estimator_ok=estimator_ok, classifier_error=classifier_error,
+                             age_s=age_s, clock_jump=clock_jump)
+        try:
+            k, post = fused.best()
+            if reason or k < 0:
+                slip = safe_cap_per_wheel(states, v_long, self.cap_table, self.cap_classes)
+                return PolicyDecision(class_id=NO_CLASS_ID, class_name=NO_CLASS_NAME,
+                                      confidence=0.0, slip_desired=tuple(slip), fallback=True,
+                                      reason=reason or "no_classification")
+            cid = self.class_ids[k]
+            slip = desired_slip_per_wheel(cid, states, v_long, self.table)
+            return PolicyDecision(class_id=cid, class_name=self.name(cid), confidence=float(post),
+                                  slip_desired=tuple(slip), fallback=False, reason="")
+        except Exception as exc:  # noqa: BLE001 - a broken table/policy must not stop serving
+            log.warning("policy failed at t=%.3f s (serving zero slip): %s", t_s, exc)
+            return PolicyDecision(class_id=NO_CLASS_ID, class_name=NO_CLASS_NAME, confidence=0.0,
+                                  slip_desired=(0.0,) * len(states), fallback=True,
+                                  reason=reason or "classifier_error")

@@ -20,8 +20,9 @@ from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from terrainml.robot import RobotSpec
 from terrainml.stream.classify import ModelLoadError
-from terrainml.stream.clock import MAX_GAP_S, REANCHOR_AFTER
+from terrainml.stream.config import ServingConfig
 from terrainml.stream.predictor import Predictor
 from terrainml.stream.sample import InvalidSample
 from terrainml.stream.sinks import GuardedSink, SinkError, open_sink
@@ -72,42 +73,31 @@ def _setup_logging(verbose: bool) -> None:
 
 
 def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = False,
-                robot: str | None = None, preset: str | None = None,
+                robot: RobotSpec | None = None, config: ServingConfig | None = None,
                 idle_timeout_s: float | None = None, verbose: bool = False,
-                max_clock_gap_s: float = MAX_GAP_S, reanchor_after: int = REANCHOR_AFTER,
                 trusted_keys: Sequence[str | Path] | None = None, topics: Any = None,
                 dataset: Any = None) -> int:
     """Run ``terrainml predict``; return the process exit code (0 ok, 2 unusable input).
 
-    ``topics`` (a topic map for an MCAP/bag source) and ``dataset`` (a dataset spec for a
-    CSV/Parquet source: names, units, sides) say how a log file is read, as for ``terrainml
-    ingest`` (:func:`terrainml.stream.sources.open_source`).
+    ``robot`` (default the model's) and ``config`` (default: the model's preset, classification
+    in the background thread :data:`CLASSIFY_LAG_TICKS` ticks behind) are resolved by the
+    caller (the CLI). ``topics`` (a topic map for an MCAP/bag source) and ``dataset`` (a dataset
+    spec for a CSV/Parquet source: names, units, sides) say how a log file is read, as for
+    ``terrainml ingest`` (:func:`terrainml.stream.sources.open_source`).
 
     ``trusted_keys``: public keys (``KEY.pub``); the model must be signed by one of them, else it
     is refused (exit 2, the message names the folder and the reason) before anything is served.
     """
     console = Console(stderr=True, soft_wrap=True)
     _setup_logging(verbose)
+    config = config or ServingConfig(classify_lag_ticks=CLASSIFY_LAG_TICKS)
     try:
-        predictor = Predictor.from_model_dir(model, robot=robot, preset=preset,
-                                               classify_lag_ticks=CLASSIFY_LAG_TICKS,
-                                               max_clock_gap_s=max_clock_gap_s,
-                                               reanchor_after=reanchor_after,
-                                               trusted_keys=trusted_keys)
+        predictor = Predictor.from_model_dir(model, robot=robot, config=config,
+                                             trusted_keys=trusted_keys)
     except (ModelLoadError, FileNotFoundError, ValueError) as exc:
         console.print(f"[red]error:[/] model {model}: {exc}")
         return 2
-    n_classes = len(predictor.class_names)
     opened: list[GuardedSink] = []
-    try:
-        for spec in sinks:
-            opened.append(open_sink(spec, n_wheels=predictor.n, n_classes=n_classes,
-                                    class_names=predictor.class_names))
-    except SinkError as exc:
-        console.print(f"[red]error:[/] {exc}")
-        for s in opened:
-            s.close()
-        return 2
     counters = SourceCounters()
 
     def ready(addr: Any) -> None:
@@ -116,33 +106,49 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
                       highlight=False)
 
     try:
+        for spec in sinks:
+            opened.append(open_sink(spec, n_wheels=predictor.n, n_classes=len(predictor.class_names),
+                                    class_names=predictor.class_names))
         samples = open_source(source, robot=predictor.robot, realtime=realtime, counters=counters,
                               idle_timeout_s=idle_timeout_s, ready=ready, topic_map=topics,
                               dataset=dataset)
-    except SourceError as exc:
+    except (SinkError, SourceError) as exc:
         console.print(f"[red]error:[/] {exc}")
         for s in opened:
             s.close()
         return 2
-
     # everything loaded so far (model, libraries) is long-lived: keep it out of the garbage
     # collector's full passes, which otherwise stall a tick for tens of ms now and then
     gc.collect()
     gc.freeze()
+    t0 = time.perf_counter()
+    code = _serve_until_done(predictor, samples, opened, console,
+                             progress=None if realtime or not _is_log(source) else Path(source).name)
+    _print_summary(console, predictor, opened, counters, source, time.perf_counter() - t0)
+    return code
 
+
+def _is_log(source: str) -> bool:
+    return not (source.strip() == "-" or source.strip().startswith("udp"))
+
+
+def _serve_until_done(predictor: Predictor, samples: Iterable[dict], opened: list[GuardedSink],
+                      console: Console, progress: str | None) -> int:
+    """:func:`serve` until the source ends, SIGTERM or Ctrl-C; close everything; the exit code.
+
+    ``progress``: the log's name, for a spinner counting ticks (a log replayed at full speed).
+    """
     def _term(signum: int, frame: Any) -> None:
         raise KeyboardInterrupt
 
     old = signal.signal(signal.SIGTERM, _term)
-    t0 = time.perf_counter()
     code = 0
-    is_log = not (source.strip() == "-" or source.strip().startswith("udp"))
     try:
-        if is_log and not realtime:
+        if progress is not None:
             with Progress(SpinnerColumn(), TextColumn("replaying {task.description}: "
                                                       "{task.completed:,.0f} ticks"),
                           TimeElapsedColumn(), console=console, transient=True) as bar:
-                task = bar.add_task(Path(source).name, total=None)
+                task = bar.add_task(progress, total=None)
                 serve(predictor, samples, opened,
                       on_message=lambda m: bar.advance(task, 100) if m.seq % 100 == 99 else None)
         else:
@@ -157,7 +163,12 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
         predictor.close()
         for s in opened:
             s.close()
-    dt = time.perf_counter() - t0
+    return code
+
+
+def _print_summary(console: Console, predictor: Predictor, opened: list[GuardedSink],
+                   counters: SourceCounters, source: str, dt: float) -> None:
+    """The end-of-stream summary line (stderr), and the source's damage when it had any."""
     st = predictor.stats()
     sink_err = {s.name: s.errors for s in opened if s.errors}
     reasons = ", ".join(f"{k} {v}" for k, v in sorted(counters.malformed_by_reason.items()))
@@ -171,11 +182,10 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
         highlight=False)
     if counters.damage is not None and counters.damage.any:
         console.print(f"terrainml predict: source {source}: {counters.damage.text}", highlight=False)
-    return code
 
 
 def replay_summary(model: str | Path, log_path: str | Path, *, console: Console | None = None,
-                   robot: str | None = None) -> list[dict[str, Any]]:
+                   robot: RobotSpec | None = None) -> list[dict[str, Any]]:
     """Replay a recorded log through the predictor and print what it served (for ``make demo``).
 
     Consecutive ticks serving the same class with the same fallback reason form one segment;
@@ -186,7 +196,8 @@ def replay_summary(model: str | Path, log_path: str | Path, *, console: Console 
     and those of them that served the logged class (a fallback tick is never right)).
     """
     console = console or Console(stderr=True, soft_wrap=True)
-    predictor = Predictor.from_model_dir(model, robot=robot, classify_lag_ticks=CLASSIFY_LAG_TICKS)
+    predictor = Predictor.from_model_dir(
+        model, robot=robot, config=ServingConfig(classify_lag_ticks=CLASSIFY_LAG_TICKS))
     segments: list[dict[str, Any]] = []
     labels: list[int] = []
     odo_prev, t_prev = 0.0, None

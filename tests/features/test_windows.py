@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from terrainml.features.sets import FeatureSet
-from terrainml.features.windows import OnlineWindower, WindowSpec, cut_windows
+from terrainml.features.windows import WindowSpec, cut_windows
 from terrainml.robot import load_robot
 
 from est_synth import make_est
@@ -94,49 +94,6 @@ def test_online_cut_of_one_buffer_is_the_latest_window():
     one, _ = cut_windows(est.iloc[-200:].reset_index(drop=True), "agrimaro", online=True)
     assert len(one) == 1
     np.testing.assert_array_equal(one.X[0], wins.X[-1])
-
-
-def test_online_windower_rows_one_at_a_time_match_offline_features():
-    est = make_est(n=1200, seed=3)
-    est.loc[700:760, "state1"] = "traction"  # one unsteady stretch
-    robot = load_robot("agrimaro")
-    off, _ = cut_windows(est, robot)
-    fs = FeatureSet.for_robot(robot).fit(off)
-    F_off = dict(zip(off.meta["start_index"], fs.transform(off)))
-    w = OnlineWindower(robot)
-    matched = 0
-    for row in est.to_dict("records"):
-        out = w.push(row)
-        if out is not None and w.last_start_index in F_off:
-            np.testing.assert_allclose(fs.transform(out)[0], F_off[w.last_start_index], rtol=0, atol=1e-9)
-            matched += 1
-    assert matched == len(F_off) == 5  # windows 0, 200, 400, 800, 1000 (600 is unsteady)
-    assert w.counts["wheel_state"] >= 1
-
-
-def test_full_online_chain_matches_offline_within_1e9():
-    """OnlineEstimator.step row by row -> OnlineWindower == estimate_run -> cut_windows."""
-    from est_synth import make_run_table
-    from terrainml.estimation.online import OnlineEstimator
-    from terrainml.estimation.run import estimate_run
-    from terrainml.schema import validate_run_table
-
-    robot = load_robot("agrimaro")
-    table = validate_run_table(make_run_table(2, "chain", seed=5, duration_s=10.0))
-    est = estimate_run(table, robot)
-    off, _ = cut_windows(est, robot)
-    assert len(off) >= 3
-    fs = FeatureSet.for_robot(robot).fit(off)
-    F_off = dict(zip(off.meta["start_index"], fs.transform(off)))
-    online = OnlineEstimator(robot, "robust", has_imu_yaw=True, has_cam_yaw=True)
-    w = OnlineWindower(robot)
-    matched = 0
-    for sample in table.to_dict("records"):
-        out = w.push(online.step(sample))
-        if out is not None and w.last_start_index in F_off:
-            np.testing.assert_allclose(fs.transform(out)[0], F_off[w.last_start_index], rtol=0, atol=1e-9)
-            matched += 1
-    assert matched == len(off)
 
 
 def test_ring_buffer_layout_bools_as_floats_no_labels_gives_the_same_window():

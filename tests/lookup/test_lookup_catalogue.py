@@ -213,17 +213,20 @@ def test_class_set_order_gives_the_ids_not_the_targets(tmp_path):
     assert t.target("A", "traction") == 0.12 and t.target(0, "traction") == 0.45
 
 
-def test_check_classes_refuses_a_different_class_set_listing_both(three, borealtc_table):
-    three.check_classes(["C", "A", "B"], "model runs/m")  # same set, other order: accepted
+def test_check_classes_refuses_a_table_without_the_model_classes_at_their_ids(three, borealtc_table):
+    """What serving checks on load: the policy looks targets up by id, so the table's class cid
+    must be the model's class cid; a table with more classes serves a model of some of them."""
+    three.check_classes([0, 1, 2], ["A", "B", "C"], "model runs/m")
+    three.check_classes([0, 2], ["A", "C"], "m")
+    with pytest.raises(LookupTableError, match=r"by id: \[\(0, 'C'\), \(2, 'A'\)\] differ"):
+        three.check_classes([0, 1, 2], ["C", "B", "A"], "m")  # the same set under other ids
     with pytest.raises(LookupTableError) as exc:
-        borealtc_table.check_classes(list(TERRAIN_CLASSES), "model runs/m")
+        borealtc_table.check_classes(range(8), list(TERRAIN_CLASSES), "model runs/m")
     msg = str(exc.value)
-    assert msg.startswith("model runs/m: classes differ")
+    assert msg.startswith("model runs/m: the desired-slip table's classes")
     assert "ASPHALT" in msg and "wet_mud" in msg
-    with pytest.raises(LookupTableError, match=r"missing from the table: \['D'\]; not in m: \['C'\]"):
-        three.check_classes(["A", "B", "D"], "m")
-    with pytest.raises(LookupTableError, match=r"\['A'\] given more than once"):
-        three.check_classes(["A", "A", "B", "C"], "m")
+    with pytest.raises(LookupTableError, match=r"by id: \[\(3, 'D'\)\]"):
+        three.check_classes([0, 3], ["A", "D"], "m")  # an id beyond the table
 
 
 def test_a_class_set_the_catalogue_lacks_is_refused_naming_the_file_and_classes():

@@ -1,14 +1,15 @@
-"""Serving policy and per-wheel sign logic (design §10, thesis eq. 8.7-8.9, Table 8.1)."""
+"""Per-wheel sign logic of the served targets (design §10, thesis eq. 8.7-8.9, Table 8.1).
+
+Which targets a tick serves (a class or the safe cap, and why) is tested on the serving path:
+``tests/stream/test_serving_policy.py``."""
 
 from __future__ import annotations
 
 import math
-import time
 
-import numpy as np
 import pytest
 
-from terrainml.lookup.policy import choose, desired_slip_per_wheel, fallback_class_id
+from terrainml.lookup.policy import desired_slip_per_wheel, safe_cap_per_wheel
 
 
 class HandTable:
@@ -36,87 +37,6 @@ class HandTable:
 
 
 TABLE = HandTable()
-STATES = ["traction", "steady", "braking"]
-V_LONG = [1.0, -0.7, 0.4]
-
-
-def probs(**kw: float) -> np.ndarray:
-    p = np.zeros(8)
-    for k, v in kw.items():
-        p[int(k[1:])] = v
-    return p
-
-
-def test_confident_classification_serves_the_argmax_class():
-    d = choose(probs(c6=0.7, c5=0.2, c7=0.1), age_s=0.3, estimator_ok=True, table=TABLE,
-               states=STATES, v_long=V_LONG)
-    assert (d.class_id, d.class_name, d.fallback, d.reason) == (6, "dry_sand", False, "")
-    assert d.confidence == pytest.approx(0.7)
-    assert d.slip_desired == pytest.approx((0.40, -0.30, -0.45))
-
-
-def test_exactly_at_confidence_threshold_is_confident():
-    d = choose(probs(c7=0.6, c2=0.4), 0.0, True, TABLE)
-    assert d.class_id == 7 and not d.fallback
-
-
-def test_uncertain_two_close_classes_serve_the_less_aggressive_one():
-    d = choose(probs(c6=0.45, c5=0.40, c0=0.15), 0.2, True, TABLE, states=STATES,
-               v_long=V_LONG)
-    # candidates with p >= 0.1: 6, 5, 0 -> smallest traction magnitude is pavement (0.16)
-    assert d.class_id == 0 and not d.fallback and d.reason == ""
-    assert d.confidence == pytest.approx(0.15)
-    d = choose(probs(c6=0.45, c5=0.40, c0=0.09, c1=0.06), 0.2, True, TABLE, states=STATES,
-               v_long=V_LONG)
-    # pavement (0.09) and dirt (0.06) are below 0.1: the less aggressive of 5 and 6 is 5
-    assert (d.class_id, d.class_name) == (5, "tilled_loam")
-    assert d.slip_desired == pytest.approx((0.32, -0.20, -0.40))
-
-
-def test_uncertain_dirt_beats_pavement_on_traction_magnitude():
-    d = choose(probs(c0=0.5, c1=0.5), 0.2, True, TABLE)
-    assert d.class_id == 1  # 0.14 < 0.16: least aggressive is not "always pavement"
-
-
-def test_flat_distribution_with_no_candidate_falls_back_to_argmax():
-    p = np.full(8, 1 / 8) * 0.72
-    p[3] += 0.28  # 0.37 on class 3, 0.09 elsewhere
-    d = choose(p, 0.2, True, TABLE)
-    assert d.class_id == 3 and not d.fallback
-
-
-def test_stale_classification_falls_back_to_pavement():
-    d = choose(probs(c7=0.99), age_s=1.01, estimator_ok=True, table=TABLE, states=STATES,
-               v_long=V_LONG)
-    assert (d.class_id, d.class_name, d.fallback, d.reason) == (0, "pavement", True,
-                                                                "stale_classification")
-    assert d.confidence == 0.0
-    assert d.slip_desired == pytest.approx((0.16, -0.002, -0.16))
-    assert not choose(probs(c7=0.99), 1.0, True, TABLE).fallback  # 1.0 s is still fresh
-
-
-@pytest.mark.parametrize("p,age", [(None, None), (np.array([]), None), (probs(c2=1.0), None),
-                                   (np.full(8, np.nan), 0.1)])
-def test_no_classification_yet_falls_back(p, age):
-    d = choose(p, age, True, TABLE, states=STATES, v_long=V_LONG)
-    assert (d.class_id, d.fallback, d.reason) == (0, True, "no_classification")
-
-
-def test_estimator_unhealthy_falls_back_even_with_a_fresh_confident_class():
-    d = choose(probs(c7=1.0), 0.0, False, TABLE, states=STATES, v_long=V_LONG)
-    assert (d.class_id, d.class_name, d.fallback, d.reason) == (0, "pavement", True,
-                                                                "estimator_unhealthy")
-    d = choose(None, None, False, TABLE)
-    assert d.reason == "estimator_unhealthy"  # health is reported first
-
-
-def test_fallback_row_is_pavement_not_simply_the_least_aggressive():
-    assert fallback_class_id(TABLE) == 0
-
-
-def test_class_ids_map_probability_entries():
-    d = choose([0.2, 0.8], 0.1, True, TABLE, class_ids=[2, 6])
-    assert d.class_id == 6 and d.confidence == pytest.approx(0.8)
 
 
 # ---------------------------------------------------------------- sign logic (eq. 8.7-8.9)
@@ -147,11 +67,17 @@ def test_unknown_state_and_length_mismatch_are_rejected():
         desired_slip_per_wheel(0, ["steady"], [1.0, 2.0], TABLE)
 
 
-def test_choose_is_cheap_enough_for_a_10ms_tick():
-    p = probs(c6=0.45, c5=0.40, c0=0.15)
-    n = 2000
-    t0 = time.perf_counter()
-    for _ in range(n):
-        choose(p, 0.2, True, TABLE, states=STATES, v_long=V_LONG)
-    per_call_ms = (time.perf_counter() - t0) / n * 1e3
-    assert per_call_ms < 0.2  # generous bound on a slow CI core; typical is ~0.02 ms
+class HandCap:
+    """A safe cap by hand: traction 0.5 (served in traction and steady), braking -0.55."""
+
+    def safe_cap(self, classes=None):
+        return self
+
+    def target(self, state):
+        return {"traction": 0.5, "steady": 0.5, "braking": -0.55, "idle": 0.0}[state]
+
+
+def test_safe_cap_per_wheel_follows_the_same_sign_logic():
+    s = safe_cap_per_wheel(["traction", "steady", "braking", "braking", "idle", "steady"],
+                           [1.0, -0.7, 0.4, -0.4, 1.0, 0.0], HandCap())
+    assert s == [0.5, -0.5, -0.55, 0.55, 0.0, 0.0]

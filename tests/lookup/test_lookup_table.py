@@ -16,7 +16,7 @@ import pytest
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.lookup import terramechanics as tm
-from terrainml.lookup.policy import choose, desired_slip_per_wheel
+from terrainml.lookup.policy import desired_slip_per_wheel
 from terrainml.lookup.table import DesiredSlipTable, LookupTableError
 from terrainml.robot import load_robot
 
@@ -179,21 +179,9 @@ TABLE_8_1 = [("1A", +0.6, "traction", +1), ("1B", +0.6, "traction", +1),
 def test_served_sign_for_thesis_table_8_1_cases(cid, table):
     states = [c[2] for c in TABLE_8_1]
     v = [c[1] for c in TABLE_8_1]
-    d = choose(np.eye(8)[cid], 0.1, True, table, states=states, v_long=v)
-    assert d.class_id == cid and not d.fallback
-    assert [int(math.copysign(1, s)) for s in d.slip_desired] == [c[3] for c in TABLE_8_1]
-    assert [abs(s) for s in d.slip_desired] == [abs(table.target(cid, st)) for st in states]
-
-
-def test_policy_fallback_on_the_built_table_is_pavement(table):
-    d = choose(None, None, True, table, states=["steady"], v_long=[1.0])
-    assert d.class_name == "pavement" and d.fallback
-    assert d.slip_desired == (table.target(0, "steady"),)
-    # uncertain between sand and mud: the less aggressive (sand) is served
-    d = choose(np.array([0, 0, 0, 0, 0, 0, 0.5, 0.5]), 0.1, True, table)
-    assert d.class_name == "dry_sand"
-    assert desired_slip_per_wheel(d.class_id, ["traction"], [-1.0], table) == \
-        [-table.target(6, "traction")]
+    slip = desired_slip_per_wheel(cid, states, v, table)
+    assert [int(math.copysign(1, s)) for s in slip] == [c[3] for c in TABLE_8_1]
+    assert [abs(s) for s in slip] == [abs(table.target(cid, st)) for st in states]
 
 
 # ---------------------------------------------------------------- serialisation

@@ -17,7 +17,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from terrainml.lookup.policy import choose, safe_cap_per_wheel
+from terrainml.lookup.policy import safe_cap_per_wheel
 from terrainml.lookup.table import DesiredSlipTable, LookupTableError, SafeCap
 
 ROWS = {"A": (0.12, -0.10, 0.02), "B": (0.30, -0.45, 0.15), "C": (0.45, -0.25, 0.40)}
@@ -72,7 +72,20 @@ def test_safe_cap_of_the_reference_table_is_wet_mud():
     assert cap.braking == pytest.approx(-0.540, abs=5e-4)
 
 
-def test_the_served_fallback_is_unchanged_for_now():
-    # the stream switches to the safe cap later (issue 19); choose still serves pavement
-    d = choose(None, None, True, DesiredSlipTable.build("agrimaro"))
-    assert d.fallback and d.class_name == "pavement"
+def test_the_served_fallback_is_the_safe_cap_not_a_class():
+    """Serving (stream/policy.py) serves the cap on fallback, naming no class (issue 19)."""
+    from terrainml.stream.policy import ServingPolicy
+
+    table = DesiredSlipTable.build("agrimaro")
+    policy = ServingPolicy(table, table.class_ids, table.class_names)
+
+    class NoClass:
+        posterior, stale = None, False
+
+        def best(self):
+            return -1, 0.0
+
+    d = policy.decide(NoClass(), estimator_ok=True, classifier_error=False, age_s=None,
+                      states=["traction", "braking"], v_long=[1.0, 1.0])
+    assert d.fallback and d.class_name == "none" and d.reason == "no_classification"
+    assert d.slip_desired == pytest.approx((0.524, -0.540), abs=5e-4)  # wet mud's, as above

@@ -16,11 +16,13 @@ def robot():
 
 @pytest.fixture
 def fake_predictor(robot):
+    from terrainml.stream.config import ServingConfig
     from terrainml.stream.predictor import Predictor
 
-    def make(classifier=None, estimator=None, **kw):
+    def make(classifier=None, estimator=None, window_spec=None, **config):
         return Predictor(robot, FakeTable(), classifier or FakeClassifier(),
-                         estimator or FakeEstimator(robot), **kw)
+                         estimator or FakeEstimator(robot), window_spec=window_spec,
+                         config=ServingConfig(**config))
 
     return make
 

@@ -17,6 +17,7 @@ from stream_fakes import FakeClassifier, FakeTable, make_samples
 
 from terrainml.stream.clock import ACCEPT, DUPLICATE, JUMP, LATE, REANCHOR, ClockGate
 from terrainml.stream.message import DesiredSlip
+from terrainml.stream.config import ServingConfig
 from terrainml.stream.predictor import Predictor
 from terrainml.stream.sinks import REASON_CODES, decode_can_frames, encode_can_frames
 
@@ -27,7 +28,7 @@ K = 5  # the default reanchor_after
 def real_predictor(robot):
     """The real estimator (built by the predictor, so re-anchoring gets a fresh one)."""
     def make(**kw):
-        return Predictor(robot, FakeTable(), FakeClassifier(), **kw)
+        return Predictor(robot, FakeTable(), FakeClassifier(), config=ServingConfig(**kw))
 
     return make
 

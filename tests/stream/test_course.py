@@ -57,6 +57,7 @@ def sim_model_dir(tmp_path_factory):
 def test_mixed_terrain_course_served_class_matches_truth(sim_model_dir):
     from terrainml.sim.generate import simulate
     from terrainml.sim.output import run_table
+    from terrainml.stream.config import ServingConfig
     from terrainml.stream.predictor import Predictor
     from terrainml.stream.sources import iter_table_samples
 
@@ -66,7 +67,7 @@ def test_mixed_terrain_course_served_class_matches_truth(sim_model_dir):
     gt_speed = np.hypot(table["gt_vx_mps"], table["gt_vy_mps"]).to_numpy()
     served_input = table.drop(columns=[c for c in table.columns
                                        if c.startswith("gt_") or c in ("terrain", "run_id")])
-    pred = Predictor.from_model_dir(sim_model_dir, classify_lag_ticks=10)
+    pred = Predictor.from_model_dir(sim_model_dir, config=ServingConfig(classify_lag_ticks=10))
     out = [pred.step(s) for s in iter_table_samples(served_input)]
     pred.close()
     assert len(out) == len(table)

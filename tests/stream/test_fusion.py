@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from terrainml.features.windows import WindowSpec
 from terrainml.stream.fusion import TerrainFilter, confirm_windows_for
 
 K = 4
@@ -155,8 +156,9 @@ def test_the_predictor_confirms_over_a_fifth_of_a_second(fake_predictor):
     """0.2 s of windows after the alarm one: 3 windows at the ``short`` spec's 0.1 s hop, none at
     a 0.5 s hop (``steady``, ``chunks``), unless the caller says otherwise."""
     assert confirm_windows_for(0.1) == 3 and confirm_windows_for(0.5) == 1
-    assert fake_predictor(hop_s=0.1).filter.confirm_windows == 3
-    assert fake_predictor(hop_s=0.5).filter.confirm_windows == 1
-    assert fake_predictor(hop_s=0.1, fusion={"confirm_windows": 1}).filter.confirm_windows == 1
+    short, steady = WindowSpec(online_hop_s=0.1), WindowSpec(online_hop_s=0.5)
+    assert fake_predictor(window_spec=short).filter.confirm_windows == 3
+    assert fake_predictor(window_spec=steady).filter.confirm_windows == 1
+    assert fake_predictor(window_spec=short, fusion={"confirm_windows": 1}).filter.confirm_windows == 1
     with pytest.raises(ValueError, match="hop_s"):
         confirm_windows_for(0.0)

@@ -22,6 +22,7 @@ from stream_fakes import FakeClassifier, FakeEstimator, FakeTable, make_samples
 
 from terrainml.estimation.online import OnlineEstimator
 from terrainml.stream.message import DesiredSlip
+from terrainml.stream.config import ServingConfig
 from terrainml.stream.predictor import Predictor
 from terrainml.stream.runner import serve
 from terrainml.stream.sample import InvalidSample
@@ -314,7 +315,8 @@ def _step_all(pred, samples) -> None:
 @given(st.lists(samples_or_junk, min_size=1, max_size=25))
 def test_step_raises_nothing_but_invalid_sample(robot, junk):
     """Arbitrary inputs, then a clean stream: only InvalidSample escapes, never a wedge."""
-    pred = Predictor(robot, FakeTable(), FakeClassifier(), FakeEstimator(robot), reanchor_after=3)
+    pred = Predictor(robot, FakeTable(), FakeClassifier(), FakeEstimator(robot),
+                     config=ServingConfig(reanchor_after=3))
     _step_all(pred, junk)
     clean = make_samples(robot, 2.5, t0=1e6)
     out = [pred.step(s) for s in clean]

@@ -1,5 +1,6 @@
 """Issue #19: the `short` window spec cut online from the ring equals the offline cut, bit for bit;
-the safe cap is served on fallback, with its reason and no class name."""
+the serving chain row by row (estimator, ring, the classifier's cut and features) equals the
+offline chain; the safe cap is served on fallback, with its reason and no class name."""
 
 from __future__ import annotations
 
@@ -7,10 +8,11 @@ import numpy as np
 import pytest
 from stream_fakes import FakeClassifier, FakeEstimator, make_samples
 
-from terrainml.features.windows import cut_windows, window_spec
+from terrainml.features.windows import WindowSpec, cut_windows, window_spec
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import load_robot
-from terrainml.stream.predictor import Predictor, RingBuffer, _is_label
+from terrainml.stream.predictor import Predictor
+from terrainml.stream.ring import RingBuffer, is_label
 
 
 @pytest.fixture(scope="module")
@@ -43,11 +45,11 @@ def test_short_windows_online_equal_offline_bit_for_bit(course_est):
         if start < 0 or start % hop:
             continue
         snap = ring.snapshot()
-        on, c_on = cut_windows(ring.to_columns(snap, _is_label), robot, spec, online=True)
+        on, c_on = cut_windows(ring.to_columns(snap, is_label), robot, spec, online=True)
         assert len(on) == (1 if start in kept_unlabelled else 0)
         # the serving path reads the snapshot's columns in place (no dict, no DataFrame): same cut
-        view = ring.column_view(snap, _is_label)
-        assert not any(_is_label(k) for k in view) and set(view) == set(ring.to_columns(snap, _is_label))
+        view = ring.column_view(snap, is_label)
+        assert not any(is_label(k) for k in view) and set(view) == set(ring.to_columns(snap, is_label))
         lazy, c_lazy = cut_windows(view, robot, spec, online=True, with_meta=False)
         assert c_lazy == c_on
         np.testing.assert_array_equal(lazy.X, on.X)
@@ -55,6 +57,53 @@ def test_short_windows_online_equal_offline_bit_for_bit(course_est):
             np.testing.assert_array_equal(on.X[0], off.X[by_start[start]])
             matched += 1
     assert matched == len(off)
+
+
+def test_serving_chain_row_by_row_matches_the_offline_chain_within_1e9():
+    """Predictor.step sample by sample (OnlineEstimator -> ring -> WindowClassifier's cut and
+    features) gives the features of estimate_run -> cut_windows -> FeatureSet on every offline
+    window (the default spec: offline windows every 2 s, the serving hop 0.5 s meets each)."""
+    from synthetic_runs import make_run_table
+
+    from terrainml.estimation.online import OnlineEstimator
+    from terrainml.estimation.run import estimate_run
+    from terrainml.features.sets import FeatureSet
+    from terrainml.schema import validate_run_table
+    from terrainml.stream.classify import WindowClassifier
+
+    robot = load_robot("agrimaro")
+    table = validate_run_table(make_run_table(2, "chain", seed=5, duration_s=10.0))
+    spec = WindowSpec()
+    off, _ = cut_windows(estimate_run(table, robot), robot, spec)
+    assert len(off) >= 3
+    fs = FeatureSet.for_robot(robot).fit(off)
+    F_off = dict(zip(off.meta["start_index"], fs.transform(off)))
+    t0 = float(table["t_s"].iloc[0])
+    seen: dict[int, np.ndarray] = {}
+
+    class Uniform:  # the model: every class alike, so serving goes on whatever the window
+        classes_ = np.arange(8)
+
+        def predict_proba(self, x):
+            self.last = np.asarray(x)[-1]
+            return np.full((len(x), 8), 1 / 8)
+
+    class Recording(WindowClassifier):  # the real cut and features; notes what it classified
+        def classify_columns(self, columns):
+            p = super().classify_columns(columns)
+            if p is not None:
+                seen[round((float(columns["t_s"][0]) - t0) * spec.rate_hz)] = self.model.last
+            return p
+
+    online = OnlineEstimator(robot, "robust", has_imu_yaw=True, has_cam_yaw=True)
+    pred = Predictor(robot, DesiredSlipTable.build(robot), Recording(Uniform(), robot, fs, spec),
+                     online, window_spec=spec)
+    for sample in table.to_dict("records"):
+        pred.step(sample)
+    assert set(F_off) <= set(seen)
+    for start, f in F_off.items():
+        np.testing.assert_allclose(seen[start], f, rtol=0, atol=1e-9)
+    assert pred.stats()["classifications"] == len(seen) > len(F_off)  # the hop is 0.5 s online
 
 
 def test_safe_cap_is_served_on_fallback_with_reason_and_no_class():

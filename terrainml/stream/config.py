@@ -1,0 +1,54 @@
+"""Serving settings of the online predictor, resolved once at the edge (design §10-11).
+
+:class:`ServingConfig` groups the predictor's settings that do not come with the model (the
+model brings the robot, the table, the classifier, the window spec, the class names and the
+sensor groups): the CLI (``terrainml predict``) and the controllers build one and hand it down.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+from terrainml.stream.clock import MAX_GAP_S, REANCHOR_AFTER
+from terrainml.stream.policy import SERVE_P
+
+__all__ = ["ServingConfig"]
+
+
+@dataclass(frozen=True)
+class ServingConfig:
+    """How the predictor serves (every field has the default ``terrainml predict`` documents).
+
+    Attributes
+    ----------
+    preset : EKF preset, or None: the model's (``"robust"`` without a model).
+    stale_m : m (3.0). More than this travelled since the last classification →
+        ``stale_classification`` fallback. The age counts distance (the EKF's body speed
+        integrated over ticks), not time: a robot standing still keeps its class.
+    serve_p : fused posterior below this → ``uncertain_classification`` fallback (0.6).
+    max_age_s : s or None (default: off). An optional wall-time limit on the age of the last
+        classification, on top of ``stale_m``.
+    fusion : dict of :class:`~terrainml.stream.fusion.TerrainFilter` settings (``length_m``,
+        ``alpha``, ``eps``, ``drift``, ``threshold``, ``confirm_windows``; the last defaults to
+        :func:`~terrainml.stream.fusion.confirm_windows_for` the hop: 3 at 0.1 s, 1 at 0.5 s).
+    silent_s : s (0.2), health rule: a sensor group silent this long is unhealthy.
+    classify_lag_ticks : 0 (default) classifies inline on the hop tick. L > 0 runs the
+        classification in a background thread and applies its result exactly L ticks later
+        (deterministic: the tick waits for it if needed; :mod:`terrainml.stream.scheduler`).
+    max_clock_gap_s : s, > 0 (1.0). Largest step between consecutive ticks of one timeline; a
+        larger step either way is a clock jump (:mod:`terrainml.stream.clock`).
+    reanchor_after : int >= 1 (5). Consecutive consistent off-timeline samples (K) that
+        re-anchor the stream on a new timeline (estimator, health, window buffer and
+        classification restart).
+    """
+
+    preset: str | None = None
+    stale_m: float = 3.0
+    serve_p: float = SERVE_P
+    max_age_s: float | None = None
+    fusion: Mapping[str, float] | None = None
+    silent_s: float = 0.2
+    classify_lag_ticks: int = 0
+    max_clock_gap_s: float = MAX_GAP_S
+    reanchor_after: int = REANCHOR_AFTER
