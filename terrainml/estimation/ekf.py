@@ -66,6 +66,9 @@ from terrainml.robot import RobotSpec
 from terrainml.schema import wheel_col
 
 NOMINAL_DT_S = 0.01  # tick length the per-tick Q values refer to (thesis: 100 Hz)
+#: variance of the motion states when the filter re-acquires after a stale stretch (SI units
+#: squared: (m/s)^2, (rad/s)^2, (m/s^2)^2, rad^2): wide, so the first measurements set them
+REACQUIRE_VAR = 1.0
 
 
 
@@ -369,6 +372,31 @@ class Ekf:
 
     def _gate(self, gate_enabled: bool) -> float:
         return self._gate_chi2 if gate_enabled else 0.0
+
+    def reacquire(self, variance: float = REACQUIRE_VAR) -> None:
+        """Re-initialise the filter after a stale stretch (every sensor silent for a while).
+
+        While nothing observes it the covariance grows without bound (the unobserved position
+        first: after about a minute of silence it passes the health limit and, never observed
+        again, stays there). On return the motion states (speeds, yaw rate, accelerations,
+        steering angles) restart at 0 with a wide ``variance`` so the first measurements set
+        them; the pose and the gyro bias keep their values, the pose variance restarts at
+        ``p0_pose`` (dead reckoning re-based at the current estimate) and the yaw's is capped at
+        ``variance``; cross-covariances are cleared and the gate memory restarts.
+        """
+        n = self.n
+        old = np.diag(self.P).copy()
+        diag = np.full(n, float(variance))
+        diag[kern.I_X] = diag[kern.I_Y] = self.preset.p0_pose
+        diag[kern.I_PSI] = min(old[kern.I_PSI], variance) if np.isfinite(old[kern.I_PSI]) else variance
+        diag[n - 1] = old[n - 1] if np.isfinite(old[n - 1]) else self.preset.p0_bias
+        keep = self.x[[kern.I_X, kern.I_Y, kern.I_PSI, n - 1]]
+        keep[~np.isfinite(keep)] = 0.0
+        self.x[:] = 0.0
+        self.x[[kern.I_X, kern.I_Y, kern.I_PSI, n - 1]] = keep
+        self.P[:] = np.diag(diag)
+        self._gate_state[kern.G_RUN] = 0
+        self._gate_state[kern.G_RELEASE] = 0
 
     def predict(self, dt: float) -> None:
         """x = f(x);  P = F P F^T + Q0 (dt / 0.01)."""

@@ -41,6 +41,9 @@ R_WHEEL_UNCOMPENSATED = 50.0
 ACCEL_TAU_S = MANOEUVRE_TAU_S  # manoeuvre filter on the acceleration feeding the wheel Power
 # sensor groups whose freshness the estimator tracks (order of _last_seen)
 GROUPS = ("wheels", "imu", "cam", "steer")
+#: a stale stretch (a health group silent past ``sensor_timeout_s``) longer than this (s) ends
+#: with the filter re-initialised (:meth:`Ekf.reacquire`) on the first tick every group is fresh
+REACQUIRE_AFTER_S = 1.0
 G_WHEELS, G_IMU, G_CAM, G_STEER = range(4)
 
 
@@ -140,6 +143,8 @@ class OnlineEstimator:
         self._t_prev: float | None = None
         self._has_cam = self.robot.has_camera
         self._cam_ok_prev = False
+        self._stale_since: float | None = None  # start of the current stale stretch (s)
+        self.n_reacquired = 0  # times the filter was re-initialised after a stale stretch
         # per-wheel state: encoder lag, slip memory, manoeuvre filter, state machine
         self._wheel_xy = np.ascontiguousarray(self.model.wheel_xy_m, dtype=float)
         self._steer_state = self.model.steer_state.astype(np.int64)
@@ -212,9 +217,21 @@ class OnlineEstimator:
             use[:N] = False  # zero-slip rows would bias v toward wheel odometry
             if self._any_alpha:
                 self._prev_valid[:N] = False  # a dropped row restarts its pre-filter when it returns
+        # ------------------------------------------------ a stale stretch ends: re-initialise
+        tmo = p.sensor_timeout_s
+        fresh_ok = (t_s - float(self._last_seen[G_WHEELS]) <= tmo and t_s - float(self._last_seen[G_IMU]) <= tmo
+                    and (cam_ok or not self._has_cam))
+        ekf = self.ekf
+        if not fresh_ok:
+            if self._stale_since is None:
+                self._stale_since = t_s
+        elif self._stale_since is not None:
+            if t_s - self._stale_since > REACQUIRE_AFTER_S:
+                ekf.reacquire()
+                self.n_reacquired += 1
+            self._stale_since = None
         # ------------------------------------------------ EKF: predict over dt, update
         # no gate on the first camera sample after a gap (the prediction is the stale part)
-        ekf = self.ekf
         ekf.step(dt, z, use, r_diag, gate_enabled=self._cam_ok_prev or not cam_ok)
         self._cam_ok_prev = cam_ok
         # ------------------------------------------------ slip and dynamic state per wheel
@@ -229,9 +246,6 @@ class OnlineEstimator:
         self._slip_mem_age += mem_dt
         self.slip_available = bool(cam_ok)
         # ------------------------------------------------ health
-        last_wheels_s, last_imu_s = float(self._last_seen[G_WHEELS]), float(self._last_seen[G_IMU])
-        tmo = p.sensor_timeout_s
-        fresh_ok = t_s - last_wheels_s <= tmo and t_s - last_imu_s <= tmo and (cam_ok or not self._has_cam)
         self.estimator_ok = bool(fresh_ok and sane)
         self.t_s = t_s
 

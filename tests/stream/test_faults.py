@@ -300,3 +300,35 @@ def test_odometer_ignores_an_unobserved_lateral_speed():
                          sensors=["wheels", "currents", "imu"])
     _run(with_imu, samples)
     assert with_imu.odometer_m > 100.0
+
+
+@pytest.mark.parametrize("gap_s,rate_hz", [(1.0, 100.0), (60.0, 100.0), (600.0, 10.0)])
+def test_recovers_from_an_all_null_gap_of_any_length(robot, gap_s, rate_hz):
+    """Every sensor null for 1 s, 60 s or 10 min (issue 31, case 1: past ~55 s the EKF covariance
+    stayed past the health limit for good): good samples are served healthy within 2 s, and
+    classified again once a full window of them is in."""
+    from stream_fakes import FakeTable
+
+    from terrainml.stream.predictor import Predictor
+
+    pred = Predictor(robot, FakeTable(), FakeClassifier())  # the real OnlineEstimator
+    good = make_samples(robot, 5.0)
+    out = _run(pred, good)
+    assert out[-1].estimator_ok and not out[-1].fallback
+    n_gap = int(round(gap_s * rate_hz))
+    sensors = [k for k in good[0] if k not in ("t_s", "terrain")]
+    for k in range(n_gap):  # the 10 min gap at 10 Hz: the clock policy allows steps up to 1 s
+        s = dict.fromkeys(sensors)
+        s.update(t_s=round(5.0 + k / rate_hz, 6), terrain=3)
+        pred.step(s)
+    t_back = round(5.0 + n_gap / rate_hz, 6)
+    after = _run(pred, make_samples(robot, 6.0, t0=t_back, seed=1))
+    healthy = [m for m in after if m.t_s <= t_back + 2.0 and m.estimator_ok]
+    assert healthy, f"not healthy within 2 s after a {gap_s} s gap"
+    # once healthy it stays healthy, and measured slip is the simulated 0.1 again
+    first = healthy[0].t_s
+    assert all(m.estimator_ok for m in after if m.t_s >= first)
+    late = [m for m in after if m.t_s >= t_back + 1.0]
+    assert all(m.slip_measured == pytest.approx([0.1] * robot.n_wheels, abs=0.02) for m in late)
+    # a full 2 s window later the terrain is served again
+    assert any(not m.fallback and m.terrain_class == 3 for m in after if m.t_s >= t_back + 3.0)
