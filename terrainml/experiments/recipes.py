@@ -20,8 +20,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from terrainml._yaml_checks import read_yaml_file
 from terrainml.features.windows import Windows, WindowSpec
 from terrainml.pipeline.dataset import build_dataset, read_windows, write_windows
 from terrainml.sim.generate import generate_dataset
@@ -45,7 +44,7 @@ def load_recipe(recipe: str | Path = "sim_default") -> dict:
     if p.suffix not in (".yaml", ".yml"):
         p = RECIPES_DIR / f"{recipe}.yaml"
     if p.is_file():
-        doc = yaml.safe_load(p.read_text())
+        doc = read_yaml_file(p, ValueError, f"{p}: dataset recipe not found")
         if not isinstance(doc, dict):
             raise ValueError(f"{p}: a dataset recipe must be a mapping")
         return doc

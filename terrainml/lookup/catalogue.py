@@ -45,6 +45,7 @@ from typing import Any, Sequence
 
 import yaml
 
+from terrainml._yaml_checks import YamlLimitError, load_bounded_yaml
 from terrainml.lookup.terrain_params import TerrainParams
 
 __all__ = ["BUILTIN_CATALOGUES", "CatalogueClass", "CatalogueError", "TerrainCatalogue",
@@ -177,10 +178,12 @@ def _read(path: Path) -> tuple[Any, str]:
         raise CatalogueError(f"{path}: cannot read the catalogue ({exc.strerror or exc})") from None
     try:
         text = raw.decode("utf-8")
-        return yaml.load(text, Loader=_UniqueKeyLoader), hashlib.sha256(raw).hexdigest()
+        return load_bounded_yaml(text, _UniqueKeyLoader), hashlib.sha256(raw).hexdigest()
     except UnicodeDecodeError:
         raise CatalogueError(f"{path}: not a terrain catalogue (binary data, not UTF-8 YAML)") \
             from None
+    except YamlLimitError as exc:
+        raise CatalogueError(f"{path}: refused: {exc}") from None
     except yaml.YAMLError as exc:
         raise CatalogueError(f"{path}: not valid YAML ({exc})".replace("\n", " ")) from None
 
