@@ -16,10 +16,16 @@ Rules
   A model that records the sensor groups it needs (``sensors`` in its manifest, design §9)
   narrows the monitored groups to those (wheels always): a robot without IMU, camera or
   current sensing is then served by a model that does not use them.
+* **Said live**: a monitored group that goes silent past ``silent_s`` is named on the log
+  (``terrainml predict``: stderr) the tick it does, with its columns, "never seen" when it has
+  not been fresh since the start (e.g. a log without its IMU topic), and again when it returns;
+  each group's silent episodes are counted (``silent_episodes``). The first
+  :data:`WARN_EPISODES` episodes of a group are warned, then every 100th.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 from typing import Any, Sequence
@@ -30,6 +36,9 @@ from terrainml.robot import RobotSpec
 from terrainml.schema import VALID_GROUPS, column_map, group_columns
 
 _NAN = float("nan")
+log = logging.getLogger("terrainml.stream")
+#: silent episodes per group warned one by one (then every 100th)
+WARN_EPISODES = 5
 #: model sensor group (manifest ``sensors``) -> health group
 SENSOR_TO_GROUP = {"wheels": "wheels", "currents": "current", "imu": "imu", "cam": "cam"}
 
@@ -69,6 +78,7 @@ class InputCounters:
     clock_jump: int = 0     # served as clock_jump fallback (off the timeline)
     reanchors: int = 0      # times the stream re-anchored on a new timeline
     invalid_group_ticks: dict[str, int] = field(default_factory=dict)
+    silent_episodes: dict[str, int] = field(default_factory=dict)  # times each group went silent
 
     @property
     def dropped(self) -> int:
@@ -79,7 +89,8 @@ class InputCounters:
                 "out_of_order": self.out_of_order, "bad_time": self.bad_time,
                 "not_a_sample": self.not_a_sample, "clock_jump": self.clock_jump,
                 "reanchors": self.reanchors,
-                "invalid_group_ticks": dict(self.invalid_group_ticks)}
+                "invalid_group_ticks": dict(self.invalid_group_ticks),
+                "silent_episodes": dict(self.silent_episodes)}
 
 
 class HealthMonitor:
@@ -114,11 +125,13 @@ class HealthMonitor:
             self.monitored = [g for g in self.monitored if g in wanted]
         self.last_fresh_t: dict[str, float] = {}
         self._t0: float | None = None
+        self._silent_now: set[str] = set()   # groups said silent and not yet back
         self.counters: InputCounters | None = None
 
     def reset(self) -> None:
         self.last_fresh_t.clear()
         self._t0 = None
+        self._silent_now.clear()
 
     def sanitise(self, sample: dict) -> tuple[dict, dict[str, bool]]:
         """Return (clean sample, fresh flag per group). The input dict is not modified.
@@ -180,4 +193,26 @@ class HealthMonitor:
             last = self.last_fresh_t.get(g, self._t0)
             if t_s - last > self.silent_s + 1e-9:
                 silent.append(g)
+                if g not in self._silent_now:
+                    self._said_silent(g, t_s)
+            elif g in self._silent_now:
+                self._silent_now.discard(g)
+                if self._episodes(g) <= WARN_EPISODES:
+                    log.warning("sensor group %r fresh again at t=%.3f s", g, t_s)
         return (not silent), silent
+
+    def _episodes(self, g: str) -> int:
+        return 0 if self.counters is None else self.counters.silent_episodes.get(g, 0)
+
+    def _said_silent(self, g: str, t_s: float) -> None:
+        """A monitored group just went silent: count the episode, name it on the log."""
+        self._silent_now.add(g)
+        n = self._episodes(g) + 1
+        if self.counters is not None:
+            self.counters.silent_episodes[g] = n
+        if n <= WARN_EPISODES or n % 100 == 0:
+            since = (f"last fresh at t={self.last_fresh_t[g]:.3f} s" if g in self.last_fresh_t
+                     else "never seen since the start")
+            log.warning("sensor group %r silent at t=%.3f s (%s; columns %s): serving "
+                        "estimator_unhealthy until it returns (episode %d)", g, t_s, since,
+                        ", ".join(self.group_cols[g]), n)

@@ -211,6 +211,7 @@ def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = 10
     YAML path or dict) for an MCAP/bag log, a dataset spec (built-in name, YAML path or dict) for
     a CSV/Parquet file of one run (module docstring); None: the defaults of ``terrainml ingest``.
     With ``realtime`` each sample is released at its ``t_s`` relative to the start (wall clock).
+    Ingest's warnings (a mapped topic not in the log, ...) are logged before the first sample.
     What ingest could not read (corrupt messages, bad cells, a truncated tail) is warned about
     before the first sample and kept in ``counters.damage`` for the end-of-run summary; the ticks
     it left without data are invalid in the table, so they are served as flagged fallbacks.
@@ -226,6 +227,8 @@ def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = 10
     if report is not None and getattr(report, "usable", True) is False:
         why = list(getattr(report, "errors", []) or []) + list(getattr(report, "warnings", []) or [])
         raise SourceError(f"{path}: log is not usable ({'; '.join(map(str, why)) or 'no usable table'})")
+    for warning in getattr(report, "warnings", None) or []:  # e.g. a mapped topic not in the log
+        log.warning("%s", warning)
     damage = damage_summary(res.table)
     if counters is not None:
         counters.damage = damage

@@ -332,3 +332,48 @@ def test_recovers_from_an_all_null_gap_of_any_length(robot, gap_s, rate_hz):
     assert all(m.slip_measured == pytest.approx([0.1] * robot.n_wheels, abs=0.02) for m in late)
     # a full 2 s window later the terrain is served again
     assert any(not m.fallback and m.terrain_class == 3 for m in after if m.t_s >= t_back + 3.0)
+
+
+def test_a_missing_group_is_named_live_at_start_and_when_it_goes(robot, fake_predictor, caplog):
+    """Issue 31, case 4: a group absent from the start, and one that stops later, are each
+    named on the log the tick they pass the 0.2 s limit, and again when they return."""
+    imu = ["imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2", "imu_yaw_rate_radps"]
+    cur = [f"wheel{i}_current_a" for i in range(1, robot.n_wheels + 1)]
+    samples = make_samples(robot, 3.0)
+    for s in samples:
+        if s["t_s"] < 1.0:
+            for c in imu:
+                s.pop(c)          # no IMU for the first second
+        if 2.0 <= s["t_s"] < 2.5:
+            for c in cur:
+                s.pop(c)          # currents stop for 0.5 s
+    pred = fake_predictor()
+    with caplog.at_level(logging.WARNING, logger="terrainml.stream"):
+        out = _run(pred, samples)
+    said = [r.getMessage() for r in caplog.records if "sensor group" in r.getMessage()]
+    assert len(said) == 4, said
+    assert "'imu' silent at t=0.210 s" in said[0] and "never seen" in said[0] and "imu_ax_mps2" in said[0]
+    assert "'imu' fresh again at t=1.000 s" in said[1]
+    assert "'current' silent at t=2.200 s" in said[2] and "last fresh at t=1.990 s" in said[2]
+    assert "'current' fresh again at t=2.500 s" in said[3]
+    assert pred.stats()["silent_episodes"] == {"imu": 1, "current": 1}
+    assert not any(m.estimator_ok for m in out if 0.21 <= m.t_s < 1.0)
+
+
+def test_predict_on_a_log_without_imu_names_the_missing_topic(tmp_path, model_dir, capsys):
+    """Issue 31, case 4: a log with wheels but no IMU was served as 3,001 estimator_unhealthy
+    ticks with nothing on stderr naming /imu."""
+    from terrainml.io import topics
+    from terrainml.io.mcap_writer import RosMcapWriter
+    from terrainml.stream.runner import run_predict
+
+    path = tmp_path / "noimu.mcap"
+    with RosMcapWriter(path, 3) as w:
+        for k in range(300):
+            t = k / 100
+            w.write_wheel_joints(t, [1.0 / 0.165] * 3, [0.0] * 3)
+            w.write_motor_current(t, [1.0] * 3)
+    assert run_predict(model=model_dir, source=str(path), sinks=["stdout"]) == 0
+    err = capsys.readouterr().err
+    assert topics.IMU in err and "not in the log" in err
+    assert "sensor group 'imu' silent" in err and "never seen" in err
