@@ -32,9 +32,12 @@ manifest, which it signs) and raises :class:`SignatureError` naming the folder.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
+import os
+import stat
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -259,14 +262,47 @@ def write_manifest(directory: str | Path, doc: dict | None = None) -> dict:
 
 
 # ---------------------------------------------------------------------------- loading
+_KINDS = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+          (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"),
+          (stat.S_ISDIR, "a folder"))
+
+
+def file_problem(path: Path) -> str | None:
+    """Why ``path`` is not a readable regular file (None when it is), its real cause.
+
+    "missing" only when nothing is there (a dangling symlink says where it points); a symlink
+    loop, a device (``/dev/zero``), a FIFO, a socket or a folder are named as such, so a model
+    file replaced by one is refused before it is opened (reading a FIFO blocks, a device never
+    ends). A symlink to a regular file is followed.
+    """
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        if path.is_symlink():
+            return f"a symlink to {os.readlink(path)!r}, which does not exist"
+        return "missing"
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a symlink loop"
+        return f"cannot be read ({exc.strerror or exc})"
+    if stat.S_ISREG(st.st_mode):
+        return None
+    what = next((name for test, name in _KINDS if test(st.st_mode)), "not a regular file")
+    via = f" (a symlink to {os.readlink(path)!r})" if path.is_symlink() else ""
+    return f"{what}{via}, not a regular file"
+
+
 def read_manifest(directory: str | Path) -> dict:
     """Read and verify ``manifest.json`` itself (canonical form, self-hash, schema)."""
     directory = Path(directory)
     path = directory / MANIFEST_NAME
     if not directory.is_dir():
         raise ArtifactError(f"{directory}: no such model folder (train one with `terrainml train`)")
-    if not path.is_file():
+    problem = file_problem(path)
+    if problem == "missing":
         raise ArtifactError(f"{path}: manifest missing; not a terrainml model folder")
+    if problem is not None:
+        raise ArtifactError(f"{path}: manifest is {problem}")
     raw = path.read_bytes()
     try:
         text = raw.decode("utf-8")
@@ -298,8 +334,9 @@ def verify_artifact(directory: str | Path) -> dict:
         raise ArtifactError(f"{directory / MANIFEST_NAME}: manifest lists no files")
     for rel, info in files.items():
         p = directory / rel
-        if not p.is_file():
-            raise ArtifactError(f"{p}: file listed in the manifest is missing")
+        problem = file_problem(p)
+        if problem is not None:
+            raise ArtifactError(f"{p}: file listed in the manifest is {problem}")
         if p.stat().st_size != info.get("bytes"):
             raise ArtifactError(f"{p}: size {p.stat().st_size} B differs from the manifest's "
                                 f"{info.get('bytes')} B: the file was modified")

@@ -295,3 +295,37 @@ def test_cli_predict_with_trusted_key(trained, keys, short_log, tmp_path):
     # without --trusted-key: unchanged
     r = runner.invoke(app, base + ["--model", str(tmp_path / "unsigned")])
     assert r.exit_code == 0, r.output
+
+
+@pytest.mark.parametrize("kind,cause", [
+    ("dev_zero", "a character device (a symlink to '/dev/zero'), not a regular file"),
+    ("fifo", "a FIFO (named pipe), not a regular file"),
+    ("loop", "a symlink loop"),
+    ("dangling", "a symlink to 'nowhere.skops', which does not exist"),
+    ("folder", "a folder, not a regular file"),
+])
+def test_special_model_file_is_refused_with_its_real_cause(model, kind, cause):
+    """Issue 31, case 9: a model file replaced by a symlink to /dev/zero, a FIFO or a symlink
+    loop was refused as "missing"; each is named for what it is, before it is opened."""
+    import os
+
+    skops = model / "svm" / "model.skops"
+    skops.unlink()
+    if kind == "dev_zero":
+        skops.symlink_to("/dev/zero")
+    elif kind == "fifo":
+        os.mkfifo(skops)
+    elif kind == "loop":
+        skops.symlink_to(skops)
+    elif kind == "dangling":
+        skops.symlink_to("nowhere.skops")
+    else:
+        skops.mkdir()
+    with pytest.raises(ArtifactError) as exc:
+        load_artifact(model)
+    assert str(exc.value) == f"{skops}: file listed in the manifest is {cause}"
+    manifest = model / MANIFEST_NAME
+    manifest.unlink()
+    os.mkfifo(manifest)
+    with pytest.raises(ArtifactError, match="manifest is a FIFO"):
+        read_manifest(model)
