@@ -103,6 +103,21 @@ def truth_wheel_columns(i: int) -> list[Column]:
     ]
 
 
+#: largest magnitude a sensor reading can have, by unit: 1000 rad/s (~9,500 rpm), 1000 A, 1000 m/s^2
+#: (~100 g), 100 m/s, 1e4 rad (an unwrapped yaw of 1,600 turns). A finite value beyond is a broken
+#: sample, never a reading: it invalidates its sensor group like a NaN (the stream's health rule)
+PHYSICAL_LIMITS = {"rad/s": 1e3, "A": 1e3, "m/s^2": 1e3, "m/s": 1e2, "rad": 1e4}
+
+
+def physical_limit(name: str, n_wheels: int) -> float:
+    """Largest |value| of canonical column ``name`` (:data:`PHYSICAL_LIMITS` by its unit; inf for
+    columns without one, labels, truth and unknown names)."""
+    col = column_map(n_wheels).get(name)
+    if col is None or col.group in ("labels", "truth", "validity", "time"):
+        return float("inf")
+    return PHYSICAL_LIMITS.get(col.unit, float("inf"))
+
+
 def valid_column(group: str) -> Column:
     # not required on input: derived from finiteness when a producer does not supply it
     return Column(f"{group}_valid", "-", "bool", "validity", False,

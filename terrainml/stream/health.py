@@ -9,7 +9,10 @@ Rules
   ``{group}_valid=False`` before the estimator sees the sample (so the EKF drops those rows and
   never sees a stale or non-finite value). A value that is not a number (a string, a list, an
   integer too large for a float, ...) counts as non-finite. Extras pass as finite floats or NaN;
-  ``run_id`` and simulator truth (``gt_*``) may also be strings.
+  ``run_id`` and simulator truth (``gt_*``) may also be strings. A finite value beyond its
+  channel's physical limit (:data:`terrainml.schema.PHYSICAL_LIMITS`: 1000 A, 1000 rad/s,
+  1000 m/s^2, 100 m/s, 1e4 rad; e.g. a current of 1e308 A) invalidates its group the same way,
+  counted per column (``out_of_range``); an extra beyond its limit becomes NaN.
 * **Health**: a monitored group (wheels, current, imu; steer when the robot steers; cam when it
   has a camera) that has not been fresh for more than ``silent_s`` (default 0.2 s) makes the
   estimator unhealthy. Health returns as soon as every monitored group is fresh again.
@@ -33,7 +36,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from terrainml.robot import RobotSpec
-from terrainml.schema import VALID_GROUPS, column_map, group_columns
+from terrainml.schema import VALID_GROUPS, column_map, group_columns, physical_limit
 
 _NAN = float("nan")
 log = logging.getLogger("terrainml.stream")
@@ -79,6 +82,7 @@ class InputCounters:
     reanchors: int = 0      # times the stream re-anchored on a new timeline
     invalid_group_ticks: dict[str, int] = field(default_factory=dict)
     silent_episodes: dict[str, int] = field(default_factory=dict)  # times each group went silent
+    out_of_range: dict[str, int] = field(default_factory=dict)  # column -> samples beyond its limit
 
     @property
     def dropped(self) -> int:
@@ -90,7 +94,8 @@ class InputCounters:
                 "not_a_sample": self.not_a_sample, "clock_jump": self.clock_jump,
                 "reanchors": self.reanchors,
                 "invalid_group_ticks": dict(self.invalid_group_ticks),
-                "silent_episodes": dict(self.silent_episodes)}
+                "silent_episodes": dict(self.silent_episodes),
+                "out_of_range": dict(self.out_of_range)}
 
 
 class HealthMonitor:
@@ -123,6 +128,7 @@ class HealthMonitor:
         if sensors is not None:
             wanted = {SENSOR_TO_GROUP.get(str(g), str(g)) for g in sensors} | {"wheels", "steer"}
             self.monitored = [g for g in self.monitored if g in wanted]
+        self._limit = {c: physical_limit(c, n) for c in spec}  # every canonical column, once
         self.last_fresh_t: dict[str, float] = {}
         self._t0: float | None = None
         self._silent_now: set[str] = set()   # groups said silent and not yet back
@@ -148,8 +154,15 @@ class HealthMonitor:
             ok = bool(present) and len(present) == len(cols) and _flag_true(sample.get(key, True))
             if ok:
                 for c in cols:
-                    if not _is_finite_number(sample[c]):
+                    v = sample[c]
+                    if not _is_finite_number(v):
                         ok = False
+                        break
+                    if abs(float(v)) > self._limit[c]:  # finite but beyond physics: broken
+                        ok = False
+                        if self.counters is not None:
+                            d = self.counters.out_of_range
+                            d[c] = d.get(c, 0) + 1
                         break
             if ok:
                 for c in cols:
@@ -171,8 +184,11 @@ class HealthMonitor:
             if k == "run_id" or k.startswith("gt_"):
                 out[k] = _label(v)
             elif k not in self._all_group_cols:
-                out[k] = float(v) if _is_finite_number(v) else nan
+                out[k] = float(v) if _is_finite_number(v) and abs(float(v)) <= self._limit_of(k) else nan
         return out, fresh
+
+    def _limit_of(self, name: str) -> float:
+        return self._limit.get(name, math.inf)  # unknown extras: only finiteness
 
     @property
     def _all_group_cols(self) -> set[str]:
