@@ -13,6 +13,8 @@ classification, which ages towards the stale fallback).
 
 from __future__ import annotations
 
+import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -26,6 +28,8 @@ from terrainml.lookup.catalogue import BUILTIN_CATALOGUES
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import load_artifact
 from terrainml.robot import RobotSpec
+
+log = logging.getLogger("terrainml.stream")
 
 
 class ModelLoadError(ValueError):
@@ -121,6 +125,40 @@ class WindowClassifier:
         return p[-1]
 
 
+def _leaves(d: Any, prefix: str = "") -> dict[str, Any]:
+    """Flat ``{"wheels[0].x_m": -0.5, ...}`` of a robot spec dict."""
+    if isinstance(d, dict):
+        out: dict[str, Any] = {}
+        for k, v in d.items():
+            out.update(_leaves(v, f"{prefix}.{k}" if prefix else str(k)))
+        return out
+    if isinstance(d, (list, tuple)):
+        out = {}
+        for i, v in enumerate(d):
+            out.update(_leaves(v, f"{prefix}[{i}]"))
+        return out
+    return {prefix: d}
+
+
+def robot_differences(trained: RobotSpec, served: RobotSpec, rel_tol: float = 1e-6) -> list[str]:
+    """The fields (name and description aside) where ``served`` differs from ``trained``, each as
+    ``"mass_kg 240 vs 80 (x3)"`` (served vs trained); [] when they agree."""
+    a, b = _leaves(trained.to_dict()), _leaves(served.to_dict())
+    out = []
+    for key in sorted(set(a) | set(b)):
+        if key in ("name", "description"):
+            continue
+        va, vb = a.get(key), b.get(key)
+        num = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in (va, vb))
+        if num and math.isclose(float(va), float(vb), rel_tol=rel_tol, abs_tol=1e-12):  # type: ignore[arg-type]
+            continue
+        if not num and va == vb:
+            continue
+        ratio = f" (x{float(vb) / float(va):.3g})" if num and float(va) != 0 else ""  # type: ignore[arg-type]
+        out.append(f"{key} {vb} vs {va}{ratio}")
+    return out
+
+
 def load_serving_model(model_dir: str | Path, robot: RobotSpec | None = None,
                        model_name: str | None = None,
                        trusted_keys: Sequence[str | Path] | None = None) -> ServingModel:
@@ -143,6 +181,11 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | None = None,
     if rb.n_wheels != art.robot.n_wheels:
         raise ModelLoadError(f"{model_dir}: model trained for {art.robot.n_wheels} wheels, robot "
                              f"'{rb.name}' has {rb.n_wheels}")
+    if robot is not None:
+        differ = robot_differences(art.robot, rb)
+        if differ:  # served anyway (the user chose the robot), but never silently
+            log.warning("%s: serving robot '%s' differs from the model's training robot '%s': %s",
+                        model_dir, rb.name, art.robot.name, "; ".join(differ))
     stored = art.attachments.get("desired_slip_table.json")  # written by terrainml.pipeline.train
     ids = [int(c) for c in art.class_ids]
     own = [str(n) for n in (art.class_names or [])]

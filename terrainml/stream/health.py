@@ -12,7 +12,9 @@ Rules
   ``run_id`` and simulator truth (``gt_*``) may also be strings. A finite value beyond its
   channel's physical limit (:data:`terrainml.schema.PHYSICAL_LIMITS`: 1000 A, 1000 rad/s,
   1000 m/s^2, 100 m/s, 1e4 rad; e.g. a current of 1e308 A) invalidates its group the same way,
-  counted per column (``out_of_range``); an extra beyond its limit becomes NaN.
+  counted per column (``out_of_range``); an extra beyond its limit becomes NaN. A
+  ``wheel{i}_*`` key of a wheel the robot does not have (``wheel4_*`` on three wheels) is
+  ignored, counted (``unknown_wheel_keys``) and warned the first time.
 * **Health**: a monitored group (wheels, current, imu; steer when the robot steers; cam when it
   has a camera) that has not been fresh for more than ``silent_s`` (default 0.2 s) makes the
   estimator unhealthy. Health returns as soon as every monitored group is fresh again.
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -40,6 +43,7 @@ from terrainml.schema import VALID_GROUPS, column_map, group_columns, physical_l
 
 _NAN = float("nan")
 log = logging.getLogger("terrainml.stream")
+_WHEEL_KEY = re.compile(r"wheel(\d+)_")
 #: silent episodes per group warned one by one (then every 100th)
 WARN_EPISODES = 5
 #: model sensor group (manifest ``sensors``) -> health group
@@ -83,6 +87,7 @@ class InputCounters:
     invalid_group_ticks: dict[str, int] = field(default_factory=dict)
     silent_episodes: dict[str, int] = field(default_factory=dict)  # times each group went silent
     out_of_range: dict[str, int] = field(default_factory=dict)  # column -> samples beyond its limit
+    unknown_wheel_keys: dict[str, int] = field(default_factory=dict)  # wheel{i}_* beyond n_wheels
 
     @property
     def dropped(self) -> int:
@@ -95,7 +100,8 @@ class InputCounters:
                 "reanchors": self.reanchors,
                 "invalid_group_ticks": dict(self.invalid_group_ticks),
                 "silent_episodes": dict(self.silent_episodes),
-                "out_of_range": dict(self.out_of_range)}
+                "out_of_range": dict(self.out_of_range),
+                "unknown_wheel_keys": dict(self.unknown_wheel_keys)}
 
 
 class HealthMonitor:
@@ -184,8 +190,26 @@ class HealthMonitor:
             if k == "run_id" or k.startswith("gt_"):
                 out[k] = _label(v)
             elif k not in self._all_group_cols:
+                if k.startswith("wheel") and k not in self._limit:
+                    self._unknown_wheel_key(k)
                 out[k] = float(v) if _is_finite_number(v) and abs(float(v)) <= self._limit_of(k) else nan
         return out, fresh
+
+    def _unknown_wheel_key(self, key: str) -> None:
+        """A ``wheel{i}_*`` key of a wheel the robot does not have (``wheel4_*`` on three wheels):
+        counted, warned the first time (up to :data:`WARN_EPISODES` keys); its value is ignored."""
+        m = _WHEEL_KEY.match(key)
+        if m is None or self.counters is None:
+            return
+        idx = m.group(1)
+        if len(idx) <= 6 and 1 <= int(idx) <= self.robot.n_wheels:  # (a 5,000-digit int raises)
+            return
+        d = self.counters.unknown_wheel_keys
+        name = key if key in d or len(d) < 100 else "(others)"  # bounded against a hostile stream
+        d[name] = d.get(name, 0) + 1
+        if d[name] == 1 and len(d) <= WARN_EPISODES:
+            log.warning("sample key %r names a wheel robot '%s' does not have (%d wheels): ignored",
+                        key, self.robot.name, self.robot.n_wheels)
 
     def _limit_of(self, name: str) -> float:
         return self._limit.get(name, math.inf)  # unknown extras: only finiteness

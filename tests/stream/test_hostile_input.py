@@ -387,3 +387,43 @@ def test_huge_current_never_reaches_the_features(model_dir):
     st_ = pred.stats()
     assert st_["out_of_range"] == {"wheel1_current_a": 100}
     assert st_["classifier_errors"] == 0 and st_["classifications"] > 0
+
+
+def test_wheel_keys_beyond_the_robot_are_counted_and_warned(robot, fake_predictor, caplog):
+    """Issue 31, case 7: a stream with ``wheel4_*`` keys was served as three wheels silently."""
+    import logging
+
+    pred = fake_predictor()
+    samples = make_samples(robot, 1.0)
+    for s in samples:
+        s["wheel4_omega_radps"], s["wheel4_current_a"] = 6.0, 3.0
+        s["wheel" + "9" * 5000 + "_x"] = 1.0   # too many digits for int(): still just a key
+    with caplog.at_level(logging.WARNING, logger="terrainml.stream"):
+        out = [pred.step(s) for s in samples]
+    assert all(m is not None for m in out)
+    said = [r.getMessage() for r in caplog.records if "names a wheel" in r.getMessage()]
+    assert len(said) == 3 and "'wheel4_omega_radps'" in said[0] and "(3 wheels)" in said[0]
+    assert pred.stats()["unknown_wheel_keys"]["wheel4_current_a"] == 100
+    assert len(out[-1].slip_desired) == robot.n_wheels
+
+
+def test_serving_robot_that_differs_from_the_training_robot_is_warned(model_dir, tmp_path, caplog):
+    """Issue 31, case 7: twice the wheel radius and three times the mass were served silently."""
+    import logging
+
+    from terrainml.robot import RobotSpec, load_robot
+    from terrainml.stream.classify import load_serving_model
+
+    trained = load_robot()
+    d = trained.to_dict()
+    d.update(name="bigger", wheel_radius_m=2 * trained.wheel_radius_m, mass_kg=3 * trained.mass_kg)
+    with caplog.at_level(logging.WARNING, logger="terrainml.stream"):
+        load_serving_model(model_dir, robot=RobotSpec.from_dict(d))
+        said = [r.getMessage() for r in caplog.records if "differs from the model's" in r.getMessage()]
+        assert len(said) == 1
+        assert f"mass_kg {3 * trained.mass_kg} vs {trained.mass_kg} (x3)" in said[0]
+        assert f"wheel_radius_m {2 * trained.wheel_radius_m} vs {trained.wheel_radius_m} (x2)" in said[0]
+        assert str(model_dir) in said[0] and "'bigger'" in said[0]
+        caplog.clear()
+        load_serving_model(model_dir, robot=load_robot())   # the same robot: nothing said
+        assert not [r for r in caplog.records if "differs" in r.getMessage()]
