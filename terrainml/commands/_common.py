@@ -19,10 +19,11 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
+from terrainml.io.dataset_spec import DatasetSpecError, load_dataset_spec
 from terrainml.robot import RobotSpec, RobotSpecError, load_robot
 
 __all__ = ["EXIT_USAGE", "check_n_jobs", "check_output_writable", "console", "fail", "is_windows_file",
-           "open_dataset", "open_robot", "open_run"]
+           "open_dataset", "open_dataset_spec", "open_robot", "open_run"]
 
 #: Exit code of every refusal (bad option, unreadable input, unwritable output).
 EXIT_USAGE = 2
@@ -46,6 +47,23 @@ def open_robot(robot: str | Path | RobotSpec | None) -> RobotSpec:
     try:
         return load_robot(robot)
     except RobotSpecError as exc:
+        fail(str(exc))
+
+
+#: the option that lets a dataset spec read outside the dataset folder (``../imu_{run}.csv``)
+ALLOW_OUTSIDE_HELP = ("Let the dataset spec's file patterns and label file reach outside the dataset "
+                      "folder (absolute, ~ or ..); refused by default.")
+
+
+def open_dataset_spec(fmt: str | None, allow_outside: bool):
+    """``--format`` with ``--allow-outside-spec-dir``: the spec parsed with permission to read
+    outside its folder (a refusal names the spec); without the flag ``fmt`` passes as is and the
+    reader refuses such a spec itself."""
+    if fmt is None or not allow_outside:
+        return fmt
+    try:
+        return load_dataset_spec(fmt, allow_outside=True)
+    except DatasetSpecError as exc:
         fail(str(exc))
 
 

@@ -14,7 +14,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from terrainml.commands._common import check_output_writable, console, fail
+from terrainml.commands._common import ALLOW_OUTSIDE_HELP, check_output_writable, console, fail, open_dataset_spec
 
 
 def _progress_callback(progress, task):
@@ -37,6 +37,7 @@ def ingest(
     fmt: Optional[str] = typer.Option(None, "--format", help="Dataset spec: a built-in name (borealtc) or "
                                       "SPEC.yaml; LOG is then one file of a run (e.g. pro_00.csv) and the "
                                       "run's other files are paired by the spec. Default: LOG is the whole log."),
+    allow_outside: bool = typer.Option(False, "--allow-outside-spec-dir", help=ALLOW_OUTSIDE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
     """Ingest a log into the canonical run table (Parquet), streaming in time chunks.
@@ -57,12 +58,13 @@ def ingest(
     from terrainml.io.ingest import ingest_to_parquet
 
     check_output_writable(out)
+    dataset = open_dataset_spec(fmt, allow_outside)
     try:
         with Progress(TextColumn("[bold]ingest[/] {task.description}"), BarColumn(), TimeRemainingColumn(),
                       console=console, transient=True, disable=quiet) as progress:
             task = progress.add_task(str(log), total=None)
             rep = ingest_to_parquet(log, out, robot=robot, topic_map=topics, rate_hz=rate_hz, chunk_s=chunk_s,
-                                    progress=_progress_callback(progress, task), dataset=fmt)
+                                    progress=_progress_callback(progress, task), dataset=dataset)
         for w in rep.warnings:
             if not quiet:
                 console.print(f"[yellow]warning:[/] {w}", highlight=False, soft_wrap=True)

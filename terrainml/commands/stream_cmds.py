@@ -7,7 +7,7 @@ from typing import List, Optional
 
 import typer
 
-from terrainml.commands._common import open_robot
+from terrainml.commands._common import ALLOW_OUTSIDE_HELP, open_dataset_spec, open_robot
 
 _EXAMPLE = """
 Examples:
@@ -72,6 +72,7 @@ def register(app: typer.Typer) -> None:
             help="CSV/Parquet source: dataset spec (built-in name: borealtc, or SPEC.yaml) giving its "
                  "column names, units and scales (e.g. m/s wheel speeds -> rad/s) and side-to-wheel "
                  "mapping; the source is one file of a run, as for `terrainml ingest --format`."),
+        allow_outside: bool = typer.Option(False, "--allow-outside-spec-dir", help=ALLOW_OUTSIDE_HELP),
     ) -> None:
         from terrainml.stream.config import ServingConfig
         from terrainml.stream.runner import CLASSIFY_LAG_TICKS, run_predict
@@ -82,6 +83,7 @@ def register(app: typer.Typer) -> None:
         code = run_predict(model=model, source=source, sinks=list(sink), realtime=realtime,
                            robot=open_robot(robot) if robot else None, config=config,
                            idle_timeout_s=idle_timeout_s, verbose=verbose,
-                           trusted_keys=trusted_key or None, topics=topics, dataset=fmt)
+                           trusted_keys=trusted_key or None, topics=topics,
+                           dataset=open_dataset_spec(fmt, allow_outside))
         if code:
             raise typer.Exit(code)

@@ -438,8 +438,32 @@ def _label(d: Any, roles: list[str], fields: set[str], where: str) -> LabelSpec:
     return lab
 
 
-def parse_dataset_spec(data: Any, source: str = "<dict>") -> DatasetSpec:
-    """Validate a spec document (the YAML's content)."""
+def _outside(rel: str) -> bool:
+    """A spec path (pattern, label file) that leaves the dataset folder: absolute or with ``..``."""
+    p = Path(rel)
+    return p.is_absolute() or rel.startswith("~") or ".." in p.parts
+
+
+def _check_inside(spec: "DatasetSpec", allow_outside: bool) -> None:
+    """Refuse a pattern or label file outside the dataset folder unless ``allow_outside``."""
+    if allow_outside:
+        return
+    paths = [(f"file {f.role!r} pattern", f.pattern) for f in spec.files]
+    if spec.label.path:
+        paths.append(("label path", spec.label.path))
+    for what, rel in paths:
+        if _outside(rel):
+            raise DatasetSpecError(f"{spec.source_file}: {what} {rel!r} reads outside the dataset "
+                                   "folder; refused (allow it with --allow-outside-spec-dir)")
+
+
+def parse_dataset_spec(data: Any, source: str = "<dict>", *, allow_outside: bool = False) -> DatasetSpec:
+    """Validate a spec document (the YAML's content).
+
+    A file pattern or label path that leaves the dataset folder (absolute, ``~`` or ``..``, e.g.
+    ``../imu_{run}.csv``) is refused unless ``allow_outside`` (the CLI's
+    ``--allow-outside-spec-dir``): a spec from elsewhere must not read files outside the data.
+    """
     if not isinstance(data, dict):
         raise DatasetSpecError(f"{source}: a dataset spec must be a mapping")
     extra = set(data) - {"name", "description", "robot", "rate_hz", "span", "run_id", "files", "sides", "label"}
@@ -470,26 +494,30 @@ def parse_dataset_spec(data: Any, source: str = "<dict>") -> DatasetSpec:
     run_id = data.get("run_id")
     if run_id is not None and set(_FIELD.findall(str(run_id))) - fields:
         raise DatasetSpecError(f"{source}: run_id uses fields not in the first file's pattern {sorted(fields)}")
-    return DatasetSpec(name=str(data.get("name", Path(source).stem)), files=files,
+    spec = DatasetSpec(name=str(data.get("name", Path(source).stem)), files=files,
                        label=_label(data.get("label"), [f.role for f in files], fields, source), sides=sides,
                        robot=None if data.get("robot") is None else str(data["robot"]),
                        rate_hz=None if rate is None else float(rate), span=span,
                        run_id=None if run_id is None else str(run_id), source_file=source, doc=dict(data))
+    _check_inside(spec, allow_outside)
+    return spec
 
 
-def load_dataset_spec(spec: str | Path | DatasetSpec | dict) -> DatasetSpec:
-    """A spec: a built-in name (``borealtc``), a YAML path, a parsed dict or a DatasetSpec."""
+def load_dataset_spec(spec: str | Path | DatasetSpec | dict, *, allow_outside: bool = False) -> DatasetSpec:
+    """A spec: a built-in name (``borealtc``), a YAML path, a parsed dict or a DatasetSpec.
+
+    ``allow_outside``: accept patterns outside the dataset folder (:func:`parse_dataset_spec`)."""
     if isinstance(spec, DatasetSpec):
         return spec
     if isinstance(spec, dict):
-        return parse_dataset_spec(spec)
+        return parse_dataset_spec(spec, allow_outside=allow_outside)
     name = str(spec)
     if name in BUILTIN_SPECS:
         return parse_dataset_spec(read_builtin_yaml("terrainml.io", "datasets", name), f"{name}.yaml")
     path = Path(name)
     data = read_yaml_file(path, DatasetSpecError,
                           f"{path}: dataset spec not found (built-in: {', '.join(BUILTIN_SPECS)})")
-    spec_ = parse_dataset_spec(data, str(path))
+    spec_ = parse_dataset_spec(data, str(path), allow_outside=allow_outside)
     if spec_.robot is not None and not Path(spec_.robot).is_absolute() and spec_.robot.endswith((".yaml", ".yml")):
         spec_.robot = str(path.parent / spec_.robot)   # a robot spec next to the dataset spec
     return spec_

@@ -163,3 +163,32 @@ def test_cli_ingest_with_a_spec(dataset, tmp_path):
     assert df["wheel2_omega_radps"].iloc[5] == pytest.approx(0.6 / R_HUSKY)
     bad = CliRunner().invoke(app, ["ingest", str(root / "other.csv"), "--format", str(spec), "--out", str(out)])
     assert bad.exit_code == 2
+
+
+@pytest.mark.parametrize("pattern", ["../imu_{run}.parquet", "sub/../../imu_{run}.parquet",
+                                     "/tmp/imu_{run}.parquet", "~/imu_{run}.parquet"])
+def test_spec_reading_outside_its_folder_is_refused_unless_allowed(tmp_path, pattern):
+    """Issue 31, case 8: a spec's ``../imu_{run}.csv`` read outside the dataset folder silently."""
+    root = tmp_path / "data"
+    root.mkdir()
+    _write_run(root, "01", ["gravel"], imu=False)
+    _write_run(tmp_path, "01", ["gravel"])           # the IMU file one folder up
+    doc = yaml.safe_load(yaml.safe_dump(SPEC, sort_keys=False))
+    doc["files"]["imu"]["pattern"] = pattern
+    spec_path = root / "spec.yaml"
+    spec_path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    with pytest.raises(DatasetSpecError) as exc:
+        load_dataset_spec(spec_path)
+    assert str(exc.value) == (f"{spec_path}: file 'imu' pattern {pattern!r} reads outside the dataset "
+                              "folder; refused (allow it with --allow-outside-spec-dir)")
+    assert load_dataset_spec(spec_path, allow_outside=True).files[1].pattern == pattern
+    wheels = root / "wheels_01.csv"
+    res = CliRunner().invoke(app, ["ingest", str(wheels), "--format", str(spec_path), "--out",
+                                   str(tmp_path / "o.parquet")])
+    assert res.exit_code == 2 and "reads outside the dataset folder" in res.output
+    assert "Traceback" not in res.output
+    if pattern == "../imu_{run}.parquet":   # allowed: the IMU one folder up is read
+        res = CliRunner().invoke(app, ["ingest", str(wheels), "--format", str(spec_path), "--out",
+                                       str(tmp_path / "o.parquet"), "--allow-outside-spec-dir"])
+        assert res.exit_code == 0, res.output
+        assert read_run_parquet(tmp_path / "o.parquet")["imu_valid"].any()
