@@ -44,7 +44,8 @@ def ensure_model(model_dir: Path) -> Path:
     cli = [str(Path(sys.executable).with_name("terrainml"))]     # the venv's console script
     subprocess.run(cli + ["sim", "generate", "--runs-per-class", "5", "--duration-s", "60", "--seed",
                           str(MODEL_DATA_SEED), "--out", str(logs), "--n-jobs", "2"], check=True)
-    subprocess.run(cli + ["train", "--data", str(logs), "--out", str(model_dir), "--seed", "0",
+    subprocess.run(cli + ["train", "--data", str(logs), "--out", str(model_dir), "--seed", "0", "--windows", "short",
+                          "--model", "svm",
                           "--n-jobs", "2"], check=True)
     return model_dir
 

@@ -42,11 +42,19 @@ def train(
     data: Path = typer.Option(..., "--data", "-d", help="Windows Parquet (from `dataset build`) or a folder "
                               "of logs (the dataset is built first)."),
     out: Path = typer.Option(..., "--out", "-o", help="Model folder to create, e.g. runs/NAME."),
-    model: str = typer.Option("svm", "--model", "-m", help="svm, cnn, hgb, all (svm and cnn), an average "
-                              "such as svm+hgb, or several comma-separated."),
-    windows: str = typer.Option("short", "--windows", help="Window spec when --data is a folder: short "
-                                "(default), steady, "
+    model: str = typer.Option("auto", "--model", "-m", help="auto (default: svm, hgb and svm+hgb, chosen under "
+                              "nested run-grouped CV; auto,cnn adds the CNN), or svm, cnn, hgb, all (svm and "
+                              "cnn), an average such as svm+hgb, or several comma-separated (trains them all)."),
+    windows: str = typer.Option("auto", "--windows", help="Window spec when --data is a folder: auto (default: "
+                                "short, chunks, state and steady where the data feeds them, chosen with the "
+                                "model), several comma-separated to choose among, or short, steady, "
                                 "chunks (BorealTC authors' windows), state."),
+    budget_min: float = typer.Option(30.0, "--budget-min", help="Time budget of the selection, minutes: past "
+                                     "half of it after screening, only the best window spec gets its models."),
+    replay_s: float = typer.Option(30.0, "--replay-s", help="Seconds of every held-out run replayed through the "
+                                   "online predictor before the model is saved."),
+    allow_unproven: bool = typer.Option(False, "--allow-unproven", help="Save the selected model even when the "
+                                        "served replay of held-out runs classifies on too few moving ticks."),
     sensors: Optional[str] = typer.Option(None, "--sensors", help="Sensor groups the model may use, e.g. "
                                           "wheels,currents (of wheels, currents, imu, cam; default all). "
                                           "The served model checks health only on these."),
@@ -63,23 +71,33 @@ def train(
 ) -> None:
     """Cross-validate (grouped by run), train, report and save a terrain classifier.
 
+    By default (``--windows auto --model auto``) the window spec and the model are chosen on the
+    data under nested run-grouped CV, the held-out runs of every outer fold are replayed through
+    the online predictor, and the calibrated model is saved (``report.md`` shows every candidate).
+
+    Example: ``terrainml train --data ../shared/datasets/borealtc --format borealtc --out runs/boreal``
+
     Example: ``terrainml train --data data/windows.parquet --model svm --folds 5 --seed 0 --out runs/svm``
 
     Example (from logs, both models): ``terrainml train --data data/sim --model all --out runs/all``
     """
-    from terrainml.commands.dataset_cmds import parse_sensors, window_spec_from_options
-    from terrainml.pipeline.train import parse_models
+    from terrainml.commands.dataset_cmds import parse_sensors
     from terrainml.pipeline.train import train as do_train
 
-    try:
-        kinds = parse_models(model)
-        spec = window_spec_from_options(windows)
-    except ValueError as exc:
-        fail(f"--model/--windows: {exc}")
+    auto, kinds, spec = _train_mode(data, model, windows)
     if folds < 2:
         fail("--folds must be >= 2")
+    if not budget_min > 0:
+        fail("--budget-min must be > 0")
+    if not replay_s > 0:
+        fail("--replay-s must be > 0")
     check_n_jobs(n_jobs)
     check_output_writable(out, folder=True)
+    if auto:
+        _train_auto(data, out, model=model, windows=windows, sensors=sensors, folds=folds, seed=seed,
+                    n_jobs=n_jobs, preset=preset, robot=robot, fmt=fmt, budget_min=budget_min,
+                    allow_unproven=allow_unproven, replay_s=replay_s, quiet=quiet)
+        return
     try:
         ds = _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=dask_address,
                         fmt=fmt, quiet=quiet, spec=spec, sensors=parse_sensors(sensors))
@@ -116,6 +134,126 @@ def train(
         console.print(t)
         console.print(f"[green]wrote[/] {out} (served model: {res.default_model}; report {out / 'report.md'})",
                       highlight=False)
+
+
+def _train_mode(data: Path, model: str, windows: str):
+    """(selecting?, model kinds, window spec) of ``train``'s options; exits 2 on a bad one.
+
+    ``--model auto`` or several or ``auto`` window specs (of a folder: a windows file has its
+    spec already) select under nested CV; otherwise the single-spec path.
+    """
+    from terrainml.commands.dataset_cmds import window_spec_from_options
+    from terrainml.pipeline.select import candidate_specs, parse_auto_models
+    from terrainml.pipeline.train import parse_models
+
+    auto = "auto" in [m.strip() for m in model.split(",")] or (
+        (windows == "auto" or "," in windows) and not is_windows_file(data))
+    try:
+        if auto:
+            parse_auto_models(model)
+            for name in candidate_specs(windows):
+                window_spec_from_options(name)
+            return True, None, None
+        return False, parse_models(model), window_spec_from_options("short" if windows == "auto" else windows)
+    except ValueError as exc:
+        fail(f"--model/--windows: {exc}")
+
+
+def _load_tables(data: Path, *, robot, fmt: str, quiet: bool):
+    """(ingested run tables, RobotSpec) of a folder of logs or a BorealTC folder."""
+    from terrainml.commands._common import open_robot
+
+    if fmt == "borealtc":
+        from terrainml.io.borealtc import load_borealtc
+
+        rb = open_robot(robot or "husky")
+        tables, rep = load_borealtc(data, robot=rb)
+        if not quiet:
+            console.print(f"BorealTC: {rep.runs} runs, classes {rep.classes}; runs without IMU: "
+                          f"{len(rep.runs_without_imu)}; skipped: {len(rep.skipped)}", highlight=False)
+        return tables, rb
+    if fmt != "auto":
+        fail(f"unknown --format {fmt!r}; expected auto or borealtc")
+    from terrainml.io.ingest import load_run
+    from terrainml.pipeline.dataset import find_logs
+
+    rb = open_robot(robot)
+    tables, bad = [], []
+    for p in find_logs(data):
+        res = load_run(p, robot=rb)
+        if res.report.usable and len(res.table):
+            tables.append(res.table)
+        else:
+            bad.append(f"{p.name}: {'; '.join(res.report.errors) or 'no usable rows'}")
+    if bad:
+        console.print(f"[yellow]warning:[/] {len(bad)} log(s) unusable, left out: {'; '.join(bad[:5])}"
+                      + (" ..." if len(bad) > 5 else ""), highlight=False)
+    return tables, rb
+
+
+def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, folds: int, seed: int, n_jobs: int,
+                preset: str, robot, fmt: str, budget_min: float, allow_unproven: bool, replay_s: float,
+                quiet: bool) -> None:
+    """``train`` selecting the window spec and the model (``--windows auto`` / ``--model auto``)."""
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    from terrainml.commands.dataset_cmds import parse_sensors
+    from terrainml.pipeline.autotrain import ReplayRefused, train_auto
+
+    try:
+        if is_windows_file(data):
+            ds = open_dataset(data)
+            tables, rb, datasets = None, ds.robot, {ds.spec.name: ds}
+        else:
+            tables, rb = _load_tables(data, robot=robot, fmt=fmt, quiet=quiet)
+            datasets = None
+            if not tables:
+                fail(f"{data}: no usable run")
+        with Progress(SpinnerColumn(), TextColumn("[bold]train[/] {task.description}"), TimeElapsedColumn(),
+                      console=console, transient=True, disable=quiet) as progress:
+            task = progress.add_task("", total=None)
+
+            def say(msg: str) -> None:
+                if msg.startswith("warning:"):
+                    console.print(f"[yellow]warning:[/]{msg[len('warning:'):]}", highlight=False)
+                progress.update(task, description=msg)
+
+            res = train_auto(tables, rb, out, specs=windows, models=model, folds=folds, seed=seed, n_jobs=n_jobs,
+                             budget_min=budget_min, preset=preset, sensors=parse_sensors(sensors),
+                             allow_unproven=allow_unproven, segment_s=replay_s, datasets=datasets,
+                             progress=say)
+    except typer.Exit:
+        raise
+    except ReplayRefused as exc:
+        fail(f"{data}: refused: {exc}")
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+        fail(f"{data}: {type(exc).__name__}: {exc}")
+    if not quiet:
+        _print_selection(res, out)
+
+
+def _print_selection(res, out: Path) -> None:
+    sel = res.selection
+    t = Table(title=f"candidates: grouped {len(sel.partition)}-fold CV by run", title_justify="left")
+    for c in ("candidate", "balanced acc.", "chosen in outer folds"):
+        t.add_column(c, justify="left" if c == "candidate" else "right")
+    for c in sel.candidates:
+        cv = sel.cv.get(c.name)
+        t.add_row(c.name + (" *" if c == sel.chosen else ""),
+                  "screened out" if cv is None else f"{cv.summary['balanced_accuracy']['mean']:.3f}",
+                  str(sum(o["chosen"] == c.name for o in sel.outer)))
+    console.print(t)
+    pooled = res.replay_pooled or {}
+    replay = (f"; served replay of held-out runs: {100 * pooled['right_share']:.1f}% of "
+              f"{pooled['moving_ticks']} moving ticks right, {100 * pooled['fallback_share']:.1f}% fallback"
+              if pooled.get("moving_ticks") else "; served replay: not run")
+    console.print(f"chosen [bold]{sel.chosen.name}[/]; nested run-grouped balanced accuracy (honest) "
+                  f"{sel.honest['mean']:.3f} ± {sel.honest['std']:.3f}{replay}; temperature {sel.temperature:.2f}",
+                  highlight=False)
+    if res.refusal:
+        console.print(f"[yellow]warning:[/] {res.refusal} (saved anyway: --allow-unproven)", highlight=False)
+    console.print(f"[green]wrote[/] {out} (served model: {sel.chosen.name}; report {out / 'report.md'})",
+                  highlight=False)
 
 
 def _check_sensors(ds, sensors) -> None:

@@ -26,7 +26,7 @@ from joblib import Parallel, delayed
 from terrainml.evaluation.folds import check_groups_not_split, grouped_folds
 from terrainml.evaluation.metrics import classification_metrics, is_ordered, summarise_folds
 
-__all__ = ["cross_validate", "CVResult", "average_results"]
+__all__ = ["cross_validate", "CVResult", "average_results", "predict_held_out", "assemble_result"]
 
 #: columns of :meth:`CVResult.per_fold_frame`
 FOLD_COLUMNS = ("n_windows", "accuracy", "balanced_accuracy", "macro_f1", "adjacent_accuracy", "ece",
@@ -92,8 +92,9 @@ def _subset(X, idx):
     return X.subset(idx) if hasattr(X, "subset") else np.asarray(X)[idx]
 
 
-def _run_fold(factory: Callable[[], Any], X, y, groups, tr, te, fit_kwargs: dict):
-    """Fit on ``tr``, predict ``te``: (classes, proba or None, y_pred, fit s, predict s, best_params)."""
+def _run_fold(factory: Callable[[], Any], X, y, groups, tr, te, fit_kwargs: dict, keep_model: bool = False):
+    """Fit on ``tr``, predict ``te``: (classes, proba or None, y_pred, fit s, predict s, best_params)
+    plus the fitted model when ``keep_model``."""
     model = factory()
     Xtr, Xte = _subset(X, tr), _subset(X, te)
     t0 = time.perf_counter()
@@ -106,7 +107,8 @@ def _run_fold(factory: Callable[[], Any], X, y, groups, tr, te, fit_kwargs: dict
     else:  # e.g. the BorealTC authors' SVM recipe: labels only
         cls, proba, pred = None, None, np.asarray(model.predict(Xte))
     t2 = time.perf_counter()
-    return cls, proba, pred, t1 - t0, t2 - t1, dict(getattr(model, "best_params_", {}) or {})
+    out = (cls, proba, pred, t1 - t0, t2 - t1, dict(getattr(model, "best_params_", {}) or {}))
+    return (*out, model) if keep_model else out
 
 
 def _assemble(folds, y, classes, class_names, y_pred, proba, fold_info: Sequence[dict], table,
@@ -183,6 +185,66 @@ def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_sp
              "n_test_groups": int(len(np.unique(groups[te]))), "best_params": best}
             for (_, te), (*_, fit_s, pred_s, best) in zip(folds, results)]
     return _assemble(folds, y, classes, class_names, y_pred, proba, info, table, name)
+
+
+def predict_held_out(factory: Callable[[], Any], X, y, groups, splits, classes, *, n_jobs: int | None = 1,
+                     progress: Callable[[int, int], None] | None = None, keep: Sequence[bool] | None = None
+                     ) -> list[dict]:
+    """Fit a fresh model on the training part of every split and predict its held-out part.
+
+    Unlike :func:`cross_validate` the held-out parts of different splits may overlap (the
+    nested selection of :mod:`terrainml.pipeline.select` fits one model per pair of held-out
+    run groups); within one split no group is in both parts (checked).
+
+    Parameters
+    ----------
+    factory, X, y, groups : as in :func:`cross_validate`.
+    splits : list of (train_idx, test_idx).
+    classes : all classes; the probabilities' columns (a class the training part lacks gets 0).
+    n_jobs : joblib jobs over splits. progress : callback ``(splits done, n splits)``.
+    keep : per split, whether to return the fitted model (default: none).
+
+    Returns
+    -------
+    list of dict per split: ``proba`` (len(test_idx), K), ``fit_time_s``, ``predict_time_s``,
+    ``best_params``, ``model`` (the fitted model where ``keep``, else None).
+    """
+    y = np.asarray(y)
+    groups = np.asarray(groups)
+    for k, (tr, te) in enumerate(splits):
+        if set(groups[tr].tolist()) & set(groups[te].tolist()):
+            raise AssertionError(f"split {k}: runs (groups) in both train and test")
+    classes = np.asarray(classes)
+    col = {c: k for k, c in enumerate(classes.tolist())}
+    keep = [False] * len(splits) if keep is None else list(keep)
+    jobs = (delayed(_run_fold)(factory, X, y, groups, tr, te, {}, True) if kp else
+            delayed(_run_fold)(factory, X, y, groups, tr, te, {}) for (tr, te), kp in zip(splits, keep))
+    out: list[dict] = []
+    for (_, te), (cls_k, p, pred, fit_s, pred_s, best, *model) in zip(
+            splits, Parallel(n_jobs=n_jobs, return_as="generator")(jobs)):
+        if p is None:
+            raise ValueError("predict_held_out: the model has no predict_proba")
+        proba = np.zeros((len(te), len(classes)))
+        for j, c in enumerate(cls_k.tolist()):
+            proba[:, col[c]] = p[:, j]
+        out.append({"proba": proba, "fit_time_s": float(fit_s), "predict_time_s": float(pred_s),
+                    "best_params": best, "model": model[0] if model else None})
+        if progress is not None:
+            progress(len(out), len(splits))
+    return out
+
+
+def assemble_result(folds, y, classes, class_names, proba: np.ndarray, fold_info: Sequence[dict],
+                    table: Any = None, name: str = "") -> CVResult:
+    """A :class:`CVResult` from out-of-fold probabilities computed elsewhere (same metrics).
+
+    ``proba`` (n, K) has columns in ``classes`` order; ``fold_info`` holds per fold the entries
+    added to its metrics (``fit_time_s``, ``predict_time_s``, ``n_test_groups``, ``best_params``).
+    """
+    classes = np.asarray(classes)
+    y = np.asarray(y)
+    y_pred = classes[np.argmax(np.nan_to_num(proba, nan=0.0), axis=1)].astype(y.dtype)
+    return _assemble(folds, y, classes, class_names, y_pred, proba, fold_info, table, name)
 
 
 def average_results(results: Sequence[CVResult], name: str = "average", table: Any = None) -> CVResult:

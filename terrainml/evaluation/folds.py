@@ -11,6 +11,12 @@ a *group*, checked by :func:`check_groups_not_split`:
   on the chunks' labels and *not* grouped by run: every window follows its chunk, but chunks of
   one run fall into training and test, so neighbouring pieces of one drive are in both.
 
+* :func:`run_partition`: the runs themselves split into disjoint groups (stratified by the
+  run's class, weighted by its length), independent of any window spec, so that the candidates
+  of the nested selection (:mod:`terrainml.pipeline.select`), whose window specs keep different
+  windows of the same runs, are tested on the same runs; :func:`folds_of_partition` gives the
+  window folds of one spec.
+
 The same seed gives the same folds.
 """
 
@@ -21,7 +27,7 @@ from typing import Any
 import numpy as np
 from sklearn.model_selection import StratifiedGroupKFold, StratifiedKFold
 
-__all__ = ["grouped_folds", "chunk_folds", "check_groups_not_split"]
+__all__ = ["grouped_folds", "chunk_folds", "check_groups_not_split", "run_partition", "folds_of_partition"]
 
 
 def grouped_folds(y, groups, n_splits: int = 5, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -72,6 +78,51 @@ def chunk_folds(y, chunks, n_splits: int = 5, seed: int = 0) -> list[tuple[np.nd
         te = np.isin(chunks, ids[te_chunks])
         folds.append((np.flatnonzero(~te), np.flatnonzero(te)))
     return folds
+
+
+def run_partition(run_ids, run_classes, n_splits: int = 5, seed: int = 0,
+                  weights=None) -> list[np.ndarray]:
+    """The runs split into ``n_splits`` disjoint groups, stratified by class, seeded.
+
+    ``StratifiedGroupKFold(n_splits, shuffle=True, random_state=seed)`` over ``weights[i]``
+    copies of run ``i`` (e.g. its length in seconds; default 1 each), so the groups hold about
+    the same share of every class's driving time.
+
+    Parameters
+    ----------
+    run_ids : array (R,), distinct run ids. run_classes : array (R,), each run's class.
+    n_splits : int >= 2 (lowered to the runs of the class with the fewest, floor 2).
+    seed : int. weights : array (R,) of positive ints, or None.
+
+    Returns
+    -------
+    list of ``n_splits`` arrays of run ids (every run in exactly one).
+    """
+    ids = np.asarray(run_ids)
+    cls = np.asarray(run_classes)
+    if len(set(ids.tolist())) != len(ids):
+        raise ValueError("run_partition: run ids must be distinct")
+    w = np.ones(len(ids), dtype=np.int64) if weights is None else np.maximum(1, np.asarray(weights, dtype=np.int64))
+    per_class = min(int((cls == c).sum()) for c in np.unique(cls))
+    k = int(max(2, min(n_splits, per_class)))
+    if len(ids) < k:
+        raise ValueError(f"run_partition needs at least {k} runs, got {len(ids)}")
+    rep = np.repeat(np.arange(len(ids)), w)
+    cv = StratifiedGroupKFold(n_splits=k, shuffle=True, random_state=int(seed))
+    return [ids[np.unique(rep[te])] for _, te in cv.split(np.zeros(len(rep)), cls[rep], rep)]
+
+
+def folds_of_partition(groups, partition, held: list[int] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Window folds (train_idx, test_idx) of a run partition: fold ``d`` tests the windows of
+    partition group ``d`` and trains on the windows of the other groups in ``held`` (default all).
+
+    ``groups`` (n,) are the windows' run ids; windows of runs in no listed group are in neither part.
+    """
+    groups = np.asarray(groups)
+    held = list(range(len(partition))) if held is None else list(held)
+    member = {g: np.isin(groups, partition[g]) for g in held}
+    return [(np.flatnonzero(np.any([member[o] for o in held if o != d], axis=0)), np.flatnonzero(member[d]))
+            for d in held]
 
 
 def check_groups_not_split(folds, groups) -> None:

@@ -146,3 +146,87 @@ def write_report(out: str | Path, result: Any) -> dict:
     (out / "report.json").write_text(json.dumps(doc, indent=2, sort_keys=True, allow_nan=False) + "\n")
     (out / "report.md").write_text("\n".join(md) + "\n")
     return doc
+
+
+def _f(x: Any, digits: int = 3, scale: float = 1.0, suffix: str = "") -> str:
+    return "n/a" if x is None or not np.isfinite(x) else f"{scale * x:.{digits}f}{suffix}"
+
+
+def _selection_rows(sel: dict) -> list[list[str]]:
+    rows = []
+    for c in sel["candidates"]:
+        inner = ", ".join(_f(v) for v in c["inner_scores"])
+        cv = "n/a" if c["cv_balanced_accuracy"] is None else \
+            f"{c['cv_balanced_accuracy']:.3f} ± {c['cv_balanced_accuracy_std']:.3f}"
+        rows.append([("**" + c["candidate"] + "**") if c["candidate"] == sel["chosen"] else c["candidate"],
+                     "n/a" if c["n_windows"] is None else c["n_windows"], cv, _f(c["cv_pooled_balanced_accuracy"]),
+                     _f(c["cv_ece"]), inner, c["chosen_in_outer_folds"], c["screened"] or "-"])
+    return rows
+
+
+def selection_markdown(doc: dict) -> list[str]:
+    """Markdown of ``train --windows auto --model auto`` (:mod:`terrainml.pipeline.autotrain`):
+    every candidate side by side, the choice and why, the nested (honest) figure per outer
+    fold with ECE before and after calibration, and the served replay per fold."""
+    sel, rep = doc["selection"], doc.get("replay") or {}
+    K = len(sel["partition"])
+    scored = [c for c in sel["candidates"] if c["cv_balanced_accuracy"] is not None]
+    best = max(scored, key=lambda c: c["cv_balanced_accuracy"]) if scored else None
+    others = sorted((c for c in scored if c["candidate"] != sel["chosen"]), key=lambda c: -c["cv_balanced_accuracy"])
+    chosen = next(c for c in sel["candidates"] if c["candidate"] == sel["chosen"])
+    md = ["## Selection: window spec and model, nested run-grouped CV", "",
+          f"The runs are split into {K} groups (stratified by class, weighted by run length); every candidate "
+          f"is scored on the same runs. **Chosen: `{sel['chosen']}`**: the highest grouped {K}-fold CV balanced "
+          f"accuracy ({chosen['cv_balanced_accuracy']:.3f})"
+          + (f"; next `{others[0]['candidate']}` ({others[0]['cv_balanced_accuracy']:.3f})" if others else "")
+          + ".", "",
+          f"**Honest figure of this choice (nested CV): {sel['nested']['mean']:.3f} ± {sel['nested']['std']:.3f}** "
+          f"balanced accuracy: in outer fold k the choice is made again without group k (inner scores below) and "
+          f"its winner, fitted without group k, is scored on it"
+          + (f"; {100 * (sel['nested']['mean'] - best['cv_balanced_accuracy']):+.1f} points from the best "
+             f"candidate's CV figure" if best else "") + ".", "",
+          markdown_table(["candidate", "windows", f"CV bal. acc. (mean ± std, {K} folds)", "pooled", "ECE (raw)",
+                          "inner scores (outer fold 1..K)", "chosen in outer folds", "screened out"],
+                         _selection_rows(sel)), ""]
+    if sel.get("infeasible"):
+        md += ["Not candidates: " + "; ".join(f"`{s}`: {r}" for s, r in sel["infeasible"].items()) + ".", ""]
+    if sel.get("budget_note"):
+        md += [f"Time budget: {sel['budget_note']}.", ""]
+    md += ["### Outer folds (the honest figure) and calibration", "",
+           "The temperature of fold k is fitted on its winner's inner out-of-fold probabilities (never group k) "
+           "and applied to its predictions on group k; ECE before and after on those runs.", "",
+           markdown_table(["fold", "runs", "chosen", "inner score", "bal. acc.", "ECE before", "ECE after",
+                           "temperature"],
+                          [[o["fold"] + 1, len(o["runs"]), o["chosen"], _f(o["inner_score"]),
+                            _f(o["balanced_accuracy"]), _f(o["ece_before"]), _f(o["ece_after"]),
+                            _f(o["temperature"], 2)] for o in sel["outer"]]), "",
+           f"Served model: temperature {sel['temperature']:.2f}, fitted on the out-of-fold probabilities of all "
+           "runs (the fusion, the uncertain-class fallback and the safe cap read the calibrated values).", ""]
+    if rep.get("folds"):
+        fr = rep["folds"]
+        pooled = rep["pooled"]
+        md += ["### Served replay of the held-out runs", "",
+               f"Each outer fold's model, saved and loaded as `terrainml predict` loads it, serves a course of "
+               f"{rep['segment_s']:.0f} s of each of the fold's held-out runs (classes interleaved) tick by tick. "
+               "Right: the labelled class served on a moving tick (a fallback is never right).", "",
+               markdown_table(["fold", "runs", "moving ticks", "right %", "right % (3 s after changes left out)",
+                               "fallback %", "classifications / m", "median m to the right class after a change",
+                               "changes never served right"],
+                              [[f["fold"] + 1, f["runs"], f.get("moving_ticks", 0), _f(f.get("right_share"), 1, 100),
+                                _f(f.get("right_share_settled"), 1, 100), _f(f.get("fallback_share"), 1, 100),
+                                _f(f.get("classifications_per_m"), 2), _f(f.get("median_change_m"), 2),
+                                f.get("changes_never_right", "n/a")] for f in fr]
+                              + [["all", sum(f["runs"] for f in fr), pooled.get("moving_ticks", 0),
+                                  _f(pooled.get("right_share"), 1, 100), "", _f(pooled.get("fallback_share"), 1, 100),
+                                  _f(pooled.get("classifications_per_m"), 2), _f(pooled.get("median_change_m"), 2),
+                                  pooled.get("changes_never_right", "n/a")]]), ""]
+        if rep.get("refusal"):
+            md += [f"**Refused:** {rep['refusal']}" + (" (saved anyway: `--allow-unproven`)." if rep.get("overridden")
+                                                      else "; no model saved."), ""]
+    elif "replay" in doc:
+        md += ["### Served replay", "", "Not run (no run logs: trained from a windows file, or `--no-replay`).", ""]
+    if doc.get("timing_s"):
+        t = doc["timing_s"]
+        md += ["Time: " + ", ".join(f"{k.removesuffix('_s').replace('_', ' ')} {v / 60:.1f} min" for k, v in t.items())
+               + ".", ""]
+    return md

@@ -49,6 +49,7 @@ import skops.io as sio
 from terrainml import __version__
 from terrainml.features.windows import WindowSpec
 from terrainml.hashing import sha256_file
+from terrainml.models.calibration import CalibratedModel, Temperature
 from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.models.signing import (MANIFEST_NAME, SIGNATURE_NAME, PublicKeyLike, SignatureError,
                                       verify_artifact_signature)
@@ -173,7 +174,8 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
                   robot: RobotSpec, training_fingerprint: str, metrics_summary: dict | None = None,
                   default_model: str | None = None, preset: str = "robust",
                   attachments: Mapping[str, str] | None = None, extra: dict | None = None,
-                  sensors: Sequence[str] | None = None, feature_family: str | None = None) -> dict:
+                  sensors: Sequence[str] | None = None, feature_family: str | None = None,
+                  calibration: Mapping[str, dict] | None = None) -> dict:
     """Write models and attachments, then the manifest over all files.
 
     Parameters
@@ -196,6 +198,9 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
     sensors : sensor groups the models need (``wheels``, ``currents``, ``imu``, ``cam``); the
         predictor checks health only on those (None: all the robot has).
     feature_family : ``canonical`` or ``side_channel`` (design §8).
+    calibration : {model name: :meth:`~terrainml.models.calibration.Temperature.to_dict`}, stored
+        in that model's entry; :func:`load_artifact` then serves the model's probabilities
+        through it (:class:`~terrainml.models.calibration.CalibratedModel`).
 
     Other files already in ``directory`` (reports) are hashed into the manifest too; call
     :func:`write_manifest` again after adding files.
@@ -217,6 +222,8 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
                 raise ArtifactError(f"{directory}: average {name!r} must be named A+B after its members, "
                                     "each saved in the same folder")
             entry["members"] = members
+        if calibration and name in calibration:
+            entry["calibration"] = Temperature.from_dict(dict(calibration[name])).to_dict()
         entries[name] = entry
     for fname, text in (attachments or {}).items():
         if Path(fname).name != fname or fname == MANIFEST_NAME:
@@ -409,7 +416,7 @@ def _load_model(directory: Path, doc: dict, name: str, depth: int = 0) -> tuple[
     kind = entry.get("kind")
     if kind in ("svm", "hgb"):
         path = directory / next(f for f in entry["files"] if f.endswith(".skops"))
-        return kind, _load_skops(path)
+        return kind, _calibrated(mpath, name, entry, _load_skops(path))
     if kind == "cnn":
         try:
             from terrainml.models.cnn import CNNClassifier  # noqa: PLC0415 - torch, optional
@@ -417,16 +424,26 @@ def _load_model(directory: Path, doc: dict, name: str, depth: int = 0) -> tuple[
             raise ArtifactError(f"{mpath}: model {name!r} needs the CNN ({exc})") from None
         sub = directory / Path(entry["files"][0]).parent
         try:
-            return kind, CNNClassifier.load(sub)
+            return kind, _calibrated(mpath, name, entry, CNNClassifier.load(sub))
         except ValueError as exc:
             raise ArtifactError(str(exc)) from None
     if kind == "average" and depth == 0:
         members = [_load_model(directory, doc, m, depth + 1)[1] for m in entry.get("members", [])]
         try:
-            return kind, ProbabilityAverage.from_fitted(members)
+            return kind, _calibrated(mpath, name, entry, ProbabilityAverage.from_fitted(members))
         except ValueError as exc:
             raise ArtifactError(f"{mpath}: average {name!r}: {exc}") from None
     raise ArtifactError(f"{mpath}: unknown model kind {kind!r} for {name!r}")
+
+
+def _calibrated(mpath: Path, name: str, entry: dict, model: Any) -> Any:
+    """The model served through its manifest calibration, if the entry has one."""
+    if "calibration" not in entry:
+        return model
+    try:
+        return CalibratedModel(model, Temperature.from_dict(entry["calibration"]))
+    except ValueError as exc:
+        raise ArtifactError(f"{mpath}: model {name!r}: calibration: {exc}") from None
 
 
 def load_artifact(directory: str | Path, model: str | None = None, *,

@@ -1,0 +1,289 @@
+"""``terrainml train`` with ``--windows auto`` / ``--model auto``: select, prove, calibrate, save (issue #28).
+
+:func:`train_auto` takes the user's ingested runs and
+
+1. cuts them with every candidate window spec (:data:`~terrainml.pipeline.select.SELECT_SPECS`;
+   a spec that cannot be cut, or keeps too few windows of a class, is named and left out);
+2. selects the spec and the model under nested run-grouped CV (:func:`~terrainml.pipeline.
+   select.select`): the honest figure of the choice comes from outer folds it never saw;
+3. replays each outer fold's held-out runs through the online predictor, with that fold's model
+   saved as a model folder and loaded like ``terrainml predict`` loads one
+   (:mod:`terrainml.pipeline.replay`); a model whose replay classifies on too few moving ticks
+   is refused (:class:`ReplayRefused`, report written, no model saved) unless ``allow_unproven``;
+4. fits the chosen candidate on every window of its spec, with the temperature fitted on its
+   out-of-fold probabilities (:mod:`terrainml.models.calibration`), and saves it with the
+   report (every candidate side by side, the choice and why, per-fold replay, ECE before and
+   after calibration).
+
+The artifact keeps one served model per folder (its manifest entry carries its calibration);
+models for sensor subsets can be added as further entries of the same folder.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from tempfile import TemporaryDirectory
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from terrainml.evaluation.metrics import latency_per_window_ms
+from terrainml.evaluation.report import selection_markdown, write_report
+from terrainml.features.windows import window_spec
+from terrainml.models.artifacts import json_safe, save_artifact, write_manifest
+from terrainml.models.calibration import CalibratedModel, Temperature
+from terrainml.models.ensemble import ProbabilityAverage
+from terrainml.pipeline.dataset import Dataset, build_from_tables, dataset_channels
+from terrainml.pipeline.replay import (MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S, make_course, pooled_replay,
+                                       replay_course, replay_refusal)
+from terrainml.pipeline import train as train_lib  # make_factory read at call time
+from terrainml.pipeline.select import Selection, candidate_specs, select
+from terrainml.pipeline.train import (MIN_RUNS_PER_CLASS, TABLE_FILE, TrainResult, desired_slip_table_for,
+                                      feature_family)
+from terrainml.robot import RobotSpec
+
+__all__ = ["train_auto", "build_candidates", "AutoResult", "ReplayRefused", "DEFAULT_BUDGET_MIN"]
+
+#: ``--budget-min`` default
+DEFAULT_BUDGET_MIN = 30.0
+
+
+class ReplayRefused(RuntimeError):
+    """The served replay of the held-out runs does not prove the model (reason in the message)."""
+
+
+@dataclass
+class AutoResult:
+    """What :func:`train_auto` did: the selection, the replay per outer fold, the saved result."""
+
+    selection: Selection
+    replay: list
+    replay_pooled: dict
+    refusal: str
+    train: TrainResult | None
+    timing_s: dict = field(default_factory=dict)
+
+
+def build_candidates(tables: Sequence[pd.DataFrame], robot: RobotSpec, specs: str | Sequence[str] = "auto",
+                     preset: str = "robust", sensors: Sequence[str] | None = None, n_jobs: int = 1,
+                     progress: Callable[[str], None] | None = None) -> tuple[dict, dict]:
+    """({spec: Dataset}, {spec: why it cannot be cut}) of the runs for every candidate spec."""
+    say = progress or (lambda msg: None)
+    out, failed = {}, {}
+    for name in candidate_specs(specs):
+        say(f"windows: cutting the runs with the {name!r} spec")
+        try:
+            spec = window_spec(name)
+            if sensors is not None or spec.chunk_s is not None:
+                spec = replace(spec, channels=dataset_channels(robot, spec, sensors))
+            ds = build_from_tables(tables, robot, preset, spec, n_jobs=n_jobs)
+        except Exception as exc:  # noqa: BLE001 - a spec this robot cannot feed is a reported non-candidate
+            failed[name] = f"{type(exc).__name__}: {exc}"
+            continue
+        if len(ds.windows) == 0:
+            failed[name] = "no window passes its rules"
+            continue
+        out[name] = ds
+    return out, failed
+
+
+def _fit_final(ds: Dataset, model: str, seed: int, temperature: float, say) -> tuple[dict, dict, dict]:
+    """Fitted models to save ({name: model}), fit times and chosen parameters of the chosen model."""
+    W = ds.windows
+    fitted, times, params = {}, {}, {}
+    for base in model.split("+"):
+        say(f"final fit: {base} on {len(W)} windows")
+        m = train_lib.make_factory(base, ds, seed)()
+        t0 = time.perf_counter()
+        m.fit(W, W.y, groups=W.groups)
+        times[base] = time.perf_counter() - t0
+        params[base] = dict(getattr(m, "best_params_", {}) or {})
+        fitted[base] = m
+    if "+" in model:
+        fitted[model] = ProbabilityAverage.from_fitted([fitted[b] for b in model.split("+")])
+    return fitted, times, params
+
+
+def _save(out: Path, ds: Dataset, fitted: dict, served: str, temperature: float, table: Any,
+          extra: dict | None = None, metrics: dict | None = None) -> dict:
+    W = ds.windows
+    classes = sorted(set(W.y.tolist()))
+    names = _names(ds, classes)
+    return save_artifact(out, fitted, classes=classes, class_names=names, channels=W.channels, window_spec=ds.spec,
+                         robot=ds.robot, training_fingerprint=ds.fingerprint, metrics_summary=metrics or {},
+                         default_model=served, preset=ds.preset, sensors=ds.sensors,
+                         feature_family=feature_family(W.channels),
+                         attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
+                         extra=extra or {}, calibration={served: Temperature(temperature).to_dict()})
+
+
+def _names(ds: Dataset, classes: Sequence[int]) -> list[str]:
+    all_names = ds.windows.attrs.get("all_class_names")
+    own = dict(zip(ds.class_ids, ds.class_names))
+    return [str(all_names[c]) if all_names is not None and c < len(all_names) else own.get(c, str(c))
+            for c in classes]
+
+
+def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, say) -> list[dict]:
+    """Replay of every outer fold's held-out runs through its calibrated model, saved and loaded."""
+    out = []
+    by_id = {str(t["run_id"].iloc[0]): t for t in tables if len(t)}
+    for k, o in enumerate(sel.outer):
+        spec = o["chosen"].split("/")[0]
+        runs = [r for r in o["runs"] if r in by_id]
+        say(f"replay: fold {k + 1}/{len(sel.outer)}, {len(runs)} held-out runs through the online predictor")
+        if not runs:
+            out.append({"fold": k, "runs": 0, "moving_ticks": 0, "chosen": o["chosen"]})
+            continue
+        model = sel.outer_models[k]
+        fitted = {o["chosen"].split("/")[1]: model}
+        if isinstance(model, ProbabilityAverage):
+            fitted = {**dict(zip(o["chosen"].split("/")[1].split("+"), model.members_)), **fitted}
+        with TemporaryDirectory() as tmp:
+            _save(Path(tmp) / "m", data[spec], fitted, o["chosen"].split("/")[1], o["temperature"], table)
+            course = make_course([by_id[r] for r in runs], runs, segment_s=segment_s)
+            t0 = time.perf_counter()
+            res = replay_course(Path(tmp) / "m", course)
+        out.append({"fold": k, "chosen": o["chosen"], "runs": len(runs), **res,
+                    "replay_s": time.perf_counter() - t0})
+    return out
+
+
+def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str | Path, *,
+               specs: str | Sequence[str] = "auto", models: str | Sequence[str] = "auto", folds: int = 5,
+               seed: int = 0, n_jobs: int = 1, budget_min: float | None = DEFAULT_BUDGET_MIN,
+               preset: str = "robust", sensors: Sequence[str] | None = None, replay: bool = True,
+               segment_s: float = REPLAY_SEGMENT_S, allow_unproven: bool = False,
+               min_classified_share: float = MIN_CLASSIFIED_SHARE, datasets: dict | None = None,
+               progress: Callable[[str], None] | None = None) -> AutoResult:
+    """Select, validate on the served path, calibrate and save a model (see the module docstring).
+
+    Parameters
+    ----------
+    tables : ingested run tables (one per run, per-row ``terrain`` labels), or None with
+        ``datasets`` (e.g. a windows file: no other spec can be cut and nothing replayed).
+    robot : RobotSpec. out : model folder, created.
+    specs : ``auto`` or window spec names. models : ``auto`` (svm, hgb, svm+hgb) or model names.
+    folds : K run groups. seed : of the run partition and the models. n_jobs : joblib jobs.
+    budget_min : time budget, min (None: none); see :func:`~terrainml.pipeline.select.select`.
+    preset : estimation preset. sensors : sensor groups the model may use (None: all).
+    replay : replay the outer folds' held-out runs (needs ``tables``).
+    segment_s : s of every held-out run replayed. allow_unproven : save a model that the replay
+    refuses (the report says so). min_classified_share : the refusal threshold.
+    datasets : {spec: Dataset} already cut (then ``specs`` is not used).
+    progress : callback with a short message per step.
+
+    Returns
+    -------
+    AutoResult. Raises :class:`ReplayRefused` (after writing the report) when the replay refuses
+    the model and ``allow_unproven`` is False.
+    """
+    say = progress or (lambda msg: None)
+    out = Path(out)
+    t0 = time.perf_counter()
+    if datasets is not None:
+        data, failed = dict(datasets), {}
+    else:
+        data, failed = build_candidates(tables, robot, specs, preset, sensors, n_jobs, say)
+    if not data:
+        raise ValueError("no window spec can be cut from these runs: " +
+                         "; ".join(f"{s}: {r}" for s, r in failed.items()))
+    t_windows = time.perf_counter() - t0
+    first = next(iter(data.values()))
+    table = desired_slip_table_for(first, robot)
+    budget_s = None if budget_min is None else 60.0 * float(budget_min)
+    sel = select(data, models, folds=folds, seed=seed, n_jobs=n_jobs, budget_s=budget_s, table=table,
+                 progress=say)
+    sel.infeasible = {**failed, **sel.infeasible}
+    t_sel = time.perf_counter() - t0 - t_windows
+    replay = replay and tables is not None
+    folds_replay = _replay_folds(sel, data, tables, table, segment_s, say) if replay else []
+    pooled = pooled_replay([f for f in folds_replay if f.get("moving_ticks")]) if folds_replay else {}
+    refusal = replay_refusal(pooled, min_classified_share) if replay else ""
+    t_replay = time.perf_counter() - t0 - t_windows - t_sel
+    ds = data[sel.chosen.spec]
+    res_doc = {"selection": _selection_doc(sel), "replay": {"folds": folds_replay, "pooled": pooled,
+                                                             "refusal": refusal, "overridden": bool(refusal and
+                                                                                                    allow_unproven),
+                                                             "segment_s": segment_s,
+                                                             "min_classified_share": min_classified_share}}
+    if refusal and not allow_unproven:
+        out.mkdir(parents=True, exist_ok=True)
+        _write_docs(out, None, res_doc, sel)
+        raise ReplayRefused(f"{refusal}; not saved (report: {out / 'report.md'}); "
+                            "override with --allow-unproven")
+    fitted, times, params = _fit_final(ds, sel.chosen.model, seed, sel.temperature, say)
+    served = sel.chosen.model
+    cal = CalibratedModel(fitted[served], Temperature(sel.temperature))
+    lat = latency_per_window_ms(cal, ds.windows, n_calls=min(200, max(20, len(ds.windows))))
+    timing = {"windows_s": t_windows, "select_s": t_sel, "replay_s": t_replay,
+              "final_fit_s": float(sum(times.values())), "total_s": time.perf_counter() - t0}
+    cv = sel.cv[sel.chosen.name]
+    cv.name = served
+    tr = TrainResult(out, {served: {"cv": cv, "fit_time_s": float(sum(times.values())), "latency": lat,
+                                    "params": params if len(params) > 1 else next(iter(params.values()))}},
+                     served, sel.class_ids, sel.class_names, len(sel.partition), seed, _summary(ds, sel), None,
+                     fitted={served: cal})
+    _save(out, ds, fitted, served, sel.temperature, table,
+          extra={"folds": len(sel.partition), "seed": seed, "n_windows": len(ds.windows),
+                 "latency_ms": {served: lat}, "selection": {"chosen": sel.chosen.name,
+                                                           "nested_balanced_accuracy": sel.honest}},
+          metrics={served: cv.summary})
+    res_doc["timing_s"] = timing
+    _write_docs(out, tr, res_doc, sel)
+    tr.manifest = write_manifest(out)
+    return AutoResult(sel, folds_replay, pooled, refusal, tr, timing)
+
+
+def _summary(ds: Dataset, sel: Selection) -> dict:
+    W = ds.windows
+    classes = sorted(set(W.y.tolist()))
+    names = _names(ds, classes)
+    runs = ds.runs[ds.runs["run_class"] >= 0]
+    per = runs.groupby("run_class").size().to_dict()
+    name_of = dict(zip(classes, names))
+    excluded = [{"class": name_of.get(int(c), str(c)), "runs": int(n),
+                 "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: grouped CV cannot test it on an unseen run; "
+                           "excluded from the CV mean"} for c, n in per.items() if n < MIN_RUNS_PER_CLASS]
+    return {"n_runs": int(len(np.unique(W.groups))), "n_windows": int(len(W)),
+            "windows_per_class": {n: int((W.y == c).sum()) for c, n in zip(classes, names)},
+            "runs_per_class": {name_of.get(int(c), str(c)): int(n) for c, n in per.items()},
+            "excluded_classes": excluded, "feature_family": feature_family(W.channels), "sensors": ds.sensors,
+            "window_spec": ds.spec.name, "robot": ds.robot.name, "preset": ds.preset, "channels": list(W.channels),
+            "fingerprint": ds.fingerprint, "rejections": ds.counts}
+
+
+def _selection_doc(sel: Selection) -> dict:
+    rows = []
+    for c in sel.candidates:
+        cv = sel.cv.get(c.name)
+        inner = [lv.scores.get(c.name) for lv in sel.inner]
+        rows.append({"candidate": c.name, "spec": c.spec, "model": c.model,
+                     "cv_balanced_accuracy": None if cv is None else cv.summary["balanced_accuracy"]["mean"],
+                     "cv_balanced_accuracy_std": None if cv is None else cv.summary["balanced_accuracy"]["std"],
+                     "cv_pooled_balanced_accuracy": None if cv is None else cv.pooled["balanced_accuracy"],
+                     "cv_ece": None if cv is None else cv.pooled.get("ece"),
+                     "n_windows": None if cv is None else int(len(cv.y_true)),
+                     "inner_scores": inner, "chosen_in_outer_folds": sum(o["chosen"] == c.name for o in sel.outer),
+                     "screened": sel.top.screened.get(c.spec, "")})
+    return json_safe({"candidates": rows, "chosen": sel.chosen.name, "infeasible": sel.infeasible,
+                      "nested": sel.honest, "outer": sel.outer, "temperature": sel.temperature,
+                      "screen_scores": {"top": sel.top.screen_scores,
+                                        "inner": [lv.screen_scores for lv in sel.inner]},
+                      "partition": [list(map(str, p)) for p in sel.partition], "timing_s": sel.timing_s,
+                      "budget_note": sel.budget_note})
+
+
+def _write_docs(out: Path, tr: TrainResult | None, doc: dict, sel: Selection) -> None:
+    """report.md/json: the chosen model's sections (when saved) and the selection, replay, calibration."""
+    base = write_report(out, tr) if tr is not None else {}
+    full = json_safe({**base, **doc, "nested_balanced_accuracy": sel.honest["mean"],
+                      "nested_balanced_accuracy_std": sel.honest["std"], "chosen": sel.chosen.name})
+    (out / "report.json").write_text(json.dumps(full, indent=2, sort_keys=True, allow_nan=False) + "\n")
+    md = (out / "report.md").read_text().splitlines() if tr is not None else [f"# Training report: {out.name}", ""]
+    head, rest = md[:2], md[2:]
+    (out / "report.md").write_text("\n".join(head + selection_markdown(full) + rest) + "\n")

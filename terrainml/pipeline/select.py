@@ -1,0 +1,467 @@
+"""Nested run-grouped selection of the window spec and the model on the user's own data (issue #28).
+
+``terrainml train`` with ``--windows auto`` and ``--model auto`` (the defaults) does not trust
+settings chosen on the simulator: it scores every *candidate* (a window spec that the data can
+feed x a model: ``svm``, ``hgb``, their average ``svm+hgb``; the CNN when asked) on the user's
+runs and keeps the best, and it says how good that choice is on runs the choosing never saw.
+
+Folds. The runs are split once into K groups (:func:`~terrainml.evaluation.folds.run_partition`,
+stratified by class, weighted by run length), the same runs for every spec. A *level* is a set
+``H`` of groups; a candidate's score at ``H`` is the mean over ``d`` in ``H`` of the balanced
+accuracy on the windows of group ``d`` of a model fitted on the groups ``H - {d}``.
+
+* Top level ``H`` = all K groups: the ordinary grouped K-fold CV of every candidate (its
+  figures in ``report.md``); the best one is the saved model.
+* Level ``k`` (``H`` = all groups but ``k``): the same choice made without group ``k``. Its
+  winner, fitted on the K - 1 groups, is scored on group ``k``: the *outer* figure. The mean
+  over k is the honest figure of the whole procedure (nested CV): choosing is never scored on
+  its own test runs. A model fitted on ``K - 2`` groups serves two levels (it is tested on each
+  of the two groups it left out for the level of the other), so nested CV costs K (K - 1) / 2
+  inner fits per candidate, not K (K - 1).
+
+Screening. At every level, each spec is first scored with a cheap screening model (boosted
+trees of :data:`SCREEN_TREES` trees at learning rate :data:`SCREEN_LEARNING_RATE` on the spec's
+features, computed once per spec); the candidate models are fitted only for the specs within
+:data:`SCREEN_MARGIN` of that level's best spec (a level decides from its own scores, so
+screening is as honest as the choice). A spec whose
+windows miss a class, or keep fewer than :data:`MIN_WINDOWS_PER_CLASS` of one, is not a
+candidate (the reason is reported).
+
+Calibration (:mod:`terrainml.models.calibration`). At level ``k`` the winner's out-of-fold
+probabilities (its inner predictions: never group ``k``) fit a temperature, applied to its
+outer predictions on group ``k``: the ECE before and after on runs the calibration never saw.
+The saved model's temperature is fitted on the top level's out-of-fold probabilities.
+
+Scores of different specs are over different windows of the same runs (a ``steady`` spec keeps
+only cruising windows); the served replay of :mod:`terrainml.pipeline.replay` compares them on
+every tick.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+from sklearn.base import clone
+from sklearn.metrics import balanced_accuracy_score
+from sklearn.preprocessing import FunctionTransformer
+
+from terrainml.evaluation.cv import assemble_result, predict_held_out
+from terrainml.evaluation.folds import folds_of_partition, run_partition
+from terrainml.evaluation.metrics import expected_calibration_error
+from terrainml.models.calibration import Temperature
+from terrainml.models.ensemble import ProbabilityAverage
+from terrainml.models.trees import BoostedTrees
+from terrainml.pipeline.dataset import Dataset
+from terrainml.pipeline import train as train_lib  # make_factory read at call time
+from terrainml.pipeline.train import MIN_RUNS_PER_CLASS, parse_models
+
+__all__ = ["Candidate", "Level", "Selection", "select", "candidate_specs", "AUTO_MODELS", "SELECT_SPECS",
+           "SCREEN_TREES", "SCREEN_MARGIN", "MIN_WINDOWS_PER_CLASS", "parse_auto_models", "spec_feasibility"]
+
+#: window specs tried by ``--windows auto`` (those the data can feed)
+SELECT_SPECS = ("short", "chunks", "state", "steady")
+#: models tried by ``--model auto``
+AUTO_MODELS = ("svm", "hgb", "svm+hgb")
+#: the screening model: boosted trees this small on features computed once per spec
+SCREEN_TREES = 40
+SCREEN_LEARNING_RATE = 0.25
+SCREEN = "screen"
+#: the other models are fitted for the specs within this much balanced accuracy of the best
+SCREEN_MARGIN = 0.03
+#: a spec keeping fewer windows of a class (or that class in fewer runs than
+#: :data:`~terrainml.pipeline.train.MIN_RUNS_PER_CLASS`) is not a candidate
+MIN_WINDOWS_PER_CLASS = 30
+
+
+def parse_auto_models(spec: str | Sequence[str]) -> list[str]:
+    """``auto`` -> :data:`AUTO_MODELS`; ``auto,cnn`` adds the CNN; else :func:`parse_models`."""
+    items = [m.strip() for m in (spec.split(",") if isinstance(spec, str) else spec) if m.strip()]
+    out: list[str] = []
+    for m in items:
+        out += list(AUTO_MODELS) if m == "auto" else [m]
+    return parse_models(out)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A window spec and a model (``svm``, ``hgb``, ``cnn`` or an average ``A+B``)."""
+
+    spec: str
+    model: str
+
+    @property
+    def name(self) -> str:
+        return f"{self.spec}/{self.model}"
+
+    @property
+    def bases(self) -> tuple[str, ...]:
+        return tuple(self.model.split("+"))
+
+
+@dataclass
+class Level:
+    """The choice made at one level (a set of run groups).
+
+    Attributes
+    ----------
+    held : run-group indices of the level. scores : candidate name -> mean balanced accuracy
+    over the level's held-out groups. per_group : name -> {group: balanced accuracy}.
+    screened : spec -> why its models were not fitted at this level. screen_scores : spec ->
+    the screening model's score. chosen : name.
+    """
+
+    held: tuple[int, ...]
+    scores: dict = field(default_factory=dict)
+    per_group: dict = field(default_factory=dict)
+    screened: dict = field(default_factory=dict)
+    screen_scores: dict = field(default_factory=dict)
+    chosen: str = ""
+
+
+@dataclass
+class Selection:
+    """What :func:`select` measured (the input of the report and of the saved model).
+
+    Attributes
+    ----------
+    candidates : every candidate of a feasible spec, in order. infeasible : spec -> reason.
+    partition : K arrays of run ids. top : the top-level Level (the saved model's choice).
+    inner : K Levels, level k without group k. outer : per outer fold k a dict (``chosen``,
+    ``balanced_accuracy``, ``ece_before``, ``ece_after``, ``temperature``, ``n_windows``,
+    ``runs``). honest : {mean, std} of the outer balanced accuracy. cv : candidate name ->
+    CVResult of the top level (the report's side-by-side figures; screened-out ones absent).
+    chosen : Candidate. temperature : float, of the saved model. class_ids / class_names : of
+    the CV. timing_s : seconds per stage. budget_note : what the time budget skipped ("" none).
+    outer_models : per outer fold k, the level-k winner fitted without group k (uncalibrated;
+    its temperature is ``outer[k]["temperature"]``), for the served replay.
+    """
+
+    candidates: list
+    infeasible: dict
+    partition: list
+    top: Level
+    inner: list
+    outer: list
+    honest: dict
+    cv: dict
+    chosen: Candidate
+    temperature: float
+    class_ids: list
+    class_names: list
+    timing_s: dict = field(default_factory=dict)
+    budget_note: str = ""
+    outer_models: list = field(default_factory=list)
+
+
+def candidate_specs(names: str | Sequence[str]) -> list[str]:
+    """``auto`` -> :data:`SELECT_SPECS`; else the comma-separated spec names."""
+    items = [s.strip() for s in (names.split(",") if isinstance(names, str) else names) if s.strip()]
+    out: list[str] = []
+    for s in items:
+        out += list(SELECT_SPECS) if s == "auto" else [s]
+    return list(dict.fromkeys(out))
+
+
+def spec_feasibility(ds: Dataset, cv_classes: Sequence[int], names: Mapping[int, str]) -> str:
+    """"" when the spec's windows can be a candidate, else why not (class, windows, runs named)."""
+    W = ds.windows
+    for c in cv_classes:
+        m = W.y == c
+        n, runs = int(m.sum()), len(set(W.groups[m].tolist()))
+        if n < MIN_WINDOWS_PER_CLASS or runs < MIN_RUNS_PER_CLASS:
+            return (f"keeps {n} window(s) of {names[c]} in {runs} run(s) (needs >= {MIN_WINDOWS_PER_CLASS} "
+                    f"in >= {MIN_RUNS_PER_CLASS} runs)")
+    return ""
+
+
+def _bal_acc(y, p, classes) -> float:
+    with warnings.catch_warnings():  # a prediction of a class this group lacks
+        warnings.simplefilter("ignore")
+        return float(balanced_accuracy_score(y, classes[np.argmax(p, axis=1)]))
+
+
+class _Fits:
+    """Held-out probabilities of (spec, base model, training groups), fitted once each."""
+
+    def __init__(self, data: Mapping[str, Dataset], partition: list, classes: np.ndarray, seed: int,
+                 n_jobs: int, progress: Callable[[str], None]):
+        self.data = dict(data)
+        self.partition = partition
+        self.classes = classes
+        self.seed = seed
+        self.n_jobs = n_jobs
+        self.say = progress
+        self.gidx = {}
+        for s, ds in self.data.items():
+            g = np.full(len(ds.windows), -1, dtype=np.int64)
+            for k, runs in enumerate(partition):
+                g[np.isin(ds.windows.groups, runs)] = k
+            self.gidx[s] = g
+        self.proba: dict[tuple, np.ndarray] = {}
+        self.info: dict[tuple, dict] = {}
+        self.models: dict[tuple, Any] = {}  # fitted on K - 1 groups: the outer folds' models
+        self._features: dict[str, np.ndarray] = {}
+        self.n_fits = 0
+        self.fit_s = 0.0
+
+    def ensure(self, keys: Sequence[tuple]) -> None:
+        """Fit every missing (spec, base, frozenset of training groups)."""
+        todo = [k for k in dict.fromkeys(keys) if k not in self.proba]
+        by_model: dict[tuple, list] = {}
+        for k in todo:
+            by_model.setdefault(k[:2], []).append(k)
+        for (spec, base), ks in by_model.items():
+            ds = self.data[spec]
+            W, g = ds.windows, self.gidx[spec]
+            splits, use = [], []
+            for k in ks:
+                tr = np.flatnonzero(np.isin(g, sorted(k[2])))
+                te = np.flatnonzero((g >= 0) & ~np.isin(g, sorted(k[2])))
+                if len(np.unique(W.y[tr])) < 2 or len(te) == 0:
+                    self.proba[k] = np.full((len(W), len(self.classes)), np.nan)
+                    continue
+                splits.append((tr, te))
+                use.append(k)
+            if not splits:
+                continue
+            t0 = time.perf_counter()
+            X, factory = self._inputs(spec, base)
+            keep = [base != SCREEN and len(k[2]) == len(self.partition) - 1 for k in use]
+            res = predict_held_out(factory, X, W.y, W.groups, splits, self.classes, n_jobs=self.n_jobs, keep=keep,
+                                   progress=lambda i, n: self.say(f"{spec}/{base}: fit {i}/{n}"))
+            self.fit_s += time.perf_counter() - t0
+            for k, (_, te), r in zip(use, splits, res):
+                if r["model"] is not None:
+                    self.models[k] = r["model"]
+                P = np.full((len(W), len(self.classes)), np.nan)
+                P[te] = r["proba"]
+                self.proba[k] = P
+                self.info[k] = {key: r[key] for key in ("fit_time_s", "predict_time_s", "best_params")}
+            self.n_fits += len(splits)
+
+    def _inputs(self, spec: str, base: str) -> tuple[Any, Callable[[], Any]]:
+        """(X, factory): raw windows and the model's factory, or for the screening model the
+        spec's features (computed once, by the trees' own feature family) and small trees."""
+        ds = self.data[spec]
+        if base != SCREEN:
+            return ds.windows, train_lib.make_factory(base, ds, self.seed, n_jobs=1 if self.n_jobs != 1 else None)
+        if spec not in self._features:
+            self.say(f"{spec}: features of {len(ds.windows)} windows")
+            feats = clone(train_lib.make_factory("hgb", ds, self.seed)().features)
+            self._features[spec] = np.asarray(feats.fit(ds.windows).transform(ds.windows), dtype=float)
+        seed = self.seed
+        return self._features[spec], lambda: BoostedTrees(FunctionTransformer(), max_iter=SCREEN_TREES,
+                                                          learning_rate=SCREEN_LEARNING_RATE, random_state=seed)
+
+    def keys(self, spec: str, model: str, held: Sequence[int]) -> list[tuple]:
+        return [(spec, b, frozenset(held) - {d}) for b in model.split("+") for d in held]
+
+    def proba_of(self, spec: str, model: str, train_groups: frozenset) -> np.ndarray:
+        return np.mean([self.proba[(spec, b, train_groups)] for b in model.split("+")], axis=0)
+
+    def level_score(self, cand: Candidate, held: Sequence[int]) -> tuple[float, dict]:
+        W, g = self.data[cand.spec].windows, self.gidx[cand.spec]
+        per = {}
+        for d in held:
+            P = self.proba_of(cand.spec, cand.model, frozenset(held) - {d})
+            idx = np.flatnonzero(g == d)
+            idx = idx[np.isfinite(P[idx]).all(axis=1)] if len(idx) else idx
+            if len(idx):
+                per[int(d)] = _bal_acc(W.y[idx], P[idx], self.classes)
+        return (float(np.mean(list(per.values()))) if per else float("nan")), per
+
+    def oof(self, cand: Candidate, held: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+        """Out-of-fold (labels, probabilities) of a candidate at a level (windows of its groups)."""
+        W, g = self.data[cand.spec].windows, self.gidx[cand.spec]
+        ys, ps = [], []
+        for d in held:
+            P = self.proba_of(cand.spec, cand.model, frozenset(held) - {d})
+            idx = np.flatnonzero(g == d)
+            idx = idx[np.isfinite(P[idx]).all(axis=1)] if len(idx) else idx
+            ys.append(W.y[idx])
+            ps.append(P[idx])
+        return np.concatenate(ys), np.concatenate(ps)
+
+
+def _cv_classes(ds: Dataset) -> tuple[np.ndarray, dict, dict]:
+    """(classes tested under grouped CV, runs per class, class id -> name) from the runs table."""
+    runs = ds.runs
+    lab = runs[(runs["run_class"] >= 0) & (runs["n_rows"] > 0)] if len(runs) else runs
+    per = lab.groupby("run_class").size().to_dict() if len(lab) else {}
+    all_names = ds.windows.attrs.get("all_class_names")
+    names = {int(c): (str(all_names[int(c)]) if all_names is not None and int(c) < len(all_names)
+                      else dict(zip(ds.class_ids, ds.class_names)).get(int(c), str(c))) for c in per}
+    cv = np.asarray(sorted(int(c) for c, n in per.items() if n >= MIN_RUNS_PER_CLASS), dtype=np.int64)
+    return cv, {int(c): int(n) for c, n in per.items()}, names
+
+
+def _restrict(ds: Dataset, classes: np.ndarray, runs: np.ndarray) -> Dataset:
+    W = ds.windows
+    keep = np.isin(W.y, classes) & np.isin(W.groups, runs)
+    if keep.all():
+        return ds
+    return Dataset(W.subset(np.flatnonzero(keep)), ds.runs, ds.counts, ds.robot, ds.spec, ds.preset,
+                   ds.class_ids, ds.class_names, ds.class_report)
+
+
+def _screen(fits: _Fits, level: Level, specs: Sequence[str], screen: str, limit_one: bool) -> list[str]:
+    """The specs whose other models are fitted at this level (the others named in ``screened``)."""
+    s1 = {s: fits.level_score(Candidate(s, screen), level.held)[0] for s in specs}
+    level.screen_scores = dict(s1)
+    fin = {s: v for s, v in s1.items() if np.isfinite(v)}
+    if not fin:
+        return []
+    best = max(fin, key=lambda s: (fin[s], -specs.index(s)))
+    keep = [s for s in specs if s in fin and fin[s] >= fin[best] - SCREEN_MARGIN]
+    for s in specs:
+        if s not in keep:
+            level.screened[s] = (f"{screen} scored {s1[s]:.3f}, more than {SCREEN_MARGIN:.2f} below the "
+                                 f"best spec ({best}: {fin[best]:.3f})")
+        elif limit_one and s != best:
+            level.screened[s] = "time budget: only the best spec's other models were fitted"
+    return [best] if limit_one else keep
+
+
+def _choose(fits: _Fits, level: Level, cands: Sequence[Candidate]) -> None:
+    """Score every fitted candidate of the level and choose the best (ties: candidate order)."""
+    for c in cands:
+        if c.spec in level.screened:
+            continue
+        level.scores[c.name], level.per_group[c.name] = fits.level_score(c, level.held)
+    fin = {n: v for n, v in level.scores.items() if np.isfinite(v)}
+    order = list(level.scores)
+    level.chosen = max(fin, key=lambda n: (fin[n], -order.index(n))) if fin else ""
+
+
+def _top_cv(fits: _Fits, top: Level, cands: Sequence[Candidate], names: list, table: Any) -> dict:
+    """CVResults of the top level's candidates (the ordinary grouped K-fold figures)."""
+    out = {}
+    for c in cands:
+        if c.name not in top.scores:
+            continue
+        W = fits.data[c.spec].windows
+        folds = folds_of_partition(W.groups, fits.partition, list(top.held))
+        P = np.zeros((len(W), len(fits.classes)))
+        info = []
+        for d, (_, te) in zip(top.held, folds):
+            key_set = frozenset(top.held) - {d}
+            P[te] = fits.proba_of(c.spec, c.model, key_set)[te]
+            parts = [fits.info.get((c.spec, b, key_set), {}) for b in c.bases]
+            info.append({"fit_time_s": float(sum(p.get("fit_time_s", 0.0) for p in parts)),
+                         "predict_time_s": float(sum(p.get("predict_time_s", 0.0) for p in parts)),
+                         "n_test_groups": int(len(np.unique(W.groups[te]))),
+                         "best_params": parts[0].get("best_params", {}) if len(parts) == 1 else {}})
+        done = np.isfinite(P).all(axis=1)
+        folds = [(tr[done[tr]], te[done[te]]) for tr, te in folds]
+        out[c.name] = assemble_result(folds, W.y, fits.classes, names, np.nan_to_num(P), info, table, c.name)
+    return out
+
+
+def select(data: Mapping[str, Dataset], models: Sequence[str] = AUTO_MODELS, folds: int = 5, seed: int = 0,
+           n_jobs: int = 1, budget_s: float | None = None, table: Any = None,
+           progress: Callable[[str], None] | None = None) -> Selection:
+    """Nested run-grouped selection of a window spec and a model (see the module docstring).
+
+    Parameters
+    ----------
+    data : spec name -> Dataset of the same runs (cut with that spec), in the order of preference
+        on ties.
+    models : model names (:func:`parse_auto_models`). folds : K, run groups. seed : of the
+        partition and the models. n_jobs : joblib jobs over fits.
+    budget_s : s or None. Past it after screening, only the best spec of every level gets its
+        other models (said in ``budget_note``).
+    table : desired-slip table for the report's slip error (or None).
+    progress : callback with a short message per step.
+
+    Returns
+    -------
+    Selection
+    """
+    say = progress or (lambda msg: None)
+    t_start = time.perf_counter()
+    first = next(iter(data.values()))
+    classes, runs_per_class, names = _cv_classes(first)
+    if len(classes) < 2:
+        raise ValueError(f"grouped CV needs at least 2 classes with >= {MIN_RUNS_PER_CLASS} runs; runs per "
+                         f"class: { {names[c]: n for c, n in runs_per_class.items()} }; record more runs")
+    runs = first.runs[first.runs["run_class"].isin(classes.tolist()) & (first.runs["n_rows"] > 0)]
+    rate = float(first.spec.rate_hz)
+    partition = run_partition(runs["run_id"].astype(str).to_numpy(), runs["run_class"].to_numpy(), folds, seed,
+                              weights=np.round(runs["n_rows"].to_numpy() / rate).astype(np.int64))
+    run_ids = np.concatenate(partition)
+    infeasible, feasible = {}, {}
+    for s, ds in data.items():
+        d = _restrict(ds, classes, run_ids)
+        why = spec_feasibility(d, classes.tolist(), names)
+        if why:
+            infeasible[s] = why
+            say(f"{s}: not a candidate ({why})")
+        else:
+            feasible[s] = d
+    if not feasible:
+        raise ValueError("no window spec keeps enough windows of every class: " +
+                         "; ".join(f"{s}: {r}" for s, r in infeasible.items()))
+    models = parse_auto_models(models)
+    screen = SCREEN
+    cands = [Candidate(s, m) for s in feasible for m in models]
+    K = len(partition)
+    fits = _Fits(feasible, partition, classes, seed, n_jobs, say)
+    top = Level(tuple(range(K)))
+    inner = [Level(tuple(d for d in range(K) if d != k)) for k in range(K)]
+    levels = [top, *inner]
+    if len(feasible) > 1:  # one spec: nothing to screen
+        fits.ensure([k for lv in levels for s in feasible for k in fits.keys(s, screen, lv.held)])
+    t_screen = time.perf_counter() - t_start
+    over = budget_s is not None and t_screen > 0.5 * budget_s
+    note = (f"screening took {t_screen / 60:.1f} min, over half the {budget_s / 60:.0f}-min budget: only the "
+            "best spec of every level got its other models") if over else ""
+    specs = list(feasible)
+    fits.ensure([k for lv in levels for s in (_screen(fits, lv, specs, screen, over) if len(specs) > 1 else specs)
+                 for c in cands if c.spec == s for k in fits.keys(s, c.model, lv.held)])
+    for lv in levels:
+        _choose(fits, lv, cands)
+    if not top.chosen or any(not lv.chosen for lv in inner):
+        raise ValueError("no candidate could be scored at every level (too few runs per class?)")
+    by_name = {c.name: c for c in cands}
+    fits.ensure([(by_name[lv.chosen].spec, b, frozenset(lv.held)) for lv in inner for b in by_name[lv.chosen].bases])
+    outer = [_outer_fold(fits, k, lv, by_name[lv.chosen]) for k, lv in enumerate(inner)]
+    outer_models = [_fitted(fits, by_name[lv.chosen], frozenset(lv.held)) for lv in inner]
+    vals = [o["balanced_accuracy"] for o in outer if np.isfinite(o["balanced_accuracy"])]
+    chosen = by_name[top.chosen]
+    y_oof, p_oof = fits.oof(chosen, top.held)
+    temp = Temperature.fit(p_oof, y_oof, classes)
+    cvs = _top_cv(fits, top, cands, [names[int(c)] for c in classes], table)
+    return Selection(cands, infeasible, partition, top, inner, outer,
+                     {"mean": float(np.mean(vals)) if vals else float("nan"),
+                      "std": float(np.std(vals)) if vals else float("nan")},
+                     cvs, chosen, temp.temperature, classes.tolist(), [names[int(c)] for c in classes],
+                     {"screen_s": t_screen, "total_s": time.perf_counter() - t_start, "fits": fits.n_fits,
+                      "fit_s": fits.fit_s}, note, outer_models)
+
+
+def _fitted(fits: _Fits, cand: Candidate, train_groups: frozenset) -> Any:
+    members = [fits.models.get((cand.spec, b, train_groups)) for b in cand.bases]
+    if any(m is None for m in members):
+        return None
+    return members[0] if len(members) == 1 else ProbabilityAverage.from_fitted(members)
+
+
+def _outer_fold(fits: _Fits, k: int, level: Level, cand: Candidate) -> dict:
+    """The level-k winner fitted without group k, scored on group k; ECE before/after calibration."""
+    W, g = fits.data[cand.spec].windows, fits.gidx[cand.spec]
+    P = fits.proba_of(cand.spec, cand.model, frozenset(level.held))
+    idx = np.flatnonzero(g == k)
+    idx = idx[np.isfinite(P[idx]).all(axis=1)] if len(idx) else idx
+    y_in, p_in = fits.oof(cand, level.held)
+    temp = Temperature.fit(p_in, y_in, fits.classes)
+    out = {"fold": k, "chosen": cand.name, "n_windows": int(len(idx)), "temperature": temp.temperature,
+           "runs": [str(r) for r in fits.partition[k]], "inner_score": level.scores.get(cand.name)}
+    if len(idx) == 0:
+        return {**out, "balanced_accuracy": float("nan"), "ece_before": float("nan"), "ece_after": float("nan")}
+    return {**out, "balanced_accuracy": _bal_acc(W.y[idx], P[idx], fits.classes),
+            "ece_before": expected_calibration_error(W.y[idx], P[idx], fits.classes),
+            "ece_after": expected_calibration_error(W.y[idx], temp.transform(P[idx]), fits.classes)}

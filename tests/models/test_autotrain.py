@@ -1,0 +1,86 @@
+"""train --windows auto --model auto (terrainml.pipeline.autotrain) and the served replay it runs."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from logs_synth import write_logs
+from terrainml.pipeline.replay import _score, make_course, pooled_replay, replay_refusal
+
+
+def test_replay_score_of_a_hand_worked_course():
+    # 200 ticks at 100 Hz driving at 1 m/s; class 0 then class 1 from tick 100; the predictor
+    # serves 0 on the first 100 ticks, falls back for 50, then serves 1
+    n = 200
+    t = np.arange(n) * 0.01
+    odo = np.arange(n) * 0.01
+    lab = np.r_[np.zeros(100), np.ones(100)].astype(int)
+    served = np.r_[np.zeros(100), -np.ones(50), np.ones(50)].astype(int)
+    reasons = [""] * 100 + ["stale_classification"] * 50 + [""] * 50
+    st = {"classifications": 40, "distance_m": float(odo[-1])}
+    s = _score(t, lab, served, odo, reasons, 0.3, st)
+    assert s["moving_ticks"] == 199  # the first tick has no speed yet
+    assert s["right_share"] == pytest.approx(149 / 199)
+    assert s["fallback_share"] == pytest.approx(50 / 199)
+    assert s["classified_share"] == pytest.approx(149 / 199)
+    assert s["changes"] == 1 and s["changes_never_right"] == 0
+    assert s["median_change_m"] == pytest.approx(0.5)  # from tick 100 to tick 150 at 0.01 m per tick
+    # 0.3 s after the change left out: ticks 100-129 go, 20 fallback ticks remain of 169
+    assert s["right_share_settled"] == pytest.approx(149 / 169)
+    assert s["classifications_per_m"] == pytest.approx(40 / 1.99)
+    assert s["fallback_reasons"] == {"stale_classification": 50}
+
+
+def test_refusal_names_the_share_and_pooling_weights_by_ticks():
+    assert "no moving" in replay_refusal({"moving_ticks": 0})
+    why = replay_refusal({"moving_ticks": 1000, "classified_share": 0.3})
+    assert "30%" in why and "1000 moving ticks" in why
+    assert replay_refusal({"moving_ticks": 1000, "classified_share": 0.8}) == ""
+    f = [{"moving_ticks": 100, "right_share": 1.0, "fallback_share": 0.0, "classified_share": 1.0,
+          "classifications": 10, "distance_m": 5.0, "median_change_m": 1.0, "changes": 1, "changes_never_right": 0},
+         {"moving_ticks": 300, "right_share": 0.5, "fallback_share": 0.5, "classified_share": 0.5,
+          "classifications": 10, "distance_m": 15.0, "median_change_m": 3.0, "changes": 2, "changes_never_right": 1}]
+    p = pooled_replay(f)
+    assert p["right_share"] == pytest.approx((100 + 150) / 400) and p["classifications_per_m"] == pytest.approx(1.0)
+    assert p["changes_never_right"] == 1
+
+
+def _run(rid, cls, n=300, rate=100.0):
+    df = pd.DataFrame({"t_s": np.arange(n) / rate + 7.0, "terrain": cls, "run_id": rid, "x": np.arange(n)})
+    df.attrs["terrainml"] = {"rate_hz": rate}
+    return df
+
+
+def test_course_interleaves_classes_and_keeps_time_continuous():
+    tables = [_run("a0", 0), _run("a1", 0), _run("b0", 1)]
+    c = make_course(tables, segment_s=1.0, drop_columns=["x"])
+    assert c["terrain"].tolist() == [0] * 100 + [1] * 100 + [0] * 100
+    assert np.allclose(np.diff(c["t_s"]), 0.01) and "x" not in c.columns
+    assert c["run_id"].unique().tolist() == ["course"]
+    with pytest.raises(ValueError, match="zz"):
+        make_course(tables, ["zz"])
+
+
+def test_cli_train_auto_selects_replays_and_saves_a_calibrated_model(tmp_path):
+    from terrainml.cli import app
+    from terrainml.models.calibration import CalibratedModel
+    from terrainml.stream.classify import load_serving_model
+
+    logs = write_logs(tmp_path / "logs", runs_per_class=3, seed=5)
+    out = tmp_path / "m"
+    r = CliRunner().invoke(app, ["train", "--data", str(logs), "--robot", "agrimaro", "--windows", "short,state",
+                                 "--model", "hgb", "--folds", "3", "--replay-s", "8", "--out", str(out), "-q"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["chosen"] == "short/hgb" and "state" in rep["selection"]["infeasible"]
+    assert len(rep["replay"]["folds"]) == 3 and rep["replay"]["pooled"]["moving_ticks"] > 1000
+    assert rep["replay"]["refusal"] == ""
+    md = (out / "report.md").read_text()
+    assert "nested CV" in md and "Served replay" in md and "ECE before" in md
+    served = load_serving_model(out)
+    assert isinstance(served.classifier.model, CalibratedModel)
+    entry = json.loads((out / "manifest.json").read_text())["models"]["hgb"]
+    assert entry["calibration"]["temperature"] == pytest.approx(rep["selection"]["temperature"])
