@@ -34,6 +34,7 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
+from terrainml.stream.config import ServingConfig
 from terrainml.stream.predictor import Predictor
 from terrainml.stream.runner import CLASSIFY_LAG_TICKS, MOVING_MPS
 
@@ -108,8 +109,11 @@ def make_course(tables: Sequence[pd.DataFrame], run_ids: Sequence[str] | None = 
 
 
 def replay_course(model_dir: str | Path, course: pd.DataFrame, settle_s: float = SETTLE_S,
-                  **predictor_kwargs: Any) -> dict[str, Any]:
+                  config: ServingConfig | None = None) -> dict[str, Any]:
     """Serve ``course`` tick by tick through ``Predictor.from_model_dir(model_dir)`` and score it.
+
+    ``config``: serving settings (default: those of ``terrainml predict``, classification
+    :data:`~terrainml.stream.runner.CLASSIFY_LAG_TICKS` ticks behind).
 
     Returns
     -------
@@ -118,8 +122,7 @@ def replay_course(model_dir: str | Path, course: pd.DataFrame, settle_s: float =
     ``changes``, ``median_change_m``, ``changes_never_right``, ``fallback_reasons`` (counts
     over moving ticks).
     """
-    kwargs = {"classify_lag_ticks": CLASSIFY_LAG_TICKS, **predictor_kwargs}
-    p = Predictor.from_model_dir(model_dir, **kwargs)
+    p = Predictor.from_model_dir(model_dir, config=config or ServingConfig(classify_lag_ticks=CLASSIFY_LAG_TICKS))
     cols = list(course.columns)
     lab_all = pd.to_numeric(course["terrain"], errors="coerce").fillna(-1).to_numpy().astype(int) \
         if "terrain" in cols else np.full(len(course), -1)
