@@ -52,6 +52,8 @@ class CVResult:
     pooled : dict, metrics of all out-of-fold predictions together (confusion matrix with rows
         true and columns predicted, recall per class, ...).
     name : label of the result (e.g. ``"(b) svm"``).
+    novelty : ndarray (n,) or None, out-of-fold novelty scores of an open-set model (its
+        threshold per fold is the fold metrics' ``novelty_threshold``); NaN outside the test parts.
     """
 
     folds: list
@@ -65,6 +67,7 @@ class CVResult:
     summary: dict = field(default_factory=dict)
     pooled: dict = field(default_factory=dict)
     name: str = ""
+    novelty: np.ndarray | None = None
 
     @property
     def accuracy(self) -> float:
@@ -93,8 +96,8 @@ def _subset(X, idx):
 
 
 def _run_fold(factory: Callable[[], Any], X, y, groups, tr, te, fit_kwargs: dict, keep_model: bool = False):
-    """Fit on ``tr``, predict ``te``: (classes, proba or None, y_pred, fit s, predict s, best_params)
-    plus the fitted model when ``keep_model``."""
+    """Fit on ``tr``, predict ``te``: (classes, proba or None, y_pred, fit s, predict s, best_params,
+    (novelty scores, threshold) or None) plus the fitted model when ``keep_model``."""
     model = factory()
     Xtr, Xte = _subset(X, tr), _subset(X, te)
     t0 = time.perf_counter()
@@ -107,7 +110,10 @@ def _run_fold(factory: Callable[[], Any], X, y, groups, tr, te, fit_kwargs: dict
     else:  # e.g. the BorealTC authors' SVM recipe: labels only
         cls, proba, pred = None, None, np.asarray(model.predict(Xte))
     t2 = time.perf_counter()
-    out = (cls, proba, pred, t1 - t0, t2 - t1, dict(getattr(model, "best_params_", {}) or {}))
+    nov = None
+    if hasattr(model, "novelty_score"):  # an open-set model (terrainml.models.novelty.OpenSetModel)
+        nov = (np.asarray(model.novelty_score(Xte), dtype=float), float(model.novelty_threshold_))
+    out = (cls, proba, pred, t1 - t0, t2 - t1, dict(getattr(model, "best_params_", {}) or {}), nov)
     return (*out, model) if keep_model else out
 
 
@@ -176,15 +182,21 @@ def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_sp
     col = {c: k for k, c in enumerate(classes.tolist())}
     y_pred = np.empty(len(y), dtype=y.dtype)
     proba = np.zeros((len(y), K)) if all(r[1] is not None for r in results) else None
-    for (_, te), (cls_k, p, pred, *_) in zip(folds, results):
+    novelty = np.full(len(y), np.nan) if all(r[6] is not None for r in results) else None
+    for (_, te), (cls_k, p, pred, *_, nov) in zip(folds, results):
         y_pred[te] = pred
         if proba is not None:
             for j, c in enumerate(cls_k.tolist()):
                 proba[te, col[c]] = p[:, j]
+        if novelty is not None:
+            novelty[te] = nov[0]
     info = [{"fit_time_s": float(fit_s), "predict_time_s": float(pred_s),
-             "n_test_groups": int(len(np.unique(groups[te]))), "best_params": best}
-            for (_, te), (*_, fit_s, pred_s, best) in zip(folds, results)]
-    return _assemble(folds, y, classes, class_names, y_pred, proba, info, table, name)
+             "n_test_groups": int(len(np.unique(groups[te]))), "best_params": best,
+             **({} if nov is None else {"novelty_threshold": nov[1]})}
+            for (_, te), (*_, fit_s, pred_s, best, nov) in zip(folds, results)]
+    res = _assemble(folds, y, classes, class_names, y_pred, proba, info, table, name)
+    res.novelty = novelty
+    return res
 
 
 def predict_held_out(factory: Callable[[], Any], X, y, groups, splits, classes, *, n_jobs: int | None = 1,
@@ -220,7 +232,7 @@ def predict_held_out(factory: Callable[[], Any], X, y, groups, splits, classes, 
     jobs = (delayed(_run_fold)(factory, X, y, groups, tr, te, {}, True) if kp else
             delayed(_run_fold)(factory, X, y, groups, tr, te, {}) for (tr, te), kp in zip(splits, keep))
     out: list[dict] = []
-    for (_, te), (cls_k, p, pred, fit_s, pred_s, best, *model) in zip(
+    for (_, te), (cls_k, p, pred, fit_s, pred_s, best, _nov, *model) in zip(
             splits, Parallel(n_jobs=n_jobs, return_as="generator")(jobs)):
         if p is None:
             raise ValueError("predict_held_out: the model has no predict_proba")

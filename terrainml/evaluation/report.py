@@ -9,7 +9,9 @@ the model folder:
   feature-set ablation;
 * ``report.md``: the same as readable tables (models side by side);
 * ``confusion_<model>.png`` (matplotlib, Agg backend; row-normalised, counts annotated);
-* ``folds_<model>.csv`` (one row per fold) and ``ablation.csv``.
+* ``folds_<model>.csv`` (one row per fold) and ``ablation.csv``;
+* with ``train(..., open_set=True)``, the leave-one-class-out table of the served model's novelty
+  score (:mod:`terrainml.evaluation.open_set`; ``report.json``: ``open_set``).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from typing import Any, Sequence
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: no global backend or figure registry
 
+from terrainml.evaluation.open_set import open_set_markdown
 from terrainml.models.artifacts import json_safe
 
 __all__ = ["write_report", "plot_confusion", "markdown_table"]
@@ -70,6 +73,21 @@ def plot_confusion(cm: np.ndarray, names: Sequence[str], path: Path, title: str)
     fig.tight_layout()
     fig.savefig(path, metadata={"Software": None})
     return path
+
+
+def _novelty_lines(result: Any, doc: dict) -> list[str]:
+    """The leave-one-class-out table of the served model's novelty score, when it was run."""
+    os_res = getattr(result, "open_set", None)
+    md: list[str] = []
+    if os_res is not None:
+        doc["open_set"] = os_res.to_dict()
+        st = os_res.settings
+        md += ["## Unknown ground: leave-one-class-out (served model)", "",
+               f"Each class in turn held out of training on the same folds; novelty `{st['method']}` (k = "
+               f"{st['k']}), threshold at {100 * st['false_alarm_target']:.0f} % false alarms in inner grouped "
+               f"folds of the training windows; moving: rim speed > {st['moving_mps']} m/s.", "",
+               *open_set_markdown(os_res), ""]
+    return md
 
 
 def write_report(out: str | Path, result: Any) -> dict:
@@ -138,6 +156,7 @@ def write_report(out: str | Path, result: Any) -> dict:
                                 f"{a.balanced_accuracy_mean:.3f} ± {a.balanced_accuracy_std:.3f}",
                                 f"{a.macro_f1_mean:.3f} ± {a.macro_f1_std:.3f}", _num(a.desired_slip_error_mean, 4)]
                                for a in ab.itertuples()]), ""]
+    md += _novelty_lines(result, doc)
     counts = result.dataset_summary.get("rejections", {})
     if counts:
         md += ["## Window rejections (steady rules, design §8)", "",

@@ -51,6 +51,7 @@ from terrainml.features.windows import WindowSpec
 from terrainml.hashing import sha256_file
 from terrainml.models.calibration import CalibratedModel, Temperature
 from terrainml.models.ensemble import ProbabilityAverage
+from terrainml.models.novelty import NoveltyError, NoveltyScorer, model_feature_names
 from terrainml.models.signing import (MANIFEST_NAME, SIGNATURE_NAME, PublicKeyLike, SignatureError,
                                       verify_artifact_signature)
 from terrainml.robot import RobotSpec
@@ -175,7 +176,8 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
                   default_model: str | None = None, preset: str = "robust",
                   attachments: Mapping[str, str] | None = None, extra: dict | None = None,
                   sensors: Sequence[str] | None = None, feature_family: str | None = None,
-                  calibration: Mapping[str, dict] | None = None) -> dict:
+                  calibration: Mapping[str, dict] | None = None,
+                  novelty: tuple[str, NoveltyScorer, dict] | None = None) -> dict:
     """Write models and attachments, then the manifest over all files.
 
     Parameters
@@ -201,6 +203,9 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
     calibration : {model name: :meth:`~terrainml.models.calibration.Temperature.to_dict`}, stored
         in that model's entry; :func:`load_artifact` then serves the model's probabilities
         through it (:class:`~terrainml.models.calibration.CalibratedModel`).
+    novelty : (model name, fitted :class:`~terrainml.models.novelty.NoveltyScorer`, info) or
+        None: the novelty score of that model's windows, written to ``novelty/novelty.safetensors``
+        and described in the manifest's ``novelty`` entry (settings, threshold, info, file).
 
     Other files already in ``directory`` (reports) are hashed into the manifest too; call
     :func:`write_manifest` again after adding files.
@@ -229,6 +234,14 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
         if Path(fname).name != fname or fname == MANIFEST_NAME:
             raise ArtifactError(f"{directory / fname}: an attachment is a plain file name, not {MANIFEST_NAME}")
         (directory / fname).write_text(text)
+    nov_entry = None
+    if novelty is not None:
+        nov_name, scorer, info = novelty
+        if nov_name not in models:
+            raise ArtifactError(f"{directory}: novelty scorer of {nov_name!r}, which is not among the models")
+        path = scorer.save(directory / "novelty")
+        nov_entry = {**scorer.config(), **dict(info), "model": nov_name,
+                     "file": path.relative_to(directory).as_posix()}
     doc = {
         "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "terrainml_version": __version__,
         "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
@@ -242,6 +255,8 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
         "sensors": None if sensors is None else [str(g) for g in sensors],
         "feature_family": feature_family,
     }
+    if nov_entry is not None:  # absent (not null) without a scorer: older folders read the same
+        doc["novelty"] = nov_entry
     return write_manifest(directory, doc)
 
 
@@ -356,6 +371,9 @@ def verify_artifact(directory: str | Path) -> dict:
     for rel in doc.get("attachments") or []:
         if rel not in files:
             raise ArtifactError(f"{directory / rel}: attachment not hashed in the manifest")
+    nov = doc.get("novelty")
+    if nov is not None and (not isinstance(nov, dict) or nov.get("file") not in files):
+        raise ArtifactError(f"{directory / MANIFEST_NAME}: novelty entry names no file hashed in the manifest")
     return doc
 
 
@@ -387,6 +405,8 @@ class Artifact:
     preset : estimation preset. features : None (the models compute their own features).
     sensors : sensor groups the model needs (None: a folder written before they were recorded;
         the robot's groups then apply). feature_family : ``canonical``, ``side_channel`` or None.
+    novelty : :class:`~terrainml.models.novelty.NoveltyScorer` of the loaded model's windows, or
+        None (no scorer in the folder, or one fitted for another of its models).
     """
 
     path: Path
@@ -404,6 +424,26 @@ class Artifact:
     features: Any = None
     sensors: list | None = None
     feature_family: str | None = None
+    novelty: NoveltyScorer | None = None
+
+
+def _load_novelty(directory: Path, doc: dict, name: str, model: Any) -> NoveltyScorer | None:
+    """The novelty scorer of model ``name`` (files verified), checked against the model's features."""
+    entry = doc.get("novelty")
+    if entry is None or entry.get("model") != name:
+        return None
+    path = directory / entry["file"]
+    try:
+        scorer = NoveltyScorer.load(path, entry)
+        n_model = len(model_feature_names(model))
+    except NoveltyError as exc:
+        raise ArtifactError(str(exc) if str(path) in str(exc) else f"{path}: {exc}") from None
+    if n_model != int(entry.get("n_features", -1)):
+        raise ArtifactError(f"{path}: novelty scorer has {entry.get('n_features')} features, the model "
+                            f"{name!r} computes {n_model}")
+    if sorted(scorer.classes_.tolist()) != sorted(np.asarray(model.classes_).astype(int).tolist()):
+        raise ArtifactError(f"{path}: novelty classes {scorer.classes_.tolist()} differ from the model's")
+    return scorer
 
 
 def _load_model(directory: Path, doc: dict, name: str, depth: int = 0) -> tuple[str, Any]:
@@ -488,4 +528,5 @@ def load_artifact(directory: str | Path, model: str | None = None, *,
     return Artifact(directory, doc, name, kind, clf, robot, spec, attachments, classes,
                     list(doc.get("class_names", [])), list(doc.get("channels", [])),
                     doc.get("preset", "robust"), sensors=doc.get("sensors"),
-                    feature_family=doc.get("feature_family"))
+                    feature_family=doc.get("feature_family"),
+                    novelty=_load_novelty(directory, doc, name, clf))

@@ -37,6 +37,7 @@ from terrainml.classes import TERRAIN_CLASSES
 from terrainml.evaluation.cv import average_results, cross_validate
 from terrainml.evaluation.folds import grouped_folds
 from terrainml.evaluation.metrics import classification_metrics, is_ordered, latency_per_window_ms
+from terrainml.evaluation.open_set import leave_one_class_out
 from terrainml.evaluation.report import write_report
 from terrainml.features.sets import FEATURE_SUBSETS, FeatureSet
 from terrainml.features.side_channel import SideChannelFeatures, track_of
@@ -46,6 +47,7 @@ from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import (Artifact, ArtifactError, load_artifact, save_artifact,
                                         write_manifest)
 from terrainml.models.ensemble import ProbabilityAverage
+from terrainml.models.novelty import NoveltyError, fit_model_novelty
 from terrainml.models.svm import SVMClassifier
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.dataset import Dataset
@@ -190,6 +192,7 @@ class TrainResult:
     ablation: pd.DataFrame | None = None
     manifest: dict = field(default_factory=dict)
     fitted: dict = field(default_factory=dict)
+    open_set: Any = None
 
 
 def _ablation(ds: Dataset, folds, seed: int, n_jobs: int, table, classes, cv_all=None,
@@ -218,7 +221,7 @@ def _ablation(ds: Dataset, folds, seed: int, n_jobs: int, table, classes, cv_all
 
 def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds: int = 5, seed: int = 0,
           n_jobs: int = 1, ablation: bool = True, model_params: dict | None = None,
-          progress: Callable[[str], None] | None = None) -> TrainResult:
+          progress: Callable[[str], None] | None = None, open_set: bool = False) -> TrainResult:
     """Cross-validate, fit, report and save models on a window dataset.
 
     Parameters
@@ -231,6 +234,12 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     ablation : run the SVM feature-set ablation.
     model_params : {kind: {param: value}} constructor overrides.
     progress : callback with a short message per stage.
+    open_set : also run the leave-one-class-out evaluation of the served model's novelty score
+        on the same folds (:mod:`terrainml.evaluation.open_set`; one more CV per class).
+
+    The served model's novelty score (:mod:`terrainml.models.novelty`, threshold from inner
+    grouped folds of the training windows) is fitted and saved with it when the model has a
+    feature space (svm, hgb or an average with one of them).
 
     Returns
     -------
@@ -267,6 +276,7 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     cv_names = [name_of[int(c)] for c in cv_classes]
     results: dict[str, dict] = {}
     fitted: dict[str, Any] = {}
+    factories: dict[str, Callable[[], Any]] = {}
     bases = list(dict.fromkeys(q for m in models for q in m.split("+")))
     for kind in bases:
         params = (model_params or {}).get(kind, {})
@@ -274,6 +284,7 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
         if kind == "cnn" and n_jobs != 1:
             params = {"n_threads": 1, **params}
         factory = make_factory(kind, ds, seed, n_jobs=inner_jobs, params=params)
+        factories[kind] = factory
         say(f"{kind}: grouped {len(fold_list)}-fold cross-validation")
         cv = cross_validate(factory, Wcv, ycv, gcv, folds=fold_list, n_jobs=n_jobs, table=table,
                             classes=cv_classes, class_names=cv_names, name=kind)
@@ -320,11 +331,17 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
                "fingerprint": ds.fingerprint, "rejections": ds.counts}
     res = TrainResult(out, results, default, classes.tolist(), names, len(fold_list), seed, summary, abl,
                       fitted=fitted)
+    novelty = _served_novelty(fitted[default], default, W, seed, say)
+    if open_set and novelty is not None:
+        members = [factories[q] for q in default.split("+")]
+        factory = members[0] if len(members) == 1 else (lambda: ProbabilityAverage([f() for f in members]))
+        res.open_set = leave_one_class_out(factory, Wcv, folds=fold_list, classes=cv_classes.tolist(),
+                                           class_names=cv_names, seed=seed, n_jobs=n_jobs, progress=say)
     metrics_summary = {k: r["cv"].summary for k, r in results.items()}
     save_artifact(out, fitted, classes=classes.tolist(), class_names=names, channels=W.channels,
                   window_spec=ds.spec, robot=ds.robot, training_fingerprint=ds.fingerprint,
                   metrics_summary=metrics_summary, default_model=default, preset=ds.preset,
-                  sensors=ds.sensors, feature_family=feature_family(W.channels),
+                  sensors=ds.sensors, feature_family=feature_family(W.channels), novelty=novelty,
                   attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
                   extra={"folds": len(fold_list), "seed": seed, "n_windows": len(W),
                          "latency_ms": {k: r["latency"] for k, r in results.items()},
@@ -332,6 +349,17 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     write_report(out, res)
     res.manifest = write_manifest(out)  # hash the report files too
     return res
+
+
+def _served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], None]):
+    """(name, scorer, info) of the served model's novelty score, or None (named) without one."""
+    say(f"{name}: novelty score (threshold from inner grouped folds)")
+    try:
+        scorer, info = fit_model_novelty(model, W, seed=seed)
+    except NoveltyError as exc:
+        say(f"{name}: no novelty score ({exc})")
+        return None
+    return name, scorer, info
 
 
 def parse_class_map(text: str | None) -> dict[str, str]:

@@ -1,0 +1,158 @@
+"""Leave-one-class-out (open-set) evaluation of the novelty score (issue #30).
+
+Each class in turn plays the unknown: for every outer grouped fold (the same folds as the
+closed-set cross-validation), an :class:`~terrainml.models.novelty.OpenSetModel` is fitted on
+the fold's training windows *without* that class (its threshold set in inner grouped folds of
+them only) and scores the fold's test windows. The test part holds runs of the known classes
+that the model never saw (their flagged share is the false-alarm rate) and runs of the unknown
+class (its flagged share is the detection rate); over the folds every window is scored once.
+The engine is :func:`terrainml.evaluation.cv.cross_validate`, run once per held-out class.
+
+Per held-out class (:func:`leave_one_class_out`): AUROC of the novelty score (unknown windows
+against the known classes' held-out windows), on all windows and on *moving* windows
+(:func:`moving_windows`: mean wheel rim speed above ``MOVING_MPS``, the line of the served
+course scores; a robot standing still feels the same on any ground); the share of the unknown
+class's windows flagged at the chosen threshold; the share of the known classes' held-out
+windows flagged (false alarms); the known classes' balanced accuracy of the same models.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import pandas as pd
+from sklearn.metrics import balanced_accuracy_score, roc_auc_score
+
+from terrainml.evaluation.cv import cross_validate
+from terrainml.models.novelty import DEFAULT_FALSE_ALARM, DEFAULT_K, DEFAULT_METHOD, OpenSetModel
+
+__all__ = ["leave_one_class_out", "OpenSetResult", "moving_windows", "MOVING_MPS", "open_set_markdown"]
+
+#: a window is moving when its mean wheel rim speed exceeds this (m/s), as in the course scores
+MOVING_MPS = 0.2
+_SPEED_CHANNELS = (("speed_left_mps", "speed_right_mps"), ("vx",))
+
+
+def moving_windows(W, min_speed_mps: float = MOVING_MPS) -> np.ndarray:
+    """Boolean (n,): windows whose mean rim speed (side channels; else |vx|) exceeds the line.
+
+    Raises ValueError naming the channels looked for when the windows have no speed channel.
+    """
+    channels = list(W.channels)
+    for names in _SPEED_CHANNELS:
+        if all(c in channels for c in names):
+            X = np.asarray(W.X)
+            speed = np.mean([np.abs(X[:, channels.index(c)]).mean(axis=1) for c in names], axis=0)
+            return speed > float(min_speed_mps)
+    raise ValueError(f"windows have none of the speed channels {_SPEED_CHANNELS} (channels: {channels})")
+
+
+@dataclass
+class OpenSetResult:
+    """Leave-one-class-out results.
+
+    Attributes
+    ----------
+    table : DataFrame, one row per held-out class: ``unknown``, ``n_unknown``, ``n_known``,
+        ``auroc``, ``auroc_moving``, ``unknown_flagged`` (share of the unknown's moving windows
+        flagged), ``unknown_flagged_all`` (all its windows), ``false_alarm`` (share of the known
+        classes' held-out windows flagged), ``false_alarm_moving``, ``known_balanced_accuracy``.
+    scores : {class name: ndarray (n,)} out-of-fold novelty scores of every window.
+    flagged : {class name: ndarray (n,) bool}.
+    settings : dict (method, k, false-alarm target, inner folds, folds, seed).
+    """
+
+    table: pd.DataFrame
+    scores: dict = field(default_factory=dict)
+    flagged: dict = field(default_factory=dict)
+    settings: dict = field(default_factory=dict)
+
+    def means(self) -> dict:
+        """Unweighted means over the held-out classes of the table's figures."""
+        cols = ["auroc", "auroc_moving", "unknown_flagged", "unknown_flagged_all", "false_alarm",
+                "false_alarm_moving", "known_balanced_accuracy"]
+        return {c: float(self.table[c].mean()) for c in cols}
+
+    def to_dict(self) -> dict:
+        return {"per_class": self.table.to_dict(orient="records"), "mean": self.means(),
+                "settings": self.settings}
+
+
+def _auroc(labels: np.ndarray, scores: np.ndarray) -> float:
+    return float(roc_auc_score(labels, scores)) if 0 < labels.sum() < len(labels) else float("nan")
+
+
+def _share(mask: np.ndarray) -> float:
+    return float(mask.mean()) if len(mask) else float("nan")
+
+
+def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequence, class_names: Sequence[str],
+                        moving: np.ndarray | None = None, method: str = DEFAULT_METHOD, k: int = DEFAULT_K,
+                        false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int = 3, seed: int = 0,
+                        n_jobs: int | None = 1,
+                        progress: Callable[[str], None] | None = None) -> OpenSetResult:
+    """Each class held out of training in turn, scored as the unknown.
+
+    Parameters
+    ----------
+    factory : callable returning an unfitted classifier with a feature space (svm, hgb, an
+        average of them).
+    W : Windows (labels ``W.y``, runs ``W.groups``).
+    folds : outer (train_idx, test_idx) grouped by run (:func:`~terrainml.evaluation.folds.grouped_folds`).
+    classes : class ids, names ``class_names`` (same order).
+    moving : bool (n,), the moving windows (default :func:`moving_windows`).
+    method, k, false_alarm, inner_folds : the novelty settings (:func:`~terrainml.models.novelty.fit_novelty`).
+    seed : seed of the inner folds. n_jobs : joblib jobs over folds.
+    progress : callback with a short message per held-out class.
+
+    Returns
+    -------
+    OpenSetResult
+    """
+    y, groups = W.y, W.groups
+    moving = moving_windows(W) if moving is None else np.asarray(moving, dtype=bool)
+    rows, scores, flagged = [], {}, {}
+    for u, name in zip(classes, class_names):
+        if progress:
+            progress(f"open set: {name} held out as the unknown")
+        folds_u = [(tr[y[tr] != u], te) for tr, te in folds]
+        res = cross_validate(lambda: OpenSetModel(factory(), method=method, k=k, false_alarm=false_alarm,
+                                                  inner_folds=inner_folds, random_state=seed),
+                             W, y, groups, folds=folds_u, n_jobs=n_jobs, classes=classes,
+                             class_names=class_names, name=f"without {name}")
+        done = res.fold_of >= 0
+        thr = np.array([m["novelty_threshold"] for m in res.fold_metrics])
+        flag = np.zeros(len(y), dtype=bool)
+        flag[done] = res.novelty[done] > thr[res.fold_of[done]]
+        unk, known = done & (y == u), done & (y != u)
+        rows.append({
+            "unknown": name, "n_unknown": int(unk.sum()), "n_unknown_moving": int((unk & moving).sum()),
+            "n_known": int(known.sum()),
+            "auroc": _auroc(unk[done], res.novelty[done]),
+            "auroc_moving": _auroc(unk[done & moving], res.novelty[done & moving]),
+            "unknown_flagged": _share(flag[unk & moving]), "unknown_flagged_all": _share(flag[unk]),
+            "false_alarm": _share(flag[known]), "false_alarm_moving": _share(flag[known & moving]),
+            "known_balanced_accuracy": float(balanced_accuracy_score(y[known], res.y_pred[known])),
+        })
+        scores[name], flagged[name] = res.novelty, flag
+    settings = {"method": method, "k": int(k), "false_alarm_target": float(false_alarm),
+                "inner_folds": int(inner_folds), "folds": len(folds), "seed": int(seed),
+                "moving_mps": MOVING_MPS}
+    return OpenSetResult(pd.DataFrame(rows), scores, flagged, settings)
+
+
+def open_set_markdown(result: OpenSetResult) -> list[str]:
+    """Markdown lines of the leave-one-class-out table (percent), with the mean row."""
+    pct = lambda x: f"{100 * x:.1f}" if np.isfinite(x) else "n/a"  # noqa: E731
+    header = ["unknown class", "windows (moving)", "AUROC", "AUROC moving", "unknown flagged % (moving)",
+              "false alarms % (known held-out)", "known bal. acc. %"]
+    rows = [[r.unknown, f"{r.n_unknown} ({r.n_unknown_moving})", f"{r.auroc:.3f}", f"{r.auroc_moving:.3f}",
+             pct(r.unknown_flagged), pct(r.false_alarm), pct(r.known_balanced_accuracy)]
+            for r in result.table.itertuples()]
+    m = result.means()
+    rows.append(["**mean**", "", f"**{m['auroc']:.3f}**", f"**{m['auroc_moving']:.3f}**",
+                 pct(m["unknown_flagged"]), pct(m["false_alarm"]), pct(m["known_balanced_accuracy"])])
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return out + ["| " + " | ".join(map(str, r)) + " |" for r in rows]

@@ -1,0 +1,358 @@
+"""Novelty score of a window: how unlike the model's training windows it is (issue #30).
+
+A closed-set classifier names every window one of its classes, also on ground it never saw
+(a model trained without SNOW serves SNOW as ASPHALT at confidence 0.73). :class:`NoveltyScorer`
+scores each window by its distance to the training windows in the feature space the model uses
+(:func:`model_features`: the SVM's selected features, the trees' side-channel or canonical
+features), standardised per feature on the training windows:
+
+* ``knn``: distance to the ``k``-th nearest training window (Euclidean, standardised features);
+* ``class_knn``: per known class, the features standardised by that class's own spread, the
+  distance to the ``k``-th nearest window of the class; the score is the smallest over classes
+  (a window is known when it is typical of at least one class at that class's own scale);
+* ``mahalanobis``: Mahalanobis distance to the training mean, Ledoit-Wolf shrunk covariance.
+
+Which one is the default (:data:`DEFAULT_METHOD`) was chosen by measurement (docs/models.md,
+"Unknown ground"; ``benchmarks/bench_open_set.py``), as was every fixed setting here; nothing was
+chosen on the evaluation's held-out runs.
+
+The threshold (:func:`fit_novelty`) is set in inner grouped folds of the training windows only:
+the scorer is refit on the training runs of every inner fold and scores the windows of its
+held-out runs (known ground, never seen by that scorer); the threshold is the ``1 -
+false_alarm`` quantile of those out-of-fold scores, so about ``false_alarm`` of a new run on
+known ground is flagged. The final scorer is fitted on all training windows (a little closer to
+new known windows than the inner scorers were, so the false-alarm share on new runs is at most
+about the target).
+
+Persistence (:meth:`NoveltyScorer.save` / :meth:`NoveltyScorer.load`): arrays in one safetensors
+file, settings in the model manifest's ``novelty`` entry (:mod:`terrainml.models.artifacts`),
+checked against the arrays on load. Nothing is pickled.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from safetensors.numpy import load_file, save_file
+from sklearn.base import BaseEstimator, ClassifierMixin, clone
+from sklearn.covariance import LedoitWolf
+from sklearn.neighbors import NearestNeighbors
+from sklearn.utils.validation import check_is_fitted
+
+from terrainml.models.svm import inner_splits
+
+__all__ = ["NoveltyScorer", "NoveltyError", "OpenSetModel", "model_features", "model_feature_names",
+           "fit_novelty", "fit_model_novelty", "novelty_of", "METHODS", "DEFAULT_METHOD", "DEFAULT_K",
+           "DEFAULT_FALSE_ALARM", "NOVELTY_FILE"]
+
+METHODS = ("knn", "class_knn", "mahalanobis")
+DEFAULT_METHOD = "class_knn"
+DEFAULT_K = 5
+#: target share of known-ground windows flagged (under the 5 % of issue #30, with a margin)
+DEFAULT_FALSE_ALARM = 0.03
+#: at most this many reference windows per class are kept (evenly spaced, deterministic)
+MAX_REFERENCE_PER_CLASS = 2000
+NOVELTY_FILE = "novelty.safetensors"
+_CLIP = 20.0  # standardised features beyond +-20 sd are clipped (heavy-tailed features)
+
+
+class NoveltyError(ValueError):
+    """A novelty scorer cannot be fitted, loaded or applied (the message says why)."""
+
+
+def model_features(model: Any, X) -> np.ndarray:
+    """The feature matrix (n, F) a fitted classifier computes for windows ``X``.
+
+    ``SVMClassifier``: its selected features (before its scaler); ``BoostedTrees``: its feature
+    transformer's output; ``ProbabilityAverage``: the first member with a feature space. A CNN
+    has no hand-made feature space: NoveltyError.
+    """
+    members = getattr(model, "members_", None)
+    if members is not None:
+        for m in members:
+            if hasattr(m, "transform_features") or hasattr(getattr(m, "features_", None), "transform"):
+                return model_features(m, X)
+        raise NoveltyError("no member of the average has a feature space for a novelty score")
+    if hasattr(model, "transform_features"):
+        return np.asarray(model.transform_features(X), dtype=np.float64)
+    feats = getattr(model, "features_", None)
+    if feats is not None and hasattr(feats, "transform"):
+        return np.asarray(feats.transform(X), dtype=np.float64)
+    raise NoveltyError(f"a {type(model).__name__} has no feature space for a novelty score "
+                       "(use svm, hgb or an average with one of them)")
+
+
+def model_feature_names(model: Any) -> list[str]:
+    """Names of the features :func:`model_features` returns for ``model`` (same order)."""
+    members = getattr(model, "members_", None)
+    if members is not None:
+        for m in members:
+            if hasattr(m, "transform_features") or hasattr(getattr(m, "features_", None), "transform"):
+                return model_feature_names(m)
+    if hasattr(model, "transform_features"):
+        return list(model.feature_names_)
+    feats = getattr(model, "features_", None)
+    if feats is not None and hasattr(feats, "get_feature_names_out"):
+        return [str(n) for n in feats.get_feature_names_out()]
+    raise NoveltyError(f"a {type(model).__name__} has no feature space for a novelty score")
+
+
+def _evenly(idx: np.ndarray, n_max: int) -> np.ndarray:
+    if len(idx) <= n_max:
+        return idx
+    return idx[np.linspace(0, len(idx) - 1, n_max).round().astype(int)]
+
+
+class NoveltyScorer:
+    """Distance of windows to the training windows in a model's feature space.
+
+    Parameters
+    ----------
+    method : one of :data:`METHODS`.
+    k : int >= 1, neighbour rank of the ``knn`` / ``class_knn`` distance.
+    threshold : float or None, scores above it are flagged unknown (set by :func:`fit_novelty`).
+
+    Attributes (after :meth:`fit`)
+    ------------------------------
+    center_, scale_ : ndarray (F,), per-feature mean and standard deviation of the training
+        windows. reference_ : ndarray (m, F), standardised reference windows; reference_y_ (m,).
+    class_center_, class_scale_ : ndarray (K, F) (``class_knn``). classes_ : ndarray (K,).
+    precision_, mean_ : Mahalanobis precision (F, F) and mean (F,) (``mahalanobis``).
+    """
+
+    def __init__(self, method: str = DEFAULT_METHOD, k: int = DEFAULT_K, threshold: float | None = None):
+        if method not in METHODS:
+            raise NoveltyError(f"unknown novelty method {method!r}; expected one of {METHODS}")
+        if int(k) < 1:
+            raise NoveltyError("novelty k must be >= 1")
+        self.method, self.k, self.threshold = method, int(k), threshold
+
+    # ------------------------------------------------------------------ fit / score
+    def fit(self, F: np.ndarray, y: np.ndarray) -> "NoveltyScorer":
+        """Fit on training features ``F`` (n, F) with labels ``y`` (n,)."""
+        F = self._check(F, fitted=False)
+        y = np.asarray(y)
+        self.center_ = F.mean(axis=0)
+        sd = F.std(axis=0)
+        self.scale_ = np.where(sd > 1e-12, sd, 1.0)
+        Z = self._standardise(F)
+        self.classes_ = np.unique(y)
+        keep = np.concatenate([_evenly(np.flatnonzero(y == c), MAX_REFERENCE_PER_CLASS) for c in self.classes_])
+        if any((y == c).sum() <= self.k for c in self.classes_):
+            raise NoveltyError(f"novelty: every class needs more than k={self.k} training windows")
+        self.reference_, self.reference_y_ = Z[keep], y[keep]
+        if self.method == "class_knn":
+            self.class_center_ = np.stack([Z[y == c].mean(axis=0) for c in self.classes_])
+            csd = np.stack([Z[y == c].std(axis=0) for c in self.classes_])
+            self.class_scale_ = np.maximum(csd, 1e-3)
+        if self.method == "mahalanobis":
+            lw = LedoitWolf().fit(Z)
+            self.mean_, self.precision_ = lw.location_, lw.precision_
+        self._index = None
+        return self
+
+    def _standardise(self, F: np.ndarray) -> np.ndarray:
+        return np.clip((F - self.center_) / self.scale_, -_CLIP, _CLIP)
+
+    def _check(self, F, fitted: bool = True) -> np.ndarray:
+        F = np.asarray(F, dtype=np.float64)
+        if F.ndim != 2 or not len(F):
+            raise NoveltyError(f"novelty: features must be a non-empty (n, F) matrix, got shape {F.shape}")
+        if fitted and F.shape[1] != len(self.center_):
+            raise NoveltyError(f"novelty: expected {len(self.center_)} features per window, got {F.shape[1]}")
+        return np.nan_to_num(F, nan=0.0, posinf=0.0, neginf=0.0)
+
+    def _neighbours(self) -> list:
+        if getattr(self, "_index", None) is None:
+            if self.method == "class_knn":
+                self._index = [NearestNeighbors(n_neighbors=self.k).fit(
+                    (self.reference_[self.reference_y_ == c] - self.class_center_[j]) / self.class_scale_[j])
+                    for j, c in enumerate(self.classes_)]
+            else:
+                self._index = [NearestNeighbors(n_neighbors=self.k).fit(self.reference_)]
+        return self._index
+
+    def score(self, F: np.ndarray) -> np.ndarray:
+        """Novelty score per window, shape (n,) (larger: less like the training windows)."""
+        Z = self._standardise(self._check(F))
+        if self.method == "mahalanobis":
+            d = Z - self.mean_
+            return np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", d, self.precision_, d), 0.0))
+        if self.method == "knn":
+            return self._neighbours()[0].kneighbors(Z)[0][:, -1]
+        out = np.full(len(Z), np.inf)
+        for j, nn in enumerate(self._neighbours()):
+            Zc = (Z - self.class_center_[j]) / self.class_scale_[j]
+            out = np.minimum(out, nn.kneighbors(Zc)[0][:, -1])
+        return out
+
+    def is_unknown(self, F: np.ndarray) -> np.ndarray:
+        """Boolean (n,): score above the threshold."""
+        if self.threshold is None:
+            raise NoveltyError("novelty: no threshold set (fit it with fit_novelty)")
+        return self.score(F) > self.threshold
+
+    # ------------------------------------------------------------------ persistence
+    def _arrays(self) -> dict[str, np.ndarray]:
+        a = {"center": self.center_, "scale": self.scale_, "reference": self.reference_,
+             "reference_y": np.asarray(self.reference_y_, dtype=np.int64),
+             "classes": np.asarray(self.classes_, dtype=np.int64)}
+        if self.method == "class_knn":
+            a.update(class_center=self.class_center_, class_scale=self.class_scale_)
+        if self.method == "mahalanobis":
+            a.update(mean=self.mean_, precision=self.precision_)
+        return {k: np.ascontiguousarray(v) for k, v in a.items()}
+
+    def config(self) -> dict:
+        """JSON-able settings (the manifest's ``novelty`` entry, with the caller's fields)."""
+        return {"method": self.method, "k": self.k, "threshold": self.threshold,
+                "n_features": int(len(self.center_)), "n_reference": int(len(self.reference_)),
+                "classes": [int(c) for c in self.classes_]}
+
+    def save(self, directory: str | Path) -> Path:
+        """Write the arrays to ``directory/novelty.safetensors``; returns the path."""
+        path = Path(directory) / NOVELTY_FILE
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_file(self._arrays(), str(path))
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path, config: dict) -> "NoveltyScorer":
+        """Rebuild from the safetensors file and the manifest entry; NoveltyError names the file
+        when an array is missing or disagrees with the entry (shapes, classes)."""
+        path = Path(path)
+        try:
+            a = load_file(str(path))
+            s = cls(str(config["method"]), int(config["k"]), config.get("threshold"))
+        except (KeyError, TypeError) as exc:
+            raise NoveltyError(f"{path}: novelty entry of the manifest lacks {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - safetensors raises its own error types
+            raise NoveltyError(f"{path}: not a readable novelty file ({type(exc).__name__}: {exc})") from None
+        need = set(s._arrays_names())
+        if need - set(a):
+            raise NoveltyError(f"{path}: arrays {sorted(need - set(a))} missing")
+        n_f, n_ref = int(config.get("n_features", -1)), int(config.get("n_reference", -1))
+        if a["center"].shape != (n_f,) or a["scale"].shape != (n_f,) or a["reference"].shape != (n_ref, n_f):
+            raise NoveltyError(f"{path}: array shapes differ from the manifest's novelty entry "
+                               f"({n_f} features, {n_ref} reference windows)")
+        if a["classes"].tolist() != [int(c) for c in config.get("classes", [])]:
+            raise NoveltyError(f"{path}: classes {a['classes'].tolist()} differ from the manifest's")
+        if s.threshold is not None and not np.isfinite(float(s.threshold)):
+            raise NoveltyError(f"{path}: novelty threshold {s.threshold!r} is not finite")
+        s.center_, s.scale_, s.reference_ = a["center"], a["scale"], a["reference"]
+        s.reference_y_, s.classes_ = a["reference_y"], a["classes"]
+        if s.method == "class_knn":
+            s.class_center_, s.class_scale_ = a["class_center"], a["class_scale"]
+        if s.method == "mahalanobis":
+            s.mean_, s.precision_ = a["mean"], a["precision"]
+        s._index = None
+        return s
+
+    def _arrays_names(self) -> list[str]:
+        extra = {"class_knn": ["class_center", "class_scale"], "mahalanobis": ["mean", "precision"]}
+        return ["center", "scale", "reference", "reference_y", "classes", *extra.get(self.method, [])]
+
+
+def fit_novelty(F: np.ndarray, y, groups, *, method: str = DEFAULT_METHOD, k: int = DEFAULT_K,
+                false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int = 3,
+                seed: int = 0) -> tuple[NoveltyScorer, dict]:
+    """Fit a scorer on training features and set its threshold in inner grouped folds.
+
+    Parameters
+    ----------
+    F : ndarray (n, F), the model's features of the training windows (:func:`model_features`).
+    y : array (n,), labels. groups : array (n,), run ids (an inner fold never splits a run).
+    method, k : see :class:`NoveltyScorer`.
+    false_alarm : target share of held-out known windows above the threshold, in (0, 0.5).
+    inner_folds : grouped folds of the training windows. seed : their seed.
+
+    Returns
+    -------
+    (scorer fitted on all of ``F`` with its ``threshold``, info dict: ``false_alarm_target``,
+    ``inner_folds``, ``inner_scores_n``).
+    """
+    if not 0.0 < float(false_alarm) < 0.5:
+        raise NoveltyError(f"novelty false_alarm must be in (0, 0.5), got {false_alarm}")
+    F = np.asarray(F, dtype=np.float64)
+    y, groups = np.asarray(y), np.asarray(groups)
+    oof = []
+    for tr, te in inner_splits(y, groups, inner_folds, seed):
+        known = np.isin(y[te], np.unique(y[tr]))  # a class absent from the inner training is not "known"
+        if known.any():
+            oof.append(NoveltyScorer(method, k).fit(F[tr], y[tr]).score(F[te][known]))
+    if not oof:
+        raise NoveltyError("novelty: no inner fold tests a known class (too few runs per class)")
+    oof = np.concatenate(oof)
+    scorer = NoveltyScorer(method, k).fit(F, y)
+    scorer.threshold = float(np.quantile(oof, 1.0 - float(false_alarm)))
+    return scorer, {"false_alarm_target": float(false_alarm), "inner_folds": int(inner_folds),
+                    "inner_scores_n": int(len(oof)), "seed": int(seed)}
+
+
+def novelty_of(model: Any, scorer: NoveltyScorer, X) -> np.ndarray:
+    """Novelty scores (n,) of windows ``X`` for a fitted model and its scorer."""
+    return scorer.score(model_features(model, X))
+
+
+class OpenSetModel(ClassifierMixin, BaseEstimator):
+    """A classifier with the novelty score of its windows, fitted together (open-set evaluation).
+
+    ``fit`` fits a clone of ``base`` and then :func:`fit_novelty` on the fitted model's features
+    of the same training windows (threshold from inner grouped folds of them). ``predict_proba``
+    is the base model's; ``novelty_score`` the scorer's.
+
+    Parameters
+    ----------
+    base : unfitted classifier with a feature space (:func:`model_features`).
+    method, k, false_alarm, inner_folds : see :func:`fit_novelty`. random_state : seed of the
+        inner folds.
+
+    Attributes
+    ----------
+    model_ : fitted base. scorer_ : fitted NoveltyScorer. novelty_threshold_ : float.
+    novelty_info_ : dict. classes_ : ndarray (K,).
+    """
+
+    def __init__(self, base: Any = None, method: str = DEFAULT_METHOD, k: int = DEFAULT_K,
+                 false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int = 3, random_state: int = 0):
+        self.base = base
+        self.method = method
+        self.k = k
+        self.false_alarm = false_alarm
+        self.inner_folds = inner_folds
+        self.random_state = random_state
+
+    def fit(self, X, y, groups=None):
+        """Fit on windows ``X``, labels ``y`` (n,) and run ids ``groups`` (n,)."""
+        if self.base is None:
+            raise NoveltyError("OpenSetModel: no base classifier")
+        groups = np.asarray(groups if groups is not None else getattr(X, "groups", np.arange(len(y))))
+        self.model_ = clone(self.base)
+        self.model_.fit(X, y, groups=groups)
+        self.scorer_, self.novelty_info_ = fit_novelty(
+            model_features(self.model_, X), y, groups, method=self.method, k=self.k,
+            false_alarm=self.false_alarm, inner_folds=self.inner_folds, seed=self.random_state)
+        self.novelty_threshold_ = float(self.scorer_.threshold)
+        self.classes_ = np.asarray(self.model_.classes_)
+        return self
+
+    def predict_proba(self, X) -> np.ndarray:
+        check_is_fitted(self, "model_")
+        return self.model_.predict_proba(X)
+
+    def predict(self, X) -> np.ndarray:
+        return self.classes_[np.argmax(self.predict_proba(X), axis=1)]
+
+    def novelty_score(self, X) -> np.ndarray:
+        """Novelty score per window (n,) (above ``novelty_threshold_``: unknown ground)."""
+        check_is_fitted(self, "scorer_")
+        return novelty_of(self.model_, self.scorer_, X)
+
+
+def fit_model_novelty(model: Any, W, seed: int = 0, **kwargs: Any) -> tuple[NoveltyScorer, dict]:
+    """:func:`fit_novelty` on a fitted model's features of its training windows ``W`` (labels
+    ``W.y``, runs ``W.groups``); ``kwargs`` as there. NoveltyError for a model without a feature
+    space (a CNN)."""
+    return fit_novelty(model_features(model, W), W.y, W.groups, seed=seed, **kwargs)
