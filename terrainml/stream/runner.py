@@ -64,7 +64,13 @@ def serve(predictor: Predictor, samples: Iterable[dict], sinks: Sequence[Any],
 
 def _setup_logging(verbose: bool) -> None:
     root = logging.getLogger("terrainml")
-    if not any(getattr(h, "_terrainml", False) for h in root.handlers):
+    ours = [h for h in root.handlers if getattr(h, "_terrainml", False)]
+    if ours:
+        # a later run in the same process writes to today's stderr, not the one of the first run
+        # (a caller or a test harness may have redirected it in between)
+        for h in ours:
+            h.setStream(sys.stderr)
+    else:
         h = logging.StreamHandler(sys.stderr)
         h.setFormatter(logging.Formatter("terrainml predict: %(levelname)s %(message)s"))
         h._terrainml = True  # type: ignore[attr-defined]
