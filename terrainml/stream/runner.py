@@ -62,18 +62,28 @@ def serve(predictor: Predictor, samples: Iterable[dict], sinks: Sequence[Any],
     return n
 
 
+class _CurrentStderrHandler(logging.StreamHandler):
+    """Writes to whatever ``sys.stderr`` is at emit time.
+
+    A second run in one process (a test harness, a notebook, a caller that redirects stderr)
+    must not write to, or flush, the stream of the first run, which may be closed by now;
+    this is what ``logging.lastResort`` does too.
+    """
+
+    @property
+    def stream(self):  # type: ignore[override]
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value) -> None:
+        pass
+
+
 def _setup_logging(verbose: bool) -> None:
     root = logging.getLogger("terrainml")
-    ours = [h for h in root.handlers if getattr(h, "_terrainml", False)]
-    if ours:
-        # a later run in the same process writes to today's stderr, not the one of the first run
-        # (a caller or a test harness may have redirected it in between)
-        for h in ours:
-            h.setStream(sys.stderr)
-    else:
-        h = logging.StreamHandler(sys.stderr)
+    if not any(isinstance(h, _CurrentStderrHandler) for h in root.handlers):
+        h = _CurrentStderrHandler()
         h.setFormatter(logging.Formatter("terrainml predict: %(levelname)s %(message)s"))
-        h._terrainml = True  # type: ignore[attr-defined]
         root.addHandler(h)
     root.setLevel(logging.INFO if verbose else logging.WARNING)
 
