@@ -11,7 +11,7 @@ simulator truth, consistency, and speed against filterpy's ExtendedKalmanFilter.
    filterpy, estimates equal within 1e-9), whole-chain ticks/s, online ``step()`` latency p50/p99.
 
 Uses ``terrainml.sim`` when present; otherwise the exact-truth kinematic runs of
-``terrainml.estimation.synthetic`` (the section says which).
+``terrainml.testing`` (the section says which).
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from terrainml.estimation.consistency import (THESIS_INNOVATION_VAR, consistency
 from terrainml.estimation.ekf import Ekf, get_preset
 from terrainml.estimation.online import OnlineEstimator
 from terrainml.estimation.run import estimate_run_detailed
-from terrainml.estimation.synthetic import kinematic_run
 from terrainml.robot import load_robot
+from terrainml.testing import kinematic_run
 from tests.estimation import reference_ekf  # the numpy reference filter and model
 
 SYNTH_SLIP = (0.005, 0.03, 0.125, 0.135, 0.19, 0.2, 0.3, 0.42)  # per class, design §6.1 targets
@@ -176,7 +176,7 @@ def _accuracy_section(quick: bool) -> str:
     seeds = (0, 1) if quick else (0, 1, 2)
     dur = 20.0 if quick else 30.0
     src = "simulator (`terrainml.sim`)" if _sim_available() else \
-        "exact-truth kinematic runs (`terrainml.estimation.synthetic`; simulator not available)"
+        "exact-truth kinematic runs (`terrainml.testing`; simulator not available)"
     lines = [f"### Straight runs at 1 m/s, {len(seeds)} seeds per class, source: {src}\n",
              "| class | true mid-run slip (wheel 1) | steady slip MAE thesis | steady slip MAE robust "
              "| ratio thesis/robust | "
@@ -274,7 +274,7 @@ def _speed_section(quick: bool) -> str:
         t0 = time.perf_counter()
         estimate_run_detailed(run, preset=preset)
         chain = len(run) / (time.perf_counter() - t0)
-        on = OnlineEstimator(None, preset)
+        on = OnlineEstimator(load_robot(None), preset)
         lat, cpu = [], []
         for rec in run.iloc[: min(len(run), 5000)].to_dict("records"):
             t1 = time.perf_counter_ns()

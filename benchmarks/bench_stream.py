@@ -16,7 +16,7 @@ Measured in one run:
 
 The classifier is the real chain: ``cut_windows`` + ``SVMClassifier`` (FeatureSet, scaler,
 calibrated RBF SVC) trained here on
-synthetic kinematic windows (8 slip levels, `terrainml.estimation.synthetic`), so its cost is the
+synthetic kinematic windows (8 slip levels, `terrainml.testing`), so its cost is the
 production cost (a simulator-trained model has the same feature count and a similar number of
 support vectors).
 """
@@ -35,7 +35,7 @@ RATE_HZ = 100.0
 
 def _segment(robot, seed: int, duration_s: float = 60.0) -> pd.DataFrame:
     """60 s of driving: start, cruise at 1 m/s with one slip level, brake; terrain = level."""
-    from terrainml.estimation.synthetic import kinematic_run, trapezoid_speed
+    from terrainml.testing import kinematic_run, trapezoid_speed
 
     level = seed % 8
     return kinematic_run(robot, duration_s=duration_s, seed=seed, terrain=level,

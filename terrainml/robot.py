@@ -360,19 +360,38 @@ def check_wheel_count(spec: RobotSpec, n_wheels_in_log: int, source: str | Path)
 
 # --------------------------------------------------------------------- loading
 BUILTIN_ROBOTS = ("agrimaro", "husky", "skidsteer_tracked")
+#: the reference robot (design §3): what a command or function given no robot uses
+REFERENCE_ROBOT = "agrimaro"
+
+
+def builtin_robot(name: str) -> RobotSpec:
+    """A built-in robot spec by name (:data:`BUILTIN_ROBOTS`); RobotSpecError names the known ones."""
+    if name not in BUILTIN_ROBOTS:
+        raise RobotSpecError(f"{name}: no built-in robot (built-in robots: {', '.join(BUILTIN_ROBOTS)})")
+    ref = resources.files("terrainml.robots").joinpath(f"{name}.yaml")
+    with resources.as_file(ref) as path:
+        return RobotSpec.from_yaml(path)
+
+
+def reference_robot() -> RobotSpec:
+    """The reference robot's spec (``terrainml/robots/agrimaro.yaml``, design §3)."""
+    return builtin_robot(REFERENCE_ROBOT)
 
 
 def load_robot(spec: str | Path | RobotSpec | None = None) -> RobotSpec:
-    """Load a robot spec: ``None`` gives the reference robot; a built-in name or a YAML path."""
+    """Resolve a robot: ``None`` gives the reference robot; a built-in name or a YAML path.
+
+    Called where a name or path enters the package (the CLI, the public entry functions such as
+    :func:`terrainml.pipeline.dataset.build_dataset`); everything below takes the
+    :class:`RobotSpec` it returns (a spec is returned unchanged).
+    """
     if isinstance(spec, RobotSpec):
         return spec
     if spec is None:
-        spec = "agrimaro"
+        return reference_robot()
     text = str(spec)
     if text in BUILTIN_ROBOTS:
-        ref = resources.files("terrainml.robots").joinpath(f"{text}.yaml")
-        with resources.as_file(ref) as path:
-            return RobotSpec.from_yaml(path)
+        return builtin_robot(text)
     path = Path(text)
     if not path.exists():
         raise RobotSpecError(

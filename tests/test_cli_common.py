@@ -19,7 +19,7 @@ import typer
 import terrainml.commands._common as common
 from terrainml.commands._common import (check_n_jobs, check_output_writable, fail, is_windows_file,
                                         open_dataset, open_robot, open_run)
-from terrainml.estimation.synthetic import kinematic_run
+from terrainml.testing import kinematic_run
 from terrainml.schema import write_run_parquet
 
 IS_ROOT = getattr(os, "geteuid", lambda: -1)() == 0

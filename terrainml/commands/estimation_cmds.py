@@ -10,7 +10,7 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from terrainml.commands._common import check_output_writable, console, fail, open_run
+from terrainml.commands._common import check_output_writable, console, fail, open_robot, open_run
 from terrainml.io.damage import damage_summary
 from terrainml.robot import check_wheel_count
 
@@ -51,13 +51,14 @@ def register(app: typer.Typer) -> None:
             check_output_writable(target)
         if plot is not None:
             check_output_writable(plot, folder=True)
-        table = open_run(run, robot=robot, topics=topics)
+        rb = open_robot(robot) if robot is not None else None  # None: the spec the run carries
+        table = open_run(run, robot=rb, topics=topics)
         from terrainml.estimation.consistency import consistency_report, truth_metrics
-        from terrainml.estimation.run import _robot_for, estimate_run_detailed
+        from terrainml.estimation.run import estimate_run_detailed, run_robot
         from terrainml.schema import infer_n_wheels, write_run_parquet
 
         try:
-            spec = _robot_for(table, robot)
+            spec = run_robot(table, rb)
             check_wheel_count(spec, infer_n_wheels(table), run)
         except ValueError as exc:  # RobotSpecError is a ValueError
             fail(str(exc))

@@ -494,8 +494,8 @@ def batch_kernel(model, state, t_s, Z, U, r_diag, gate, xs_out, nis_out, dof_out
 # --------------------------------------------------------------------- slip (slip.py)
 @njit(cache=True)
 def slip_ratio_scalar(v_ang_mps, v_long_mps, dead_band_mps):
-    """:func:`slip_ratio` for one wheel and plain floats (same maths; the per-tick path, shared
-    by :func:`slip_ratio_tick` and the online estimator's compiled tick)."""
+    """:func:`slip_ratio` for one wheel and plain floats (same maths; the per-tick path of the
+    online estimator's compiled tick)."""
     if v_ang_mps != v_ang_mps or v_long_mps != v_long_mps:  # NaN in -> NaN out
         return math.nan
     if abs(v_ang_mps) < dead_band_mps and abs(v_long_mps) < dead_band_mps:
@@ -537,9 +537,9 @@ def state_machine_step(t_s, power, v_long, theta, dwell_s, idle_speed, started, 
     """One tick of :class:`WheelStateMachine` for every wheel, in place on ``state`` (int8),
     ``cand`` (int8, candidate state) and ``cand_since`` (s, when the candidate appeared).
 
-    Same rules as :func:`raw_state` plus the dwell; ``started`` False: first tick, the raw
-    state is taken at once. Shared by :class:`WheelStateMachine` and the online estimator's
-    compiled tick.
+    Hysteresis (traction or braking is left only when Power crosses theta/2) plus the dwell;
+    ``started`` False: first tick, the raw state is taken at once. Shared by
+    :class:`WheelStateMachine` and the online estimator's compiled tick.
     """
     half = 0.5 * theta
     for i in range(state.shape[0]):

@@ -39,9 +39,7 @@ import numpy as np
 # implementation, shared with the online estimator's tick)
 from terrainml.estimation._kernel import (BRAKING, IDLE, STEADY, TRACTION, manoeuvre_gain,  # noqa: F401
                                          manoeuvre_step, state_machine_step)
-from terrainml.schema import WHEEL_STATES
 
-STATE_NAMES = WHEEL_STATES
 THETA_M2PS3 = 0.02
 DWELL_S = 0.2
 IDLE_SPEED_MPS = 0.05
@@ -118,22 +116,6 @@ def wheel_power(ax_mps2, ay_mps2, yaw_rate_radps, steer_rad, v_long_mps, wheel_x
     return a_long * np.asarray(v_long_mps)
 
 
-def raw_state(power, v_long, prev, theta: float = THETA_M2PS3, idle_speed: float = IDLE_SPEED_MPS):
-    """Hysteresis classification (no dwell) given the previous state codes; vectorised over wheels."""
-    power = np.asarray(power, dtype=float)
-    prev = np.asarray(prev)
-    half = 0.5 * theta
-    cand = np.full(power.shape, STEADY, dtype=np.int8)
-    cand = np.where(power > theta, TRACTION, cand)
-    cand = np.where(power < -theta, BRAKING, cand)
-    # hysteresis: stay in traction/braking until Power crosses theta/2
-    cand = np.where((prev == TRACTION) & (power > half), TRACTION, cand)
-    cand = np.where((prev == BRAKING) & (power < -half), BRAKING, cand)
-    cand = np.where(np.abs(v_long) < idle_speed, IDLE, cand)
-    cand = np.where(~np.isfinite(power) | ~np.isfinite(v_long), prev, cand)
-    return cand.astype(np.int8)
-
-
 class WheelStateMachine:
     """Per-tick classifier with hysteresis and minimum dwell for N wheels.
 
@@ -182,8 +164,3 @@ def classify_states(t_s, power, v_long, theta: float = THETA_M2PS3, dwell_s: flo
     for k, t in enumerate(np.asarray(t_s, dtype=float)):
         out[k] = sm.step(t, power[k], v_long[k])
     return out
-
-
-def state_names(codes) -> np.ndarray:
-    """Map state codes to names (``idle|steady|traction|braking``)."""
-    return np.asarray(STATE_NAMES, dtype=object)[np.asarray(codes, dtype=int)]

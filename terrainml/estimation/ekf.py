@@ -266,12 +266,6 @@ class PlanarModel:
     def m(self) -> int:
         return len(self.rows)
 
-    @property
-    def state_names(self) -> list[str]:
-        names = ["X", "Y", "psi", "vx", "vy", "r", "ax", "ay"]
-        names += [f"delta{k + 1}" for k in range(self.robot.n_wheels) if self.steer_state[k] >= 0]
-        return names + ["bg"]
-
     # ----------------------------------------------------------------- f, F, h, H (allocating)
     # Thin wrappers over the kernels' model, for tests and the filterpy comparison.
     def f(self, x: np.ndarray, dt: float) -> np.ndarray:

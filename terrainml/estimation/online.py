@@ -30,7 +30,7 @@ from terrainml.estimation._kernel import (MAX_P_DIAG, MAX_SPEED_MPS, SLIP_MEMORY
 from terrainml.estimation.dynamic_state import DWELL_S, MANOEUVRE_TAU_S, THETA_M2PS3, WheelStateMachine
 from terrainml.estimation.ekf import Ekf, EkfPreset, PlanarModel, get_preset
 from terrainml.estimation.slip import DEAD_BAND_MPS
-from terrainml.robot import RobotSpec, load_robot
+from terrainml.robot import RobotSpec
 from terrainml.schema import VALID_GROUPS, WHEEL_STATES, wheel_col
 
 PASS_WHEEL = ("omega_radps", "current_a", "steer_rad")
@@ -79,7 +79,7 @@ class OnlineEstimator:
 
     Parameters
     ----------
-    robot : RobotSpec, name or path (None: reference robot).
+    robot : RobotSpec (resolved by the caller: :func:`terrainml.robot.load_robot`).
     preset : ``"thesis"``, ``"robust"`` or an :class:`~terrainml.estimation.ekf.EkfPreset`.
     has_imu_yaw, has_cam_yaw : whether the yaw rows exist (the run table may lack the optional
         ``imu_yaw_rad`` / ``cam_yaw_rad`` columns; rows are then simply dropped every tick).
@@ -92,16 +92,16 @@ class OnlineEstimator:
 
     Examples
     --------
-    >>> est = OnlineEstimator("agrimaro", "robust")
+    >>> est = OnlineEstimator(load_robot("agrimaro"), "robust")  # doctest: +SKIP
     >>> row = est.step({"t_s": 0.0, "wheel1_omega_radps": 0.0, ...})  # doctest: +SKIP
     >>> row["slip1"], row["state1"], row["estimator_ok"]  # doctest: +SKIP
     """
 
-    def __init__(self, robot: RobotSpec | str | None = None, preset: str | EkfPreset = "robust", *,
+    def __init__(self, robot: RobotSpec, preset: str | EkfPreset = "robust", *,
                  has_imu_yaw: bool = True, has_cam_yaw: bool = True,
                  theta: float = THETA_M2PS3, dwell_s: float = DWELL_S,
                  accel_tau_s: float = ACCEL_TAU_S) -> None:
-        self.robot = load_robot(robot)
+        self.robot = robot
         self.preset = get_preset(preset)
         self.model = PlanarModel(self.robot, has_imu_yaw=has_imu_yaw, has_cam_yaw=has_cam_yaw)
         self.ekf = Ekf(self.model, self.preset)

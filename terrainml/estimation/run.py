@@ -7,6 +7,7 @@ feeding the rows one by one to :meth:`OnlineEstimator.step`.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -15,7 +16,7 @@ import pandas as pd
 
 from terrainml.estimation.ekf import EkfPreset
 from terrainml.estimation.online import OnlineEstimator, est_state_columns, passthrough_columns
-from terrainml.robot import RobotSpec, load_robot
+from terrainml.robot import RobotSpec, reference_robot
 from terrainml.schema import WHEEL_STATES, infer_n_wheels, table_metadata, wheel_col
 
 
@@ -40,17 +41,17 @@ class Diagnostics:
     extra: dict = field(default_factory=dict)
 
 
-def _robot_for(table: pd.DataFrame, robot: RobotSpec | str | None) -> RobotSpec:
+def run_robot(table: pd.DataFrame, robot: RobotSpec | None = None) -> RobotSpec:
+    """``robot``; None: the spec the table's metadata carries, else the reference robot."""
     if robot is not None:
-        return load_robot(robot)
-    meta = table_metadata(table)
-    spec = meta.get("robot_spec")
+        return robot
+    spec = table_metadata(table).get("robot_spec")
     if spec:
-        return RobotSpec.from_json(spec if isinstance(spec, str) else __import__("json").dumps(spec))
-    return load_robot(None)
+        return RobotSpec.from_json(spec if isinstance(spec, str) else json.dumps(spec))
+    return reference_robot()
 
 
-def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | str | None = None,
+def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | None = None,
                           preset: str | EkfPreset = "robust",
                           progress: Callable[[int, int], None] | None = None,
                           on_tick: Callable[[int, OnlineEstimator], None] | None = None,
@@ -60,7 +61,7 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | str | None = N
     ``progress(k, n)`` is called about 100 times; ``on_tick(k, estimator)`` after every tick
     (tests use it to inspect ``estimator.ekf.P``).
     """
-    robot = _robot_for(table, robot)
+    robot = run_robot(table, robot)
     n_wh = infer_n_wheels(table)
     if n_wh != robot.n_wheels:
         raise ValueError(f"run table has {n_wh} wheel(s) (wheel{{i}}_omega_radps columns) but robot "
@@ -147,15 +148,14 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | str | None = N
     return df, diag
 
 
-def estimate_run(table: pd.DataFrame, robot: RobotSpec | str | None = None,
+def estimate_run(table: pd.DataFrame, robot: RobotSpec | None = None,
                  preset: str | EkfPreset = "robust") -> pd.DataFrame:
     """Run the EKF, slip and dynamic state over a canonical run table.
 
     Parameters
     ----------
     table : DataFrame (n_ticks, ...), canonical run table (design §5).
-    robot : RobotSpec, name or path; None: the spec stored in the table's metadata, else the
-        reference robot.
+    robot : RobotSpec; None: the spec stored in the table's metadata, else the reference robot.
     preset : ``"robust"`` (default) or ``"thesis"``.
 
     Returns

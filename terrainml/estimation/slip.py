@@ -16,12 +16,7 @@ wheels) and offline (arrays of shape (n_ticks, N)), so online and offline result
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-
-# per-tick rules, compiled (one implementation, shared with the online estimator's tick)
-from terrainml.estimation._kernel import lag_step, slip_ratio_scalar  # noqa: F401
 
 DEAD_BAND_MPS = 0.05
 
@@ -59,38 +54,3 @@ def slip_ratio(v_ang_mps, v_long_mps, dead_band_mps: float = DEAD_BAND_MPS):
     dead = (np.abs(va) < dead_band_mps) & (np.abs(vl) < dead_band_mps)
     s = np.where(dead, 0.0, s)
     return float(s) if s.ndim == 0 else s
-
-
-def slip_ratio_tick(v_ang_mps, v_long_mps, dead_band_mps: float = DEAD_BAND_MPS) -> list[float]:
-    """Per-tick version of :func:`slip_ratio` for a few wheels (same maths, plain floats: a
-    numpy call per wheel would cost more than the arithmetic). Returns a list of N floats."""
-    db = float(dead_band_mps)
-    return [slip_ratio_scalar(float(va), float(vl), db) for va, vl in zip(v_ang_mps, v_long_mps)]
-
-
-class EncoderLag:
-    """First-order lag ``y' = (u - y) / tau`` applied to v_long so it is in phase with an
-    encoder that reports a low-pass filtered speed (thesis §7.2.2, ODrive filtering).
-
-    Discretised exactly for a piecewise-constant input: ``y += (1 - exp(-dt / tau)) (u - y)``
-    (:func:`lag_step`, which the online estimator's compiled tick runs). ``tau = 0`` passes the
-    input through.
-    """
-
-    def __init__(self, n_wheels: int, tau_s: float) -> None:
-        self.tau_s = float(tau_s)
-        self.y = np.zeros(n_wheels)
-        self._init = False
-
-    def reset(self) -> None:
-        self._init = False
-
-    def __call__(self, u: np.ndarray, dt: float) -> np.ndarray:
-        if self.tau_s <= 0.0:
-            return u
-        if not self._init:
-            self.y[:] = u
-            self._init = True
-            return self.y.copy()
-        lag_step(self.y, np.asarray(u, dtype=float), 1.0 - math.exp(-dt / self.tau_s))
-        return self.y.copy()

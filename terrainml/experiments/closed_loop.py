@@ -138,7 +138,7 @@ def run_closed_loop(terrain: str | int, policy: str, *, model: str | Path | None
     """
     if scenario not in SCENARIOS:
         raise ValueError(f"scenario must be one of {', '.join(SCENARIOS)}, got {scenario!r}")
-    rb = load_robot(robot) if not isinstance(robot, RobotSpec) else robot
+    rb = load_robot(robot)
     cid = class_id(terrain)
     ss_scn, ss_sim = np.random.SeedSequence(int(seed)).spawn(2)
     if scenario == "straight":

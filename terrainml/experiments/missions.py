@@ -387,7 +387,7 @@ def run_mission(spec: MissionSpec, policy: str, *, model: str | Path | None = No
 
     The simulator seed and the terrain draw depend only on ``spec``.
     """
-    rb = load_robot(robot) if not isinstance(robot, RobotSpec) else robot
+    rb = load_robot(robot)
     mission = build_mission(spec)
     follower = RouteFollower(mission.route)
     duration = mission.route.start_delay_s + TIME_FACTOR * mission.route.nominal_time_s() + 1.0
@@ -443,7 +443,7 @@ def run_suite(specs: list[MissionSpec], policy: str, *, model: str | Path | None
     rows and, with ``trace_every`` > 0, the decimated :class:`MissionLog` of each mission (else an
     empty list). ``progress(done, total)`` is called after each mission.
     """
-    rb = load_robot(robot) if not isinstance(robot, RobotSpec) else robot
+    rb = load_robot(robot)
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; expected one of {', '.join(POLICIES)}")
     calls = (delayed(_run_one)(s, policy, model, rb, trace_every) for s in specs)

@@ -1,7 +1,7 @@
 """Simulated datasets from recipes (``datasets/*.yaml``): generate, build, cache.
 
 * :func:`load_recipe` reads a recipe (a YAML path or a name in ``datasets/``).
-* :func:`simulated_dataset` / :func:`simulated_windows` generate a recipe's simulated logs
+* :func:`simulated_dataset` generates a recipe's simulated logs
   (:func:`terrainml.sim.generate.generate_dataset`), build the windows
   (:func:`terrainml.pipeline.dataset.build_dataset`) and cache the result. The logs are keyed by
   the recipe and a hash of the simulator, lookup and io sources (what writes them); the windows
@@ -21,11 +21,11 @@ from pathlib import Path
 from typing import Any
 
 from terrainml._yaml_checks import read_yaml_file
-from terrainml.features.windows import Windows, WindowSpec
+from terrainml.features.windows import WindowSpec
 from terrainml.pipeline.dataset import build_dataset, read_windows, write_windows
 from terrainml.sim.generate import generate_dataset
 
-__all__ = ["load_recipe", "simulated_dataset", "simulated_windows", "RECIPES_DIR"]
+__all__ = ["load_recipe", "simulated_dataset", "RECIPES_DIR"]
 
 RECIPES_DIR = Path(__file__).resolve().parents[2] / "datasets"
 _BUILTIN = {
@@ -106,9 +106,3 @@ def simulated_dataset(recipe: str | Path | dict = "sim_default", *, runs_per_cla
                        progress=(lambda d, t, n: progress("build", d, t)) if progress else None)
     write_windows(ds, windows_path)
     return ds
-
-
-def simulated_windows(runs_per_class: int | None = None, seed: int | None = None,
-                      recipe: str | Path | dict = "sim_default", **kw) -> Windows:
-    """Windows of :func:`simulated_dataset` (what ``benchmarks/bench_models.py`` consumes)."""
-    return simulated_dataset(recipe, runs_per_class=runs_per_class, seed=seed, **kw).windows

@@ -90,10 +90,10 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-from terrainml.robot import RobotSpec, load_robot
+from terrainml.robot import RobotSpec
 
 __all__ = ["WindowSpec", "Windows", "cut_windows", "RULES", "WINDOW_SPECS",
-           "window_spec", "default_channels", "channel_source", "register_window_spec",
+           "window_spec", "default_channels", "channel_source",
            "SIDE_CHANNEL_NAMES", "WHEEL_STATE_MODES", "channel_sensor_group", "is_side_channel_set",
            "channel_column", "side_wheels"]
 
@@ -254,12 +254,6 @@ def window_spec(name: str = "steady", **overrides: Any) -> WindowSpec:
     if name not in WINDOW_SPECS:
         raise ValueError(f"unknown window spec {name!r}; expected one of {sorted(WINDOW_SPECS)}")
     return replace(WindowSpec(name=name, **WINDOW_SPECS[name]), **overrides)
-
-
-def register_window_spec(name: str, **fields_: Any) -> None:
-    """Add (or replace) a named window spec: ``fields_`` override :class:`WindowSpec` defaults."""
-    WindowSpec(name=name, **fields_)  # validate now, not when first used
-    WINDOW_SPECS[str(name)] = dict(fields_)
 
 
 # ------------------------------------------------------------------------------ channels
@@ -575,7 +569,7 @@ def _channel_plan_cached(channels: tuple[str, ...], robot: RobotSpec
     return tuple(channel_column(ch, robot) for ch in channels)
 
 
-def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec | str | None = None,
+def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec,
                 spec: WindowSpec | None = None, online: bool = False,
                 run_id: str | None = None, *, with_meta: bool = True) -> tuple[Windows, dict[str, int]]:
     """Cut steady windows from an EST table (contract 2) or a ring buffer of EST rows.
@@ -585,7 +579,7 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec |
     est : DataFrame (n_rows, ...), EST table rows in time order at ``spec.rate_hz``; or a mapping
         of column name -> array (n_rows,) (the predictor's ring buffer, no DataFrame built on
         the serving path). Both go through the same per-row conversions and rules.
-    robot : RobotSpec, name or path (None: reference robot); gives N and the channel set.
+    robot : RobotSpec (resolved by the caller); gives N and the channel set.
     spec : WindowSpec (None: defaults).
     online : bool, False: windows from row 0 every ``hop_s``; True: windows ending at the last
         row every ``online_hop_s`` backwards (a one-window buffer gives the latest window).
@@ -600,7 +594,6 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec |
         :data:`RULES` the number of candidate windows that rule rejected.
     """
     spec = spec or WindowSpec()
-    robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
     channels = tuple(spec.channels) if spec.channels is not None else default_channels(robot)
     N = robot.n_wheels
     cols = _Columns(est)

@@ -173,7 +173,7 @@ def find_logs(path: str | Path) -> list[Path]:
     raise DatasetError(f"{path}: no logs (*.mcap, *.bag, *.parquet, *.csv) found")
 
 
-def process_log(path: str | Path, robot: RobotSpec | str | None = None, preset: str = "robust",
+def process_log(path: str | Path, robot: RobotSpec, preset: str = "robust",
                 spec: WindowSpec | None = None, table: pd.DataFrame | None = None) -> dict[str, Any]:
     """Ingest, estimate and window one log (or an already ingested run ``table``).
 
@@ -185,7 +185,6 @@ def process_log(path: str | Path, robot: RobotSpec | str | None = None, preset: 
     ``unlabelled``), ``class_names`` (from the table's metadata when it brings its own).
     """
     spec = spec or window_spec(DEFAULT_WINDOWS)
-    robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
     path = Path(path)
     out: dict[str, Any] = {"source": path.name, "run_id": path.stem, "status": "ok", "message": "",
                            "n_rows": 0, "windows": None, "counts": {}, "class_names": None,
@@ -396,7 +395,7 @@ def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | 
     Dataset (windows in input-log order, per-run table, rejection counts).
     """
     spec = spec or window_spec(DEFAULT_WINDOWS)
-    robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
+    robot = load_robot(robot)
     spec = _with_channels(spec, robot)
     paths = find_logs(source) if isinstance(source, (str, Path)) else [Path(p) for p in source]
     total = len(paths)
@@ -425,7 +424,7 @@ def build_from_tables(tables: Sequence[pd.DataFrame], robot: RobotSpec | str | N
                       names: Sequence[str] | None = None) -> Dataset:
     """Like :func:`build_dataset` for already ingested run tables (e.g. the BorealTC reader)."""
     spec = spec or window_spec(DEFAULT_WINDOWS)
-    robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
+    robot = load_robot(robot)
     spec = _with_channels(spec, robot)
     names = names or [str(t["run_id"].iloc[0]) if "run_id" in t.columns and len(t) else f"run{k}"
                       for k, t in enumerate(tables)]

@@ -52,7 +52,6 @@ Steady-state truth for missions (demand ratio, oracle cap)::
 
     effective_net_traction(params, load_n, slip, robot)  # mu_net incl. the dig-in sinkage state
     traction_peak(params, load_n, robot) -> (slip, mu_net)
-    max_climbable_grade_rad(params, load_n, robot)       # atan(mu_net peak)
 
 Assumptions and departures are listed in docs/sim.md ("Mission physics") and design §6, §6.2.
 """
@@ -72,7 +71,7 @@ from terrainml.robot import MotorSpec
 __all__ = [
     "TowedLoad", "DigParams", "dig_params", "BELLY_MU", "BELLY_RAMP_M", "DEFAULT_GROUND_CLEARANCE_M",
     "DEFAULT_MOTOR", "steady_dig_sinkage_m", "effective_net_traction", "traction_peak",
-    "max_climbable_grade_rad", "cart_crr_per_class",
+    "cart_crr_per_class",
 ]
 
 DEFAULT_GROUND_CLEARANCE_M = 0.10   # assumption: belly 10 cm above the contact (wheel R 0.165 m)
@@ -205,12 +204,3 @@ def traction_peak(p: tm.TerrainParams, load_n: float, robot=None) -> tuple[float
     mu = effective_net_traction(p, load_n, s, robot)
     i = int(np.argmax(mu))
     return float(s[i]), float(mu[i])
-
-
-def max_climbable_grade_rad(p: tm.TerrainParams, load_n: float, robot=None) -> float:
-    """Steepest grade the robot holds steady speed on (no towed load): atan(mu_net peak).
-
-    On a grade theta every wheel's load is W cos(theta) and the body needs m g sin(theta), so
-    a steady climb needs mu_net >= tan(theta) (load dependence of mu_net neglected).
-    """
-    return math.atan(max(traction_peak(p, load_n, robot)[1], 0.0))

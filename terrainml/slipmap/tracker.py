@@ -69,33 +69,6 @@ class ClosedSplinePath:
         j = np.argmin(d, axis=1)
         return cand[np.arange(len(xy)), j], d[np.arange(len(xy)), j]
 
-    def point_ahead(self, idx, distance_m: float):
-        """World point ``distance_m`` of arc length ahead of dense index ``idx``; shape (m, 2)."""
-        k = (np.asarray(idx) + int(round(distance_m / self.spacing_m))) % self.n
-        return self.points_m[k]
-
-
-def pure_pursuit_yaw_rate(xy_m, yaw_rad, target_xy_m, speed_mps: float, lookahead_m: float,
-                          slip_angle_rad=0.0):
-    """Pure-pursuit yaw-rate command (rad/s) towards ``target_xy_m``.
-
-    ``eta`` is the angle from the velocity direction ``yaw + slip_angle`` to the target; the
-    commanded curvature is ``2 sin(eta) / L_d`` and the yaw rate ``v * curvature``.
-
-    Parameters
-    ----------
-    xy_m, target_xy_m : arrays, shape (m, 2)  world positions
-    yaw_rad : array, shape (m,)
-    speed_mps : forward speed command
-    lookahead_m : look-ahead distance L_d
-    slip_angle_rad : array or float, predicted lateral slip angle (0: plain pure pursuit)
-    """
-    xy = np.atleast_2d(xy_m)
-    tgt = np.atleast_2d(target_xy_m)
-    bearing = np.arctan2(tgt[:, 1] - xy[:, 1], tgt[:, 0] - xy[:, 0])
-    eta = np.angle(np.exp(1j * (bearing - np.asarray(yaw_rad) - slip_angle_rad)))
-    return speed_mps * 2.0 * np.sin(eta) / lookahead_m
-
 
 def path_following_yaw_rate(xy_m, yaw_rad, path: ClosedSplinePath, idx, speed_mps: float,
                             k_lateral_per_m2: float = 4.0, k_heading_radps: float = 2.0,

@@ -7,7 +7,7 @@ import pytest
 
 from terrainml.control.traction import FixedTargetTable, SlipController, tuned_config
 from terrainml.estimation.slip import slip_ratio
-from terrainml.estimation.synthetic import kinematic_run, trapezoid_speed
+from terrainml.testing import kinematic_run, trapezoid_speed
 from terrainml.robot import load_robot
 
 CRUISE_MPS = 0.8

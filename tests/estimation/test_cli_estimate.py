@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 import terrainml.estimation.run as est_run
 from terrainml.cli import app
-from terrainml.estimation.synthetic import kinematic_run
+from terrainml.testing import kinematic_run
 from terrainml.schema import write_run_parquet
 
 from cli_refusal import assert_refused

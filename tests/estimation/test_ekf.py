@@ -11,8 +11,8 @@ from reference_ekf import ReferenceEkf
 from terrainml.estimation.ekf import Ekf, PlanarModel, wrap_angle
 from terrainml.estimation.online import OnlineEstimator
 from terrainml.estimation.run import estimate_run, estimate_run_detailed
-from terrainml.estimation.synthetic import kinematic_run
 from terrainml.robot import load_robot
+from terrainml.testing import kinematic_run
 
 
 def _fd_jacobian(fun, x, eps=1e-6):
@@ -125,7 +125,7 @@ def test_online_estimator_with_compiled_filter_equals_numpy_reference():
     for preset in ("thesis", "robust"):
         outs = []
         for filt in (ReferenceEkf, Ekf):
-            est = OnlineEstimator("agrimaro", preset)
+            est = OnlineEstimator(load_robot("agrimaro"), preset)
             est.ekf = filt(est.model, preset)
             xs = []
             for rec in df.to_dict("records"):
@@ -144,7 +144,7 @@ def _bare_sequence(preset):
     df = kinematic_run(duration_s=8.0, slip=0.2, seed=4, yaw_rate=lambda t: 0.3 * np.sin(0.5 * t),
                        cam_dropouts=((3.0, 3.5),))
     df.loc[200:202, "cam_vx_mps"] += 0.8
-    est = OnlineEstimator("agrimaro", preset)
+    est = OnlineEstimator(load_robot("agrimaro"), preset)
     Z = np.column_stack([df[c].to_numpy(float) for c in est.row_columns])
     return est.model, df["t_s"].to_numpy(), Z, np.isfinite(Z), est._r_base
 
@@ -224,7 +224,7 @@ def test_estimate_run_without_numba_matches_compiled():
         pytest.skip("numba not installed: this process already runs the fallback")
     code = ("import json, numpy as np\n"
             "from terrainml.estimation.run import estimate_run\n"
-            "from terrainml.estimation.synthetic import kinematic_run\n"
+            "from terrainml.testing import kinematic_run\n"
             "df = kinematic_run(duration_s=4.0, slip=0.2, seed=2, cam_dropouts=((2.0, 2.6),))\n"
             "out = {p: estimate_run(df, preset=p) for p in ('thesis', 'robust')}\n"
             "print(json.dumps({p: {'v': e[['ekf_vx_mps', 'ekf_vy_mps', 'slip1', 'v_long2_mps', 'nis']]"

@@ -7,7 +7,8 @@ import pytest
 from terrainml.estimation.consistency import consistency_report, truth_metrics
 from terrainml.estimation.online import OnlineEstimator
 from terrainml.estimation.run import estimate_run, estimate_run_detailed
-from terrainml.estimation.synthetic import kinematic_run
+from terrainml.robot import load_robot
+from terrainml.testing import kinematic_run
 
 EST_CORE = ["t_s", "ekf_x_m", "ekf_y_m", "ekf_yaw_rad", "ekf_vx_mps", "ekf_vy_mps", "ekf_yaw_rate_radps",
             "ekf_ax_mps2", "ekf_ay_mps2", "ekf_steer1_rad", "ekf_steer2_rad", "ekf_steer3_rad",
@@ -36,7 +37,7 @@ def test_est_columns_exactly_contract(soft_run):
 def test_offline_equals_online(soft_run):
     part = soft_run.iloc[:400]
     off = estimate_run(part, preset="robust")
-    on = OnlineEstimator("agrimaro", "robust")
+    on = OnlineEstimator(load_robot("agrimaro"), "robust")
     rows = [on.step({k: v for k, v in rec.items()}) for rec in part.to_dict("records")]
     onl = pd.DataFrame(rows)[off.columns]
     for c in off.columns:
@@ -80,8 +81,9 @@ def test_camera_dropout_falls_back_and_marks_slip_unavailable():
 
 
 def test_husky_without_camera_runs_with_slip_unavailable():
-    df = kinematic_run("husky", duration_s=8.0, seed=4)
-    est = estimate_run(df, robot="husky")
+    husky = load_robot("husky")
+    df = kinematic_run(husky, duration_s=8.0, seed=4)
+    est = estimate_run(df, robot=husky)
     assert est["slip1"].isna().all() and not est["slip_available"].any()
     assert [c for c in est.columns if c.startswith("ekf_steer")] == [f"ekf_steer{i}_rad" for i in range(1, 5)]
     assert (est[[f"ekf_steer{i}_rad" for i in range(1, 5)]] == 0).all().all()

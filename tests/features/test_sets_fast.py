@@ -44,7 +44,7 @@ def _pipeline_windows() -> Windows:
     wins = []
     for k, (v, s, i) in enumerate([(0.8, 0.12, 4.0), (1.3, 0.3, -3.0), (0.6, 0.004, 1.5)]):
         est = make_est(n=800, speed_mps=v, slip=s, current_a=i, seed=k, run_id=f"r{k}")
-        w, _ = cut_windows(est, "agrimaro")
+        w, _ = cut_windows(est, load_robot("agrimaro"))
         wins.append(w)
     X = np.concatenate([w.X for w in wins])
     meta = pd.concat([w.meta for w in wins], ignore_index=True)

@@ -14,7 +14,7 @@ from est_synth import make_est
 
 def test_steady_run_keeps_every_window_with_exact_means():
     est = make_est(n=1000, speed_mps=0.8, slip=0.12, current_a=4.0)
-    wins, counts = cut_windows(est, "agrimaro")
+    wins, counts = cut_windows(est, load_robot("agrimaro"))
     assert counts["n_windows"] == 5 and counts["n_kept"] == 5 and counts["n_rejected"] == 0
     assert wins.X.shape == (5, 12, 200)
     assert wins.channels == ("slip_1", "slip_2", "slip_3", "current_1", "current_2", "current_3",
@@ -40,7 +40,7 @@ def test_each_rule_rejects_its_window_and_is_counted():
     t = est["t_s"].to_numpy().copy()
     t[1250:] += 0.05                                              # a 5-tick gap inside window 6
     est["t_s"] = t
-    wins, counts = cut_windows(est, "agrimaro")
+    wins, counts = cut_windows(est, load_robot("agrimaro"))
     assert counts["n_windows"] == 10
     for rule in ("wheel_state", "speed", "acceleration", "steering", "terrain_label",
                  "channel_valid", "time_gap"):
@@ -55,7 +55,7 @@ def test_tolerated_invalid_samples_are_interpolated():
     est.loc[10:14, "wheel1_current_a"] = np.nan  # 2.5% < 5%: kept
     est["wheel1_current_a"] = est["wheel1_current_a"].where(est.index.to_series().sub(12).abs() > 2,
                                                             np.nan)
-    wins, counts = cut_windows(est, "agrimaro")
+    wins, counts = cut_windows(est, load_robot("agrimaro"))
     assert counts["n_kept"] == 1
     x = wins.X[0, wins.channels.index("current_1")]
     assert np.isfinite(x).all()
@@ -80,18 +80,18 @@ def test_robot_without_camera_has_no_slip_channels():
 def test_restricted_channels_and_unknown_channel():
     est = make_est(n=200)
     spec = WindowSpec(channels=("current_1", "vx"))
-    wins, _ = cut_windows(est, "agrimaro", spec)
+    wins, _ = cut_windows(est, load_robot("agrimaro"), spec)
     assert wins.X.shape == (1, 2, 200)
     with pytest.raises(ValueError, match="unknown window channel"):
-        cut_windows(est, "agrimaro", WindowSpec(channels=("torque_1",)))
+        cut_windows(est, load_robot("agrimaro"), WindowSpec(channels=("torque_1",)))
 
 
 def test_online_cut_of_one_buffer_is_the_latest_window():
     est = make_est(n=450)
-    wins, counts = cut_windows(est, "agrimaro", online=True)
+    wins, counts = cut_windows(est, load_robot("agrimaro"), online=True)
     # ends at the last row, hop 0.5 s backwards: starts 250, 200, ..., 0 -> 6 windows
     assert wins.meta["start_index"].tolist() == [0, 50, 100, 150, 200, 250]
-    one, _ = cut_windows(est.iloc[-200:].reset_index(drop=True), "agrimaro", online=True)
+    one, _ = cut_windows(est.iloc[-200:].reset_index(drop=True), load_robot("agrimaro"), online=True)
     assert len(one) == 1
     np.testing.assert_array_equal(one.X[0], wins.X[-1])
 
@@ -103,10 +103,10 @@ def test_ring_buffer_layout_bools_as_floats_no_labels_gives_the_same_window():
     for c in buf.columns:
         if buf[c].dtype == bool:
             buf[c] = buf[c].astype(float)
-    a, _ = cut_windows(est, "agrimaro", online=True)
-    b, _ = cut_windows(buf, "agrimaro", online=True)
+    a, _ = cut_windows(est, load_robot("agrimaro"), online=True)
+    b, _ = cut_windows(buf, load_robot("agrimaro"), online=True)
     np.testing.assert_array_equal(a.X, b.X)
     assert b.meta["terrain"].tolist() == [-1]
     buf.loc[:15, "imu_valid"] = 0.0  # 8% invalid -> rejected
-    c, counts = cut_windows(buf, "agrimaro", online=True)
+    c, counts = cut_windows(buf, load_robot("agrimaro"), online=True)
     assert len(c) == 0 and counts["channel_valid"] == 1

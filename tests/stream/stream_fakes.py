@@ -93,7 +93,7 @@ def make_samples(robot, duration_s, *, speed_mps=1.0, slip=0.1, terrain=3, t0=0.
 def _synthetic_windows(robot, seed_base=0):
     """Steady windows of 4 'classes' (slip levels 0.02, 0.12, 0.22, 0.32) from kinematic runs."""
     from terrainml.estimation.run import estimate_run
-    from terrainml.estimation.synthetic import kinematic_run, trapezoid_speed
+    from terrainml.testing import kinematic_run, trapezoid_speed
     from terrainml.features.windows import Windows, cut_windows
 
     wins = []

@@ -14,7 +14,7 @@ import pytest
 from mcap_damage import corrupt_middle_chunk
 from stream_fakes import SLIP_OF
 
-from terrainml.estimation.synthetic import kinematic_run, trapezoid_speed
+from terrainml.testing import kinematic_run, trapezoid_speed
 from terrainml.robot import load_robot
 from terrainml.stream.sources import iter_table_samples
 

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from terrainml.cli import app
 from terrainml.control.pid import SlipPIDConfig
 from terrainml.control.traction import SlipController
-from terrainml.estimation.synthetic import kinematic_run
+from terrainml.testing import kinematic_run
 from terrainml.experiments.closed_loop import closed_loop_hook, run_closed_loop
 from terrainml.robot import load_robot
 from terrainml.sim.generate import simulate

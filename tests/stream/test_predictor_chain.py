@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from stream_fakes import FakeClassifier, FakeTable
 
-from terrainml.estimation.synthetic import kinematic_run
+from terrainml.testing import kinematic_run
 from terrainml.stream.predictor import Predictor
 from terrainml.stream.sources import iter_table_samples
 
