@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 from tempfile import TemporaryDirectory
 
@@ -31,7 +30,7 @@ from terrainml.experiments.borealtc import (ProtocolData, course_runs, course_sc
                                             robot_track_m, run_protocol)
 from terrainml.features.windows import window_spec
 from terrainml.io.borealtc import load_borealtc
-from terrainml.pipeline.dataset import build_from_tables, dataset_channels
+from terrainml.pipeline.dataset import build_from_tables
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
 from terrainml.stream.predictor import Predictor
@@ -75,8 +74,7 @@ def served_course(tables, report, robot, model: str, held: list[str] | None = No
     """Train ``model`` on wheels + currents of every run but ``held`` (default: the last run of
     every class), serve the 30 s course of the held runs tick by tick, score it (course_score)."""
     held = course_runs(tables) if held is None else held
-    spec = window_spec("chunks")
-    spec = replace(spec, channels=dataset_channels(robot, spec, ["wheels", "currents"]))
+    spec = window_spec("chunks").resolve(robot, ["wheels", "currents"])
     ds = build_from_tables([t for t in tables if str(t["run_id"].iloc[0]) not in held], robot, spec=spec)
     course = make_course(tables, held, segment_s=30.0)
     with TemporaryDirectory() as tmp:

@@ -12,7 +12,7 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail, open_dataset, open_robot
+from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail, open_dataset
 
 dataset_app = typer.Typer(help="Build window datasets (steady 2 s windows) from logs.", no_args_is_help=True)
 
@@ -83,30 +83,25 @@ def build_with_progress(source: Path, *, robot: Optional[str], preset: str, n_jo
                         sensors: Optional[list] = None):
     """Build a Dataset from a folder of logs (or BorealTC layout) with a rich progress bar.
 
-    ``sensors`` restricts the window channels to those sensor groups (``--sensors``).
+    The edge of ``dataset build`` and ``train --data FOLDER``: the robot (default: the format's,
+    :func:`terrainml.pipeline.dataset.dataset_robot`) and the window spec (restricted to
+    ``sensors``, ``--sensors``: :func:`terrainml.pipeline.dataset.resolve_spec`) are resolved here
+    once; everything below takes the two objects.
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from terrainml.pipeline.dataset import build_dataset, build_from_tables, find_logs
+    from terrainml.pipeline.dataset import DatasetError, build_dataset, dataset_robot, find_logs, resolve_spec
+    from terrainml.robot import RobotSpecError
 
-    if fmt == "borealtc":
-        from terrainml.io.borealtc import load_borealtc
-
-        rb = open_robot(robot or "husky")
-        spec = _restrict(spec, rb, sensors)
-        tables, rep = load_borealtc(source, robot=rb)
-        if not quiet:
-            console.print(f"BorealTC: {rep.runs} runs, classes {rep.classes}; runs without IMU "
-                          f"(wheel channels invalid, their windows rejected): {len(rep.runs_without_imu)}; "
-                          f"skipped: {len(rep.skipped)}", highlight=False)
-        if not tables:
-            fail(f"{source}: no BorealTC runs read ({rep.skipped})")
-        return build_from_tables(tables, rb, preset, spec, n_jobs=n_jobs)
-    if fmt != "auto":
-        fail(f"unknown --format {fmt!r}; expected auto or borealtc")
-    paths = find_logs(source)
-    rb = open_robot(robot)
-    spec = _restrict(spec, rb, sensors)
+    try:
+        rb = dataset_robot(robot, fmt)
+        spec = resolve_spec(spec, rb, sensors)
+        if fmt == "borealtc":  # tables, not logs: no progress bar
+            return build_dataset(source, rb, preset, spec, n_jobs=n_jobs, fmt=fmt,
+                                 say=None if quiet else (lambda line: console.print(line, highlight=False)))
+        paths = find_logs(source)
+    except (DatasetError, RobotSpecError) as exc:
+        fail(str(exc))
     with Progress(TextColumn("[bold]dataset[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), console=console, transient=True, disable=quiet) as progress:
         task = progress.add_task(str(source), total=len(paths))
@@ -115,22 +110,6 @@ def build_with_progress(source: Path, *, robot: Optional[str], preset: str, n_jo
             progress.update(task, completed=done, total=total, description=name)
 
         return build_dataset(paths, rb, preset, spec, n_jobs=n_jobs, dask_address=dask_address, progress=cb)
-
-
-def _restrict(spec, robot, sensors):
-    """``spec`` with its channels restricted to the sensor groups (unchanged when None)."""
-    from dataclasses import replace
-
-    from terrainml.features.windows import window_spec
-    from terrainml.pipeline.dataset import DEFAULT_WINDOWS, dataset_channels
-
-    if sensors is None:
-        return spec
-    spec = spec or window_spec(DEFAULT_WINDOWS)
-    try:
-        return replace(spec, channels=dataset_channels(robot, spec, sensors))
-    except ValueError as exc:
-        fail(str(exc))
 
 
 def build(

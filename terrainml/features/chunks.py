@@ -10,6 +10,11 @@ the fewest chunks gets ``max_windows_per_chunk`` windows per chunk, every other 
 number of windows (:func:`windows_per_chunk`). The BorealTC protocols
 (:mod:`terrainml.experiments.borealtc`) and ``terrainml dataset build --windows chunks``
 (:mod:`terrainml.pipeline.dataset`) both call these functions, so both see the same windows.
+
+The dataset builder's chunked mode lives here too: :func:`chunk_source` keeps the columns a run
+contributes, and :func:`cut_chunked_runs` cuts the windows of all runs at once (the class
+balancing needs every run) and counts, per run, the chunks each rule dropped. A spec is chunked
+when it has a ``chunk_s`` (:attr:`terrainml.features.windows.WindowSpec.chunk_s`).
 """
 
 from __future__ import annotations
@@ -21,10 +26,12 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from terrainml.features.windows import Windows, channel_column
+from terrainml.features.windows import RULES, Windows, WindowSpec, channel_column, channel_sensor_group
+from terrainml.robot import RobotSpec
 
 __all__ = ["SIDE_CHANNELS", "VALID_COLUMNS", "ChunkSet", "make_chunks", "windows_per_chunk",
-           "chunk_windows", "radius_from_tables", "side_channel_columns"]
+           "chunk_windows", "radius_from_tables", "side_channel_columns", "needs_estimation",
+           "chunk_source", "cut_chunked_runs"]
 
 #: raw channels of a skid-steer robot without camera: window channel name -> run-table column.
 #: ``current_left``/``speed_left_mps`` come from wheel 1 (front-left; the Husky's left motor drives
@@ -213,3 +220,84 @@ def radius_from_tables(tables) -> float:
 def side_channel_columns(channels: Sequence[str], robot) -> dict[str, str]:
     """Run-table column of each side channel for ``robot`` (its first left/right wheel)."""
     return {c: channel_column(c, robot)[0] for c in channels}
+
+
+# ------------------------------------------------------------------------------------ dataset mode
+def needs_estimation(channels: Sequence[str]) -> bool:
+    """True when a channel comes from the EKF (body velocity) or the camera (slip)."""
+    return any(channel_sensor_group(c) in ("estimator", "cam") for c in channels)
+
+
+def chunk_source(src: pd.DataFrame, table: pd.DataFrame, robot: RobotSpec, channels: Sequence[str]) -> pd.DataFrame:
+    """The columns of one run that the chunked mode cuts: time, run id, label, channels and validity.
+
+    Parameters
+    ----------
+    src : the run's EST table when :func:`needs_estimation` (``channels``), else ``table``.
+    table : the canonical run table (run id and base rate when ``src`` lacks them).
+    robot : RobotSpec (the side channels' wheels). channels : the spec's window channels.
+    """
+    cols = ["t_s", "run_id", "terrain"]
+    for ch in channels:
+        col, vcols, _ = channel_column(ch, robot)
+        cols += [col, *vcols]
+    out = pd.DataFrame({c: src[c].to_numpy() for c in dict.fromkeys(cols) if c in src.columns})
+    if "run_id" not in out.columns:
+        out["run_id"] = str(table["run_id"].iloc[0]) if "run_id" in table.columns else ""
+    if "terrain" not in out.columns:
+        out["terrain"] = -1
+    out.attrs["terrainml"] = {"rate_hz": (table.attrs.get("terrainml") or {}).get("rate_hz")}
+    return out
+
+
+def cut_chunked_runs(tables: Sequence[pd.DataFrame], run_ids: Sequence[str], robot: RobotSpec,
+                     spec: WindowSpec) -> list[tuple[Windows, dict]]:
+    """Windows and rejection counts of every run, cut over all runs at once (chunked spec).
+
+    Parameters
+    ----------
+    tables : :func:`chunk_source` tables, one per run (non-empty). run_ids : their run ids.
+    robot : RobotSpec. spec : the resolved chunked spec (``channels`` set).
+
+    Returns
+    -------
+    One ``(windows, counts)`` per table: the run's windows (meta without ``chunk_id``) and counts
+    whose ``n_windows`` are its chunks, ``n_rejected`` the chunks dropped (``channel_valid``: an
+    invalid sample; ``terrain_label``: a missing or changing label).
+    """
+    channels = spec.channels_for(robot)
+    valid_cols = sorted({v for ch in channels for v in channel_column(ch, robot)[1]})
+    chunks = make_chunks(tables, chunk_s=float(spec.chunk_s), valid_cols=valid_cols)
+    cols = {ch: channel_column(ch, robot)[0] for ch in channels}
+    if len(chunks):
+        wins = chunk_windows(tables, chunks, window_s=spec.window_s, max_windows_per_chunk=spec.windows_per_chunk,
+                             homogeneous=spec.homogeneous, channels=cols, wheel_radius_m=robot.wheel_radius_m)
+    else:
+        wins = Windows.concat([], channels=channels, n_samples=spec.n_samples, rate_hz=spec.rate_hz)
+    L = chunks.chunk_samples
+    run_of_window = wins.meta["run_id"].astype(str).to_numpy() if len(wins) else np.array([], dtype=object)
+    kept_chunks = chunks.meta.groupby("table").size().to_dict() if len(chunks) else {}
+    out = []
+    for k, (table, run_id) in enumerate(zip(tables, run_ids)):
+        w = wins.subset(np.flatnonzero(run_of_window == str(run_id)))
+        w.meta = w.meta.drop(columns=["chunk_id"], errors="ignore")
+        n_chunks = len(table) // L
+        lost = n_chunks - int(kept_chunks.get(k, 0))
+        counts = {"n_windows": int(n_chunks), "n_kept": int(len(w)), "n_rejected": int(lost)}
+        counts.update({rule: 0 for rule in RULES})
+        invalid = min(_invalid_chunks(table, L, valid_cols), lost)
+        counts["channel_valid"] = int(invalid)
+        counts["terrain_label"] = int(lost - invalid)
+        counts["unlabelled"] = 0
+        out.append((w, counts))
+    return out
+
+
+def _invalid_chunks(df: pd.DataFrame, L: int, valid_cols) -> int:
+    """Chunks of ``L`` rows of ``df`` with an invalid row (any of ``valid_cols`` false)."""
+    ok = np.ones(len(df), bool)
+    for c in valid_cols:
+        if c in df.columns:
+            ok &= df[c].to_numpy(dtype=bool)
+    n = len(df) // L
+    return int(sum(not ok[s * L:(s + 1) * L].all() for s in range(n)))

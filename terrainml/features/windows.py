@@ -95,7 +95,7 @@ from terrainml.robot import RobotSpec
 __all__ = ["WindowSpec", "Windows", "cut_windows", "RULES", "WINDOW_SPECS",
            "window_spec", "default_channels", "channel_source",
            "SIDE_CHANNEL_NAMES", "WHEEL_STATE_MODES", "channel_sensor_group", "is_side_channel_set",
-           "channel_column", "side_wheels"]
+           "channel_column", "side_wheels", "SENSOR_GROUPS"]
 
 RULES: tuple[str, ...] = ("time_gap", "wheel_state", "speed", "acceleration", "steering",
                           "terrain_label", "channel_valid")
@@ -110,6 +110,8 @@ _GYRO_COLUMNS = {"imu_wx": "imu_roll_rate_radps", "imu_wy": "imu_pitch_rate_radp
 #: ``steady``: every wheel steady or idle; ``dominant``: every wheel in one moving state
 WHEEL_STATE_MODES = ("steady", "dominant")
 MOVING_STATES = ("steady", "traction", "braking")
+#: sensor groups a window channel (and a model) may need: wheel speeds, motor currents, IMU, camera
+SENSOR_GROUPS = ("wheels", "currents", "imu", "cam")
 #: ``only``: a window with two terrain labels is rejected (``terrain_label``); ``end``: kept,
 #: labelled with the terrain of its newest labelled row
 LABEL_AT = ("only", "end")
@@ -197,6 +199,44 @@ class WindowSpec:
     def hop_samples(self, online: bool = False) -> int:
         """Hop in samples (offline or online)."""
         return max(1, int(round((self.online_hop_s if online else self.hop_s) * self.rate_hz)))
+
+    def channels_for(self, robot: RobotSpec, sensors: Sequence[str] | None = None) -> tuple[str, ...]:
+        """The window channels for ``robot``, restricted to the sensor groups ``sensors``.
+
+        ``channels`` wins when given. A chunked spec (``chunk_s``, the ``chunks`` spec) takes the
+        side channels of a camera-less robot (design §8), the other specs the canonical channels
+        (:func:`default_channels`). ``sensors`` (None: all) keeps only the channels of the groups
+        listed (of :data:`SENSOR_GROUPS`; the estimator's and the wheels' always). ValueError names
+        an unknown group, or says that no channel is left.
+        """
+        if sensors is not None:
+            unknown = [g for g in sensors if g not in SENSOR_GROUPS]
+            if unknown:
+                raise ValueError(f"unknown sensor group(s) {unknown}; expected some of {list(SENSOR_GROUPS)}")
+        if self.channels is not None:
+            chans = tuple(self.channels)
+        elif self.chunk_s is not None:
+            chans = SIDE_CHANNEL_NAMES
+        else:
+            chans = default_channels(robot)
+        if sensors is None:
+            return chans
+        keep = set(sensors) | {"estimator", "wheels"}
+        out = tuple(c for c in chans if channel_sensor_group(c) in keep)
+        if not out:
+            raise ValueError(f"no window channel left for sensors {list(sensors)} (channels {list(chans)})")
+        return out
+
+    def resolve(self, robot: RobotSpec, sensors: Sequence[str] | None = None) -> "WindowSpec":
+        """This spec as a dataset of ``robot`` records it: what every step below the edge takes.
+
+        With ``sensors`` the channels are :meth:`channels_for` those groups; a chunked spec
+        without channels gets its side channels. Otherwise ``channels`` stays None, meaning the
+        robot's canonical channels (so specs, datasets and artifacts keep their recorded form).
+        """
+        if sensors is not None or (self.chunk_s is not None and self.channels is None):
+            return replace(self, channels=self.channels_for(robot, sensors))
+        return self
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -594,7 +634,7 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec,
         :data:`RULES` the number of candidate windows that rule rejected.
     """
     spec = spec or WindowSpec()
-    channels = tuple(spec.channels) if spec.channels is not None else default_channels(robot)
+    channels = spec.channels_for(robot)
     N = robot.n_wheels
     cols = _Columns(est)
     n = cols.n

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -33,16 +33,18 @@ from joblib import Parallel, delayed, parallel_config
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.estimation.run import estimate_run
-from terrainml.features.chunks import chunk_windows, make_chunks
-from terrainml.features.windows import (RULES, SIDE_CHANNEL_NAMES, Windows, WindowSpec, channel_column,
-                                        channel_sensor_group, cut_windows, default_channels, window_spec)
+from terrainml.features.chunks import chunk_source, cut_chunked_runs, needs_estimation
+from terrainml.features.windows import (RULES, SENSOR_GROUPS, Windows, WindowSpec, channel_column,
+                                        channel_sensor_group, cut_windows, window_spec)
+from terrainml.io.borealtc import load_borealtc
 from terrainml.io.damage import damage_summary
 from terrainml.io.ingest import load_run
-from terrainml.robot import RobotSpec, load_robot
+from terrainml.robot import REFERENCE_ROBOT, RobotSpec, load_robot
 
-__all__ = ["find_logs", "process_log", "build_dataset", "Dataset", "write_windows",
-           "read_windows", "fingerprint", "DatasetError", "LOG_SUFFIXES", "SENSOR_GROUPS",
-           "dataset_channels", "sensors_of", "class_report", "LOSS_HINT_FRACTION", "DEFAULT_WINDOWS"]
+__all__ = ["find_logs", "process_log", "build_dataset", "build_from_tables", "Dataset", "RunResult",
+           "write_windows", "read_windows", "fingerprint", "DatasetError", "LOG_SUFFIXES", "SENSOR_GROUPS",
+           "sensors_of", "class_report", "LOSS_HINT_FRACTION", "DEFAULT_WINDOWS", "FORMAT_ROBOTS",
+           "dataset_robot", "resolve_spec"]
 
 #: window spec of a dataset built without one (design §8, issue #19): ``short`` windows exist in
 #: stop-and-go and after every transition, so a model trained by default serves through them
@@ -55,8 +57,8 @@ FORMAT_VERSION = 1
 META_KEY = b"terrainml_windows"
 LOG_SUFFIXES = (".mcap", ".bag", ".parquet", ".csv")
 NOT_LOGS = {"index.csv"}
-#: sensor groups a model may need (``train --sensors``): wheel speeds, motor currents, IMU, camera
-SENSOR_GROUPS = ("wheels", "currents", "imu", "cam")
+#: dataset formats (``dataset build --format``) and the robot each is read with when none is named
+FORMAT_ROBOTS = {"auto": REFERENCE_ROBOT, "borealtc": "husky"}
 #: a class that keeps less than this share of its candidate windows gets a hint
 LOSS_HINT_FRACTION = 0.5
 #: what to try when a rule rejects most of a class (``dataset build`` prints it)
@@ -77,33 +79,6 @@ def sensors_of(channels) -> list[str]:
     """Sensor groups the channels need (wheels always: the estimator and the speeds need them)."""
     groups = {channel_sensor_group(c) for c in channels} - {"estimator"}
     return [g for g in SENSOR_GROUPS if g in groups or g == "wheels"]
-
-
-def dataset_channels(robot: RobotSpec, spec: WindowSpec, sensors=None) -> tuple[str, ...]:
-    """Window channels for a robot and spec, restricted to the sensor groups ``sensors``.
-
-    ``spec.channels`` wins when given. The ``chunks`` spec takes the side channels of a
-    camera-less robot (design §8), the other specs the canonical channels
-    (:func:`~terrainml.features.windows.default_channels`). ``sensors`` (None: all) drops the
-    channels of the groups not listed; ValueError names an unknown group.
-    """
-    if sensors is not None:
-        unknown = [g for g in sensors if g not in SENSOR_GROUPS]
-        if unknown:
-            raise ValueError(f"unknown sensor group(s) {unknown}; expected some of {list(SENSOR_GROUPS)}")
-    if spec.channels is not None:
-        chans = tuple(spec.channels)
-    elif spec.chunk_s is not None:
-        chans = SIDE_CHANNEL_NAMES
-    else:
-        chans = default_channels(robot)
-    if sensors is None:
-        return chans
-    keep = set(sensors) | {"estimator", "wheels"}
-    out = tuple(c for c in chans if channel_sensor_group(c) in keep)
-    if not out:
-        raise ValueError(f"no window channel left for sensors {list(sensors)} (channels {list(chans)})")
-    return out
 
 
 class DatasetError(ValueError):
@@ -173,61 +148,103 @@ def find_logs(path: str | Path) -> list[Path]:
     raise DatasetError(f"{path}: no logs (*.mcap, *.bag, *.parquet, *.csv) found")
 
 
-def process_log(path: str | Path, robot: RobotSpec, preset: str = "robust",
-                spec: WindowSpec | None = None, table: pd.DataFrame | None = None) -> dict[str, Any]:
+@dataclass
+class RunResult:
+    """What one log gave the dataset (one row of :attr:`Dataset.runs`, and its windows).
+
+    Attributes
+    ----------
+    source : file name of the log. run_id : the run's id (the table's ``run_id``, else the stem).
+    status : ``ok``; ``damaged`` (usable, but the log lost messages or cells, counted in
+        ``message``); ``unusable``; ``error``.
+    message : why, for a status other than ``ok``. n_rows : rows of the run table.
+    windows : Windows (unlabelled windows dropped), None until cut or when the run failed.
+    counts : per rule of :data:`RULES` plus ``n_windows, n_kept, n_rejected, unlabelled``.
+    class_names : the class names the table's metadata brings (None: ours).
+    run_class : the run's most common label (-1 unlabelled): its rejections count under it.
+    table : chunked specs only: the columns the windows are cut from once every run is read
+        (:func:`terrainml.features.chunks.cut_chunked_runs`); None after cutting.
+    """
+
+    source: str
+    run_id: str
+    status: str = "ok"
+    message: str = ""
+    n_rows: int = 0
+    windows: Windows | None = None
+    counts: dict = field(default_factory=dict)
+    class_names: list[str] | None = None
+    run_class: int = -1
+    table: pd.DataFrame | None = None
+
+    def row(self) -> dict[str, Any]:
+        """The run's row of :attr:`Dataset.runs` (missing counts are 0)."""
+        c = self.counts
+        row = {"source": self.source, "run_id": self.run_id, "status": self.status, "message": self.message,
+               "n_rows": self.n_rows, "run_class": int(self.run_class), "n_windows": c.get("n_windows", 0),
+               "n_kept": len(self.windows) if self.windows is not None else 0}
+        row.update({k: c.get(k, 0) for k in ("n_rejected",) + RULES + ("unlabelled",)})
+        return row
+
+
+def process_log(path: str | Path, robot: RobotSpec, spec: WindowSpec, preset: str = "robust",
+                table: pd.DataFrame | None = None) -> RunResult:
     """Ingest, estimate and window one log (or an already ingested run ``table``).
 
-    Returns
-    -------
-    dict with ``source``, ``run_id``, ``status`` (``ok``; ``damaged``, usable but the log lost
-    messages or cells, counted in ``message``; ``unusable``, ``error``), ``message``,
-    ``n_rows``, ``windows`` (Windows; unlabelled windows dropped), ``counts`` (per rule, plus
-    ``unlabelled``), ``class_names`` (from the table's metadata when it brings its own).
+    ``spec`` is resolved (:meth:`WindowSpec.resolve`). A chunked spec's windows are cut later,
+    over all runs (:func:`_collect`); the result then holds the run's columns in ``table``.
+    One bad log never stops a build: its error is the result's ``status`` and ``message``.
     """
-    spec = spec or window_spec(DEFAULT_WINDOWS)
     path = Path(path)
-    out: dict[str, Any] = {"source": path.name, "run_id": path.stem, "status": "ok", "message": "",
-                           "n_rows": 0, "windows": None, "counts": {}, "class_names": None,
-                           "run_class": -1, "table": None}
+    res = RunResult(source=path.name, run_id=path.stem)
     try:
         if table is None:
-            res = load_run(path, robot=robot, rate_hz=spec.rate_hz)
-            if not res.report.usable or len(res.table) == 0:
-                out["status"] = "unusable"
-                out["message"] = "; ".join(res.report.errors) or "no usable rows"
-                return out
-            table = res.table
-        meta = table.attrs.get("terrainml", {}) if hasattr(table, "attrs") else {}
-        if isinstance(meta, dict) and meta.get("classes"):
-            out["class_names"] = [str(c) for c in meta["classes"]]
-        if "run_id" in table.columns and len(table):
-            out["run_id"] = str(table["run_id"].iloc[0])
-        out["n_rows"] = int(len(table))
-        damage = damage_summary(table)
-        if damage.any:  # usable, but what the log lost is said per run, not only at ingest
-            out["status"], out["message"] = "damaged", damage.text.removeprefix("damaged: ")
-        out["run_class"] = _run_class(table)
-        channels = spec.channels if spec.channels is not None else default_channels(robot)
-        if spec.chunk_s is not None:
-            # fixed chunks are cut over the whole dataset (the class balancing needs every run)
-            out["table"] = _chunk_table(table, robot, channels, preset)
-            return out
-        est = estimate_run(table, robot, preset)
-        for ch in channels:  # raw columns the estimator does not pass through (gyro roll/pitch)
-            col = channel_column(ch, robot)[0]
-            if col not in est.columns and col in table.columns and len(est) == len(table):
-                est[col] = table[col].to_numpy()
-        wins, counts = cut_windows(est, robot, spec, online=False, run_id=out["run_id"])
-        labelled = wins.meta["terrain"].to_numpy() >= 0
-        counts["unlabelled"] = int((~labelled).sum())
-        if not labelled.all():
-            wins = wins.subset(np.flatnonzero(labelled))
-        wins.meta["source"] = path.name
-        out["windows"], out["counts"] = wins, counts
+            ing = load_run(path, robot=robot, rate_hz=spec.rate_hz)
+            if not ing.report.usable or len(ing.table) == 0:
+                res.status, res.message = "unusable", "; ".join(ing.report.errors) or "no usable rows"
+                return res
+            table = ing.table
+        _describe_run(table, res)
+        channels = spec.channels_for(robot)
+        if spec.chunk_s is not None:  # fixed chunks: cut over the whole dataset (class balancing)
+            src = estimate_run(table, robot, preset) if needs_estimation(channels) else table
+            res.table = chunk_source(src, table, robot, channels)
+            return res
+        res.windows, res.counts = _cut_run(table, robot, spec, preset, channels, res.run_id)
+        res.windows.meta["source"] = path.name
     except Exception as exc:  # noqa: BLE001 - one bad log must not stop a fleet's build
-        out["status"] = "error"
-        out["message"] = f"{type(exc).__name__}: {exc}"
-    return out
+        res.status, res.message = "error", f"{type(exc).__name__}: {exc}"
+    return res
+
+
+def _describe_run(table: pd.DataFrame, res: RunResult) -> None:
+    """Fill what the run table says about itself: class names, run id, rows, damage, class."""
+    meta = table.attrs.get("terrainml", {}) if hasattr(table, "attrs") else {}
+    if isinstance(meta, dict) and meta.get("classes"):
+        res.class_names = [str(c) for c in meta["classes"]]
+    if "run_id" in table.columns and len(table):
+        res.run_id = str(table["run_id"].iloc[0])
+    res.n_rows = int(len(table))
+    damage = damage_summary(table)
+    if damage.any:  # usable, but what the log lost is said per run, not only at ingest
+        res.status, res.message = "damaged", damage.text.removeprefix("damaged: ")
+    res.run_class = _run_class(table)
+
+
+def _cut_run(table: pd.DataFrame, robot: RobotSpec, spec: WindowSpec, preset: str, channels,
+             run_id: str) -> tuple[Windows, dict]:
+    """Estimate one run and cut its labelled windows (counts include ``unlabelled``)."""
+    est = estimate_run(table, robot, preset)
+    for ch in channels:  # raw columns the estimator does not pass through (gyro roll/pitch)
+        col = channel_column(ch, robot)[0]
+        if col not in est.columns and col in table.columns and len(est) == len(table):
+            est[col] = table[col].to_numpy()
+    wins, counts = cut_windows(est, robot, spec, online=False, run_id=run_id)
+    labelled = wins.meta["terrain"].to_numpy() >= 0
+    counts["unlabelled"] = int((~labelled).sum())
+    if not labelled.all():
+        wins = wins.subset(np.flatnonzero(labelled))
+    return wins, counts
 
 
 def _run_class(table: pd.DataFrame) -> int:
@@ -239,68 +256,15 @@ def _run_class(table: pd.DataFrame) -> int:
     return int(lab.mode().iloc[0]) if len(lab) else -1
 
 
-def _needs_estimation(channels) -> bool:
-    return any(channel_sensor_group(c) in ("estimator", "cam") for c in channels)
-
-
-def _chunk_table(table: pd.DataFrame, robot: RobotSpec, channels, preset: str) -> pd.DataFrame:
-    """The columns the ``chunks`` spec needs (estimated first only when a channel needs the EKF)."""
-    src = estimate_run(table, robot, preset) if _needs_estimation(channels) else table
-    cols = ["t_s", "run_id", "terrain"]
-    for ch in channels:
-        col, vcols, _ = channel_column(ch, robot)
-        cols += [col, *vcols]
-    out = pd.DataFrame({c: src[c].to_numpy() for c in dict.fromkeys(cols) if c in src.columns})
-    if "run_id" not in out.columns:
-        out["run_id"] = str(table["run_id"].iloc[0]) if "run_id" in table.columns else ""
-    if "terrain" not in out.columns:
-        out["terrain"] = -1
-    out.attrs["terrainml"] = {"rate_hz": (table.attrs.get("terrainml") or {}).get("rate_hz")}
-    return out
-
-
-def _chunk_results(results: list[dict], robot: RobotSpec, spec: WindowSpec, channels) -> None:
-    """Cut the ``chunks`` spec's windows over all runs at once; fill each result's windows and counts."""
-    ok = [r for r in results if r.get("table") is not None and len(r["table"])]
+def _cut_chunked(results: list[RunResult], robot: RobotSpec, spec: WindowSpec) -> None:
+    """Cut the chunked spec's windows over every run that holds its columns; fill windows and counts."""
+    ok = [r for r in results if r.table is not None and len(r.table)]
     if not ok:
         return
-    valid_cols = sorted({v for ch in channels for v in channel_column(ch, robot)[1]})
-    tables = [r["table"] for r in ok]
-    chunks = make_chunks(tables, chunk_s=float(spec.chunk_s), valid_cols=valid_cols)
-    cols = {ch: channel_column(ch, robot)[0] for ch in channels}
-    T = spec.n_samples
-    if len(chunks):
-        wins = chunk_windows(tables, chunks, window_s=spec.window_s, max_windows_per_chunk=spec.windows_per_chunk,
-                             homogeneous=spec.homogeneous, channels=cols, wheel_radius_m=robot.wheel_radius_m)
-    else:
-        wins = Windows.concat([], channels=channels, n_samples=T, rate_hz=spec.rate_hz)
-    L = chunks.chunk_samples
-    run_of_window = wins.meta["run_id"].astype(str).to_numpy() if len(wins) else np.array([], dtype=object)
-    kept_chunks = chunks.meta.groupby("table").size().to_dict() if len(chunks) else {}
-    for k, r in enumerate(ok):
-        sel = np.flatnonzero(run_of_window == str(r["run_id"]))
-        w = wins.subset(sel)
-        w.meta = w.meta.drop(columns=["chunk_id"], errors="ignore")
-        w.meta["source"] = r["source"]
-        n_chunks = len(r["table"]) // L
-        lost = n_chunks - int(kept_chunks.get(k, 0))
-        counts = {"n_windows": int(n_chunks), "n_kept": int(len(w)), "n_rejected": int(lost)}
-        counts.update({rule: 0 for rule in RULES})
-        # a dropped chunk had an invalid sample or a missing or changing label
-        invalid = _invalid_chunks(r["table"], L, valid_cols)
-        counts["channel_valid"] = int(min(invalid, lost))
-        counts["terrain_label"] = int(lost - min(invalid, lost))
-        counts["unlabelled"] = 0
-        r["windows"], r["counts"], r["table"] = w, counts, None
-
-
-def _invalid_chunks(df: pd.DataFrame, L: int, valid_cols) -> int:
-    ok = np.ones(len(df), bool)
-    for c in valid_cols:
-        if c in df.columns:
-            ok &= df[c].to_numpy(dtype=bool)
-    n = len(df) // L
-    return int(sum(not ok[s * L:(s + 1) * L].all() for s in range(n)))
+    cut = cut_chunked_runs([r.table for r in ok], [r.run_id for r in ok], robot, spec)
+    for r, (w, counts) in zip(ok, cut):
+        w.meta["source"] = r.source
+        r.windows, r.counts, r.table = w, counts, None
 
 
 def class_report(runs: pd.DataFrame, wins: Windows, names: Sequence[str] | None) -> pd.DataFrame:
@@ -332,28 +296,20 @@ def class_report(runs: pd.DataFrame, wins: Windows, names: Sequence[str] | None)
     return pd.DataFrame(rows)
 
 
-def _collect(results: Sequence[dict], robot: RobotSpec, spec: WindowSpec, preset: str) -> Dataset:
-    channels = tuple(spec.channels) if spec.channels is not None else default_channels(robot)
-    if spec.chunk_s is not None:
-        _chunk_results(list(results), robot, spec, channels)
-    rows = []
+def _collect(results: Sequence[RunResult], robot: RobotSpec, spec: WindowSpec, preset: str) -> Dataset:
+    """The Dataset of the runs' results (in input order): windows, runs table, totals, classes."""
+    results = list(results)
+    _cut_chunked(results, robot, spec)
+    rows = [r.row() for r in results]
     totals = {"n_windows": 0, "n_kept": 0, "n_rejected": 0, **{r: 0 for r in RULES}, "unlabelled": 0}
-    names = None
     for r in results:
-        c = r["counts"]
-        row = {"source": r["source"], "run_id": r["run_id"], "status": r["status"],
-               "message": r["message"], "n_rows": r["n_rows"], "run_class": int(r.get("run_class", -1)),
-               "n_windows": c.get("n_windows", 0), "n_kept": len(r["windows"]) if r["windows"] is not None else 0}
-        row.update({k: c.get(k, 0) for k in ("n_rejected",) + RULES + ("unlabelled",)})
-        rows.append(row)
         for k in totals:
-            totals[k] += int(c.get(k, 0))
-        if r.get("class_names"):
-            names = r["class_names"]
+            totals[k] += int(r.counts.get(k, 0))
     totals["n_kept"] = sum(row["n_kept"] for row in rows)
+    names = next((r.class_names for r in reversed(results) if r.class_names), None)
     runs = pd.DataFrame(rows)
-    wins = Windows.concat([r["windows"] for r in results if r["windows"] is not None],
-                          channels=channels, n_samples=spec.n_samples, rate_hz=spec.rate_hz)
+    wins = Windows.concat([r.windows for r in results if r.windows is not None],
+                          channels=spec.channels_for(robot), n_samples=spec.n_samples, rate_hz=spec.rate_hz)
     ids = sorted(set(wins.y.tolist()))
     if names is not None:
         class_names = [names[i] if 0 <= i < len(names) else str(i) for i in ids]
@@ -367,46 +323,68 @@ def _collect(results: Sequence[dict], robot: RobotSpec, spec: WindowSpec, preset
     return ds
 
 
-def _with_channels(spec: WindowSpec, robot: RobotSpec) -> WindowSpec:
-    """The ``chunks`` spec without channels gets the side channels (other specs keep None)."""
-    if spec.chunk_s is not None and spec.channels is None:
-        return replace(spec, channels=dataset_channels(robot, spec))
-    return spec
+def dataset_robot(robot: str | Path | RobotSpec | None = None, fmt: str = "auto") -> RobotSpec:
+    """The robot of a dataset: ``robot`` resolved (name, YAML path or spec), else the format's.
+
+    A folder of logs (``auto``) defaults to the reference robot, a BorealTC folder to the Husky
+    it was recorded with (:data:`FORMAT_ROBOTS`). DatasetError names an unknown format;
+    RobotSpecError an unknown robot.
+    """
+    if fmt not in FORMAT_ROBOTS:
+        raise DatasetError(f"unknown --format {fmt!r}; expected {' or '.join(FORMAT_ROBOTS)}")
+    return load_robot(robot if robot is not None else FORMAT_ROBOTS[fmt])
+
+
+def resolve_spec(spec: WindowSpec | None, robot: RobotSpec, sensors: Sequence[str] | None = None) -> WindowSpec:
+    """The window spec a dataset is built with: ``spec`` (default :data:`DEFAULT_WINDOWS`) resolved
+    for ``robot`` and the sensor groups (:meth:`WindowSpec.resolve`); DatasetError names a bad group."""
+    try:
+        return (spec or window_spec(DEFAULT_WINDOWS)).resolve(robot, sensors)
+    except ValueError as exc:
+        raise DatasetError(str(exc)) from None
 
 
 def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | str | None = None,
                   preset: str = "robust", spec: WindowSpec | None = None, n_jobs: int = 1,
                   dask_address: str | None = None,
-                  progress: Callable[[int, int, str], None] | None = None) -> Dataset:
-    """Build the window dataset of a folder of logs (or a list of log paths).
+                  progress: Callable[[int, int, str], None] | None = None, *,
+                  sensors: Sequence[str] | None = None, fmt: str = "auto",
+                  say: Callable[[str], None] | None = None) -> Dataset:
+    """Build the window dataset of a folder of logs (or a list of log paths, or a BorealTC folder).
 
     Parameters
     ----------
-    source : folder (see :func:`find_logs`) or list of log paths.
-    robot : RobotSpec, name or path (default the reference robot).
+    source : folder (see :func:`find_logs`) or list of log paths; with ``fmt="borealtc"`` a
+        BorealTC folder (``<CLASS>/pro_XX.csv``, read by :func:`terrainml.io.borealtc.load_borealtc`).
+    robot : RobotSpec, name or path (default: the format's robot, :func:`dataset_robot`).
     preset : estimation preset (``robust`` or ``thesis``).
-    spec : WindowSpec (default design §8).
+    spec : WindowSpec (default :data:`DEFAULT_WINDOWS`), resolved here with ``sensors``
+        (:func:`resolve_spec`).
     n_jobs : joblib jobs (-1: all cores). Ignored scheduling-wise with ``dask_address``.
     dask_address : ``tcp://HOST:PORT`` of a Dask scheduler: run the logs on that cluster.
     progress : callback ``(done, total, source_name)`` after each log, in input order.
+    sensors : sensor groups to keep (None: every group the channels have).
+    fmt : ``auto`` (logs) or ``borealtc``.
+    say : callback with one line about what a BorealTC folder held (runs, classes, skipped).
 
     Returns
     -------
     Dataset (windows in input-log order, per-run table, rejection counts).
     """
-    spec = spec or window_spec(DEFAULT_WINDOWS)
-    robot = load_robot(robot)
-    spec = _with_channels(spec, robot)
+    robot = dataset_robot(robot, fmt)
+    spec = resolve_spec(spec, robot, sensors)
+    if fmt == "borealtc":
+        return _build_borealtc(Path(source), robot, preset, spec, n_jobs, say)
     paths = find_logs(source) if isinstance(source, (str, Path)) else [Path(p) for p in source]
     total = len(paths)
-    calls = (delayed(process_log)(p, robot, preset, spec) for p in paths)
+    calls = (delayed(process_log)(p, robot, spec, preset) for p in paths)
     results = []
 
     def _consume(gen):
         for k, r in enumerate(gen):
             results.append(r)
             if progress is not None:
-                progress(k + 1, total, r["source"])
+                progress(k + 1, total, r.source)
 
     if dask_address:
         from distributed import Client  # noqa: PLC0415 - dask, optional
@@ -419,16 +397,31 @@ def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | 
     return _collect(results, robot, spec, preset)
 
 
+def _build_borealtc(source: Path, robot: RobotSpec, preset: str, spec: WindowSpec, n_jobs: int,
+                    say: Callable[[str], None] | None) -> Dataset:
+    """The dataset of a BorealTC folder (DatasetError when no run could be read)."""
+    tables, rep = load_borealtc(source, robot=robot)
+    if say is not None:
+        say(f"BorealTC: {rep.runs} runs, classes {rep.classes}; runs without IMU (wheel channels "
+            f"invalid, their windows rejected): {len(rep.runs_without_imu)}; skipped: {len(rep.skipped)}")
+    if not tables:
+        raise DatasetError(f"{source}: no BorealTC runs read ({rep.skipped})")
+    return _from_tables(tables, robot, preset, spec, n_jobs)
+
+
 def build_from_tables(tables: Sequence[pd.DataFrame], robot: RobotSpec | str | None = None,
                       preset: str = "robust", spec: WindowSpec | None = None, n_jobs: int = 1,
-                      names: Sequence[str] | None = None) -> Dataset:
+                      names: Sequence[str] | None = None, *, sensors: Sequence[str] | None = None) -> Dataset:
     """Like :func:`build_dataset` for already ingested run tables (e.g. the BorealTC reader)."""
-    spec = spec or window_spec(DEFAULT_WINDOWS)
-    robot = load_robot(robot)
-    spec = _with_channels(spec, robot)
+    robot = dataset_robot(robot)
+    return _from_tables(tables, robot, preset, resolve_spec(spec, robot, sensors), n_jobs, names)
+
+
+def _from_tables(tables: Sequence[pd.DataFrame], robot: RobotSpec, preset: str, spec: WindowSpec,
+                 n_jobs: int, names: Sequence[str] | None = None) -> Dataset:
     names = names or [str(t["run_id"].iloc[0]) if "run_id" in t.columns and len(t) else f"run{k}"
                       for k, t in enumerate(tables)]
-    results = Parallel(n_jobs=n_jobs)(delayed(process_log)(Path(n), robot, preset, spec, t)
+    results = Parallel(n_jobs=n_jobs)(delayed(process_log)(Path(n), robot, spec, preset, t)
                                       for n, t in zip(names, tables))
     return _collect(results, robot, spec, preset)
 

@@ -6,7 +6,7 @@ import pytest
 
 from terrainml.features.windows import (RULES, WINDOW_SPECS, WindowSpec, channel_column, cut_windows,
                                         window_spec)
-from terrainml.pipeline.dataset import dataset_channels, sensors_of
+from terrainml.pipeline.dataset import sensors_of
 from terrainml.robot import load_robot
 
 
@@ -36,12 +36,12 @@ def test_side_channels_map_to_the_robots_left_and_right_wheels():
 
 def test_sensor_subsets_restrict_channels():
     husky = load_robot("husky")
-    chans = dataset_channels(husky, window_spec("chunks"), ["wheels", "currents"])
+    chans = window_spec("chunks").channels_for(husky, ["wheels", "currents"])
     assert chans == ("current_left", "current_right", "speed_left_mps", "speed_right_mps")
     assert sensors_of(chans) == ["wheels", "currents"]
-    assert sensors_of(dataset_channels(husky, window_spec("chunks"))) == ["wheels", "currents", "imu"]
+    assert sensors_of(window_spec("chunks").channels_for(husky)) == ["wheels", "currents", "imu"]
     with pytest.raises(ValueError, match="unknown sensor group"):
-        dataset_channels(husky, window_spec("chunks"), ["wheels", "lidar"])
+        window_spec("chunks").channels_for(husky, ["wheels", "lidar"])
 
 
 def _est(states, n=200, speed=1.0, ax=0.0):

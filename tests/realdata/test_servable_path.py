@@ -4,7 +4,6 @@ models saved as verified artifacts, classes matched by name, and a served course
 
 import json
 import shutil
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +13,7 @@ from terrainml.experiments.borealtc import course_runs, course_score, make_cours
 from terrainml.features.windows import window_spec
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import load_artifact, write_manifest
-from terrainml.pipeline.dataset import build_from_tables, dataset_channels
+from terrainml.pipeline.dataset import build_from_tables
 from terrainml.pipeline.train import ClassMismatchError, evaluate, train
 from terrainml.robot import load_robot
 from terrainml.stream.classify import ModelLoadError, load_serving_model
@@ -25,8 +24,7 @@ NAMES = ["ASPHALT", "FLOORING", "ICE", "SANDY_LOAM", "SNOW"]
 
 
 def _wheel_spec(**kw):
-    spec = window_spec("chunks", **kw)
-    return replace(spec, channels=dataset_channels(HUSKY, spec, ["wheels", "currents"]))
+    return window_spec("chunks", **kw).resolve(HUSKY, ["wheels", "currents"])
 
 
 def test_chunks_spec_gives_the_protocols_windows_and_keeps_every_class(boreal_tables, boreal_windows):
