@@ -31,7 +31,7 @@ from terrainml.io.ingest import load_run, write_run_mcap
 from terrainml.io.inspect import inspect_log
 from terrainml.pipeline.dataset import build_dataset, write_windows
 from terrainml.pipeline.train import train
-from terrainml.robot import RobotSpec, load_robot
+from terrainml.robot import RobotSpec, reference_robot
 from terrainml.schema import write_run_parquet
 from terrainml.sim.generate import generate_dataset, simulate, write_run
 from terrainml.stream.runner import replay_summary
@@ -189,7 +189,7 @@ def run_demo(out: Path, seed: int = 0, console: Console | None = None) -> None:
         console.width = max(console.width, 120)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    robot = load_robot()
+    robot = reference_robot()
     console.rule("1. data contract: hand-made run table -> ROS 2 MCAP -> ingest")
     step_contract(out, robot, seed, console)
     console.rule("2. simulator: labelled ROS 2 logs on eight terrains")

@@ -15,7 +15,7 @@ from rich.progress import Progress
 
 from terrainml.classes import class_id
 from terrainml.commands._common import check_output_writable, console, fail
-from terrainml.robot import load_robot
+from terrainml.robot import reference_robot
 
 control_app = typer.Typer(help="Traction control in the simulator.", no_args_is_help=True)
 
@@ -67,7 +67,7 @@ def closed_loop(
         over = {k: v for k, v in (("kp", kp), ("ki", ki)) if v is not None}
         # the limiter is the default law; a PID only when its gains or the thesis form are asked
         pid = (SlipPIDConfig(**over) if thesis_pid
-               else tuned_config(load_robot(), **over) if over else None)
+               else tuned_config(reference_robot(), **over) if over else None)
     except ValueError as exc:
         fail(str(exc))
     with Progress(console=console, transient=True) as bar:

@@ -11,8 +11,8 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from terrainml.commands._common import check_output_writable, console, fail
-from terrainml.robot import RobotSpec, RobotSpecError
+from terrainml.commands._common import check_output_writable, console, fail, open_robot
+from terrainml.robot import RobotSpec
 
 lookup_app = typer.Typer(
     name="lookup",
@@ -30,9 +30,11 @@ _CLASSES_HELP = ("Comma-separated class names, in the model's order (default eve
                  "the catalogue).")
 
 
-def _load_table(robot: Optional[str], table_path: Optional[Path],
+def _load_table(robot: Optional[RobotSpec], table_path: Optional[Path],
                 catalogue: Optional[str] = None, classes: Optional[str] = None):
     """Build a table (for ``robot``, from ``catalogue`` when given) or read ``table_path``.
+
+    ``robot`` is resolved by the command (:func:`open_robot`; None: the reference robot).
 
     Exits with code 2 and a message naming the file on any refusal.
     """
@@ -52,7 +54,7 @@ def _load_table(robot: Optional[str], table_path: Optional[Path],
         if catalogue is None and names is None:
             return DesiredSlipTable.build(robot)
         return DesiredSlipTable.from_catalogue(catalogue or "reference", robot, class_names=names)
-    except (LookupTableError, CatalogueError, RobotSpecError) as exc:  # the message names the file
+    except (LookupTableError, CatalogueError) as exc:  # the message names the file
         fail(str(exc))
 
 
@@ -86,7 +88,7 @@ def build(
     ``terrainml lookup build --catalogue borealtc --robot husky --out table.json``
     """
     check_output_writable(out)
-    table = _load_table(robot, None, catalogue, classes)
+    table = _load_table(_robot(robot), None, catalogue, classes)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         table.save(out)
@@ -113,7 +115,7 @@ def show(
     Example: ``terrainml lookup show --json``; ``terrainml lookup show --catalogue borealtc
     --robot husky``
     """
-    table = _load_table(robot, table_path, catalogue, classes)
+    table = _load_table(_robot(robot), table_path, catalogue, classes)
     if as_json:
         print(json.dumps(table.to_summary()))
     else:
@@ -138,13 +140,18 @@ def plot(
     from terrainml.lookup.plot import plot_table
 
     check_output_writable(out)
-    table = _load_table(robot, table_path, catalogue, classes)
+    rb = _robot(robot)
+    table = _load_table(rb, table_path, catalogue, classes)
     try:
-        path = plot_table(out, robot=robot if robot is not None else
-                          _robot_of(table), table=table)
+        path = plot_table(out, robot=rb if rb is not None else _robot_of(table), table=table)
     except OSError as exc:  # checked above; a full disk or a race can still fail here
         fail(f"{out}: cannot write the figure ({exc.strerror or exc})")
     console.print(f"wrote {path}")
+
+
+def _robot(robot: Optional[str]) -> Optional[RobotSpec]:
+    """``--robot`` resolved (exit 2 naming a bad spec); None stays None (the reference robot)."""
+    return open_robot(robot) if robot is not None else None
 
 
 def _robot_of(table):

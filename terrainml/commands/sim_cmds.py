@@ -115,7 +115,7 @@ def plot(
         fail(f"{run}: file not found")
     check_output_writable(out, folder=True)
     try:
-        paths = plot_run(run, out, robot)
+        paths = plot_run(run, out, open_robot(robot))
     except (ValueError, KeyError) as exc:
         fail(str(exc))
     for p in paths:

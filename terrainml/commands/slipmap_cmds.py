@@ -14,8 +14,8 @@ import typer
 from rich.progress import Progress
 from rich.table import Table
 
-from terrainml.commands._common import check_output_writable, console, fail, open_run
-from terrainml.robot import RobotSpec, RobotSpecError, load_robot
+from terrainml.commands._common import check_output_writable, console, fail, open_robot, open_run
+from terrainml.robot import RobotSpec, RobotSpecError, builtin_robot
 
 slipmap_app = typer.Typer(help="Slip maps (IRLS paper): per-terrain robust slippage estimators, "
                                "merged across robots.\n\nExample: `terrainml slipmap experiment --robots 5 "
@@ -59,10 +59,10 @@ def fit_cmd(directory: Path = typer.Argument(..., help="Folder of run tables (.p
     tables = list(_load_tables(directory))
     try:
         if robot is not None:
-            spec = load_robot(robot)
+            spec = open_robot(robot)
         else:
             meta_json = tables[0][1].attrs.get("terrainml", {}).get("robot_spec")
-            spec = RobotSpec.from_json(meta_json) if meta_json else load_robot("husky")
+            spec = RobotSpec.from_json(meta_json) if meta_json else builtin_robot("husky")
         _, _, track = side_geometry(spec)
         cfg = SlipMapConfig(norm=norm, input_scale_radps=1.0 / spec.wheel_radius_m,
                             wheel_radius_m=spec.wheel_radius_m, track_width_m=track)

@@ -92,7 +92,7 @@ class OnlineEstimator:
 
     Examples
     --------
-    >>> est = OnlineEstimator(load_robot("agrimaro"), "robust")  # doctest: +SKIP
+    >>> est = OnlineEstimator(robot, "robust")  # robot: a RobotSpec  # doctest: +SKIP
     >>> row = est.step({"t_s": 0.0, "wheel1_omega_radps": 0.0, ...})  # doctest: +SKIP
     >>> row["slip1"], row["state1"], row["estimator_ok"]  # doctest: +SKIP
     """

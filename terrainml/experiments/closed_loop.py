@@ -34,7 +34,7 @@ from terrainml.control.pid import SlipPIDConfig
 from terrainml.control.slip_limiter import SlipLimiterConfig
 from terrainml.control.traction import POLICIES, SlipController
 from terrainml.lookup import terramechanics as tm
-from terrainml.robot import RobotSpec, load_robot
+from terrainml.robot import RobotSpec, reference_robot
 from terrainml.sim import physics as ph
 from terrainml.sim.control import inverse_kinematics
 from terrainml.sim.scenarios import Scenario, make_scenario
@@ -119,7 +119,7 @@ SCENARIOS = ("straight", "step_stop_and_go")
 
 def run_closed_loop(terrain: str | int, policy: str, *, model: str | Path | None = None,
                     duration_s: float = 60.0, seed: int = 0, speed_mps: float = 1.0,
-                    robot: RobotSpec | str | None = None, pid: SlipPIDConfig | None = None,
+                    robot: RobotSpec | None = None, pid: SlipPIDConfig | None = None,
                     law: str | None = None, limiter: SlipLimiterConfig | None = None,
                     steady_target: str = "peak", scenario: str = "straight",
                     progress: Callable[[float], None] | None = None,
@@ -138,7 +138,7 @@ def run_closed_loop(terrain: str | int, policy: str, *, model: str | Path | None
     """
     if scenario not in SCENARIOS:
         raise ValueError(f"scenario must be one of {', '.join(SCENARIOS)}, got {scenario!r}")
-    rb = load_robot(robot)
+    rb = robot if robot is not None else reference_robot()
     cid = class_id(terrain)
     ss_scn, ss_sim = np.random.SeedSequence(int(seed)).spawn(2)
     if scenario == "straight":

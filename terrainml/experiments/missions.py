@@ -50,7 +50,7 @@ from terrainml.experiments.mission_metrics import TIME_FACTOR, MissionLog, missi
 from terrainml.experiments.mission_policies import POLICIES, PolicyContext, make_controller
 from terrainml.experiments.mission_routes import Route, RouteFollower, Waypoint
 from terrainml.lookup import terramechanics as tm
-from terrainml.robot import RobotSpec, load_robot
+from terrainml.robot import RobotSpec, reference_robot
 from terrainml.sim import mission_physics as mp
 from terrainml.sim import physics as ph
 from terrainml.sim.scenarios import Scenario
@@ -380,14 +380,14 @@ def _physics_sane(body: np.ndarray) -> bool:
 
 
 def run_mission(spec: MissionSpec, policy: str, *, model: str | Path | None = None,
-                robot: RobotSpec | str | None = None, trace_every: int = 0
+                robot: RobotSpec | None = None, trace_every: int = 0
                 ) -> dict[str, Any] | tuple[dict[str, Any], MissionLog]:
     """Drive one mission under ``policy``; return its report row (and, with ``trace_every`` > 0,
     the :class:`MissionLog` decimated to every ``trace_every``-th 100 Hz tick).
 
     The simulator seed and the terrain draw depend only on ``spec``.
     """
-    rb = load_robot(robot)
+    rb = robot if robot is not None else reference_robot()
     mission = build_mission(spec)
     follower = RouteFollower(mission.route)
     duration = mission.route.start_delay_s + TIME_FACTOR * mission.route.nominal_time_s() + 1.0
@@ -434,7 +434,7 @@ def _run_one(spec: MissionSpec, policy: str, model, robot, trace_every: int):
 
 
 def run_suite(specs: list[MissionSpec], policy: str, *, model: str | Path | None = None,
-              robot: RobotSpec | str | None = None, n_jobs: int = 1, trace_every: int = 0,
+              robot: RobotSpec | None = None, n_jobs: int = 1, trace_every: int = 0,
               progress: Callable[[int, int], None] | None = None
               ) -> tuple[list[dict[str, Any]], list[MissionLog]]:
     """Run every mission of ``specs`` under ``policy`` (joblib over missions, input order kept).
@@ -443,7 +443,7 @@ def run_suite(specs: list[MissionSpec], policy: str, *, model: str | Path | None
     rows and, with ``trace_every`` > 0, the decimated :class:`MissionLog` of each mission (else an
     empty list). ``progress(done, total)`` is called after each mission.
     """
-    rb = load_robot(robot)
+    rb = robot if robot is not None else reference_robot()
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; expected one of {', '.join(POLICIES)}")
     calls = (delayed(_run_one)(s, policy, model, rb, trace_every) for s in specs)

@@ -598,7 +598,7 @@ class FeatureSet(TransformerMixin, BaseEstimator):
 
     Examples
     --------
-    >>> fs = FeatureSet.for_robot(load_robot("agrimaro"), subset="all")  # doctest: +SKIP
+    >>> fs = FeatureSet.for_robot(robot, subset="all")  # robot: a RobotSpec  # doctest: +SKIP
     >>> F = fs.fit_transform(windows)                                    # doctest: +SKIP
     """
 

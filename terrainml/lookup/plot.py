@@ -13,12 +13,12 @@ import numpy as np  # noqa: E402
 from terrainml._figures import save_figure  # noqa: E402
 from terrainml.lookup import terramechanics as tm  # noqa: E402
 from terrainml.lookup.table import DesiredSlipTable, mu_net_curve, slip_grid  # noqa: E402
-from terrainml.robot import RobotSpec, load_robot  # noqa: E402
+from terrainml.robot import RobotSpec, reference_robot  # noqa: E402
 
 __all__ = ["plot_table"]
 
 
-def plot_table(out: str | Path, robot: RobotSpec | str | None = None,
+def plot_table(out: str | Path, robot: RobotSpec | None = None,
                table: DesiredSlipTable | None = None, dpi: int = 120) -> Path:
     """Draw mu_net(s), s in [-0.8, 0.8], per class, with traction (^), braking (v) and steady (o)
     targets, and save a PNG.
@@ -33,7 +33,7 @@ def plot_table(out: str | Path, robot: RobotSpec | str | None = None,
     -------
     Path of the written figure.
     """
-    robot = load_robot(robot)
+    robot = robot if robot is not None else reference_robot()
     table = table if table is not None else DesiredSlipTable.build(robot)
     s = slip_grid()
     fig, ax = plt.subplots(figsize=(9.0, 5.5))

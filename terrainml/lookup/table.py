@@ -59,7 +59,7 @@ from terrainml import __version__
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.lookup import terramechanics as tm
 from terrainml.lookup.catalogue import CatalogueClass, TerrainCatalogue, load_catalogue
-from terrainml.robot import RobotSpec, load_robot
+from terrainml.robot import RobotSpec, reference_robot
 
 __all__ = ["ClassTargets", "DesiredSlipTable", "LookupTableError", "RIGID_CLASSES", "SafeCap",
            "mu_net_curve", "STATES"]
@@ -357,18 +357,18 @@ class DesiredSlipTable:
 
     # ------------------------------------------------------------------ build
     @classmethod
-    def build(cls, robot: RobotSpec | str | None = None,
+    def build(cls, robot: RobotSpec | None = None,
               class_ids: Sequence[int] | None = None, params: dict | None = None
               ) -> "DesiredSlipTable":
         """Compute the table for a robot from the nominal class parameters.
 
         Parameters
         ----------
-        robot : RobotSpec, built-in name or YAML path (default the reference robot).
+        robot : RobotSpec (default the reference robot).
         class_ids : classes to include (default all eight of design §6.1).
         params : optional {class_id: TerrainParams} overriding the nominal parameters.
         """
-        robot = load_robot(robot)
+        robot = robot if robot is not None else reference_robot()
         loads = _static_loads(robot)
         ids = list(range(len(TERRAIN_CLASSES))) if class_ids is None else [int(c) for c in class_ids]
         rows = []
@@ -381,14 +381,14 @@ class DesiredSlipTable:
 
     @classmethod
     def from_catalogue(cls, catalogue: TerrainCatalogue | str | Path,
-                       robot: RobotSpec | str | None = None,
+                       robot: RobotSpec | None = None,
                        class_names: Sequence[str] | None = None) -> "DesiredSlipTable":
         """Compute the table for a robot and a class set from a terrain catalogue.
 
         Parameters
         ----------
         catalogue : TerrainCatalogue, built-in name (``reference``, ``borealtc``) or YAML path.
-        robot : RobotSpec, built-in name or YAML path (default the reference robot): static
+        robot : RobotSpec (default the reference robot): static
             wheel loads from mass and centre of mass, wheel radius and width.
         class_names : the class set, in the order that gives the ids (e.g. a model's class
             names); default every catalogue class in file order. A name the catalogue lacks is
@@ -401,7 +401,7 @@ class DesiredSlipTable:
         """
         cat = load_catalogue(catalogue)
         chosen = cat.select(class_names)
-        robot = load_robot(robot)
+        robot = robot if robot is not None else reference_robot()
         loads = _static_loads(robot)
         rows = []
         for cid, c in enumerate(chosen):
@@ -539,7 +539,7 @@ class DesiredSlipTable:
         return json.dumps(self.to_dict(), indent=indent, allow_nan=False)
 
     @classmethod
-    def from_json(cls, text: str | bytes, *, robot: RobotSpec | str | None = None,
+    def from_json(cls, text: str | bytes, *, robot: RobotSpec | None = None,
                   source: str = "<json>") -> "DesiredSlipTable":
         """Read and verify a table: schema, checksum, robot spec hash, rules.
 
@@ -603,7 +603,7 @@ class DesiredSlipTable:
             raise LookupTableError(f"{source}: robot spec sha256 {spec_sha[:12]} does not match "
                                    f"the recorded {str(sha)[:12]}")
         if robot is not None:
-            want = load_robot(robot)
+            want = robot
             if want.sha256() != sha:
                 raise LookupTableError(
                     f"{source}: table was built for robot {spec.get('name')!r} "
@@ -619,7 +619,7 @@ class DesiredSlipTable:
         Path(path).write_text(self.to_json() + "\n")
 
     @classmethod
-    def load(cls, path, *, robot: RobotSpec | str | None = None) -> "DesiredSlipTable":
+    def load(cls, path, *, robot: RobotSpec | None = None) -> "DesiredSlipTable":
         """Read and verify a table file (see :meth:`from_json`); every refusal names the file."""
         p = Path(path)
         if not p.is_file():

@@ -68,7 +68,7 @@ from scipy.optimize import brentq
 from terrainml.classes import TERRAIN_CLASSES, class_id as _class_id
 from terrainml.lookup.catalogue import load_catalogue
 from terrainml.lookup.terrain_params import TerrainParams
-from terrainml.robot import load_robot
+from terrainml.robot import reference_robot
 
 __all__ = [
     "TerrainParams", "nominal_params", "all_nominal_params", "sample_params",
@@ -119,7 +119,7 @@ def sample_params(class_id: int | str, rng: np.random.Generator, spread: float =
 # ----------------------------------------------------------------------------- geometry
 def _robot_geom(robot) -> tuple[float, float, float]:
     if robot is None:
-        robot = load_robot()
+        robot = reference_robot()
     return float(robot.wheel_radius_m), float(robot.wheel_width_m), float(robot.tyre_flat_m)
 
 

@@ -20,7 +20,7 @@ import pandas as pd  # noqa: E402
 from scipy.signal import lfilter  # noqa: E402
 
 from terrainml.io.ingest import load_run  # noqa: E402
-from terrainml.robot import load_robot  # noqa: E402
+from terrainml.robot import RobotSpec, reference_robot  # noqa: E402
 from terrainml.sim.truth import slip_sae  # noqa: E402
 from terrainml.schema import wheel_col
 
@@ -48,9 +48,12 @@ def measured_slip(table: pd.DataFrame, robot) -> np.ndarray:
     return np.column_stack(out)
 
 
-def plot_run(path: str | Path, out_dir: str | Path, robot=None) -> list[Path]:
-    """Write ``<stem>_slip.png`` (true and measured slip per wheel) and ``<stem>_speed.png``."""
-    robot = load_robot(robot)
+def plot_run(path: str | Path, out_dir: str | Path, robot: RobotSpec | None = None) -> list[Path]:
+    """Write ``<stem>_slip.png`` (true and measured slip per wheel) and ``<stem>_speed.png``.
+
+    ``robot``: the spec the run was simulated with (None: the reference robot).
+    """
+    robot = robot if robot is not None else reference_robot()
     res = load_run(path, robot=robot)
     if not res.report.usable:
         raise ValueError(f"{path}: no usable run table ({'; '.join(res.report.errors)})")

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from terrainml.robot import RobotSpec, load_robot
+from terrainml.robot import RobotSpec, builtin_robot
 from terrainml.sim.patch_slip import PatchGrid, PatchSlipModel
 
 __all__ = ["TrackedFleet", "TrackedMeasurement", "TrackedNoise", "track_geometry", "tracked_robot"]
@@ -41,7 +41,7 @@ __all__ = ["TrackedFleet", "TrackedMeasurement", "TrackedNoise", "track_geometry
 
 def tracked_robot() -> RobotSpec:
     """The tracked robot spec (``terrainml/robots/skidsteer_tracked.yaml``, MAXXII-like)."""
-    return load_robot("skidsteer_tracked")
+    return builtin_robot("skidsteer_tracked")
 
 
 def track_geometry(robot: RobotSpec) -> tuple[float, float]:

@@ -37,12 +37,12 @@ BOREALTC_DIR = Path(__file__).resolve().parents[2] / ".." / "shared" / "datasets
 
 @pytest.fixture(scope="module")
 def reference_table():
-    return DesiredSlipTable.from_catalogue("reference", "agrimaro")
+    return DesiredSlipTable.from_catalogue("reference", load_robot("agrimaro"))
 
 
 @pytest.fixture(scope="module")
 def borealtc_table():
-    return DesiredSlipTable.from_catalogue("borealtc", "husky")
+    return DesiredSlipTable.from_catalogue("borealtc", load_robot("husky"))
 
 
 # ---------------------------------------------------------------- the reference catalogue
@@ -63,7 +63,7 @@ def test_reference_catalogue_reproduces_the_published_table(reference_table):
 
 
 def test_reference_catalogue_table_equals_the_default_table(reference_table):
-    default = DesiredSlipTable.build("agrimaro")
+    default = DesiredSlipTable.build(load_robot("agrimaro"))
     for a, b in zip(default.rows, reference_table.rows):
         da, db = a.to_dict(), b.to_dict()
         assert db.pop("sources") and not da.pop("sources")  # provenance only in the catalogue
@@ -108,7 +108,7 @@ def test_every_borealtc_value_has_a_source_or_a_reasoned_assumption():
 
 
 def test_table_round_trips_through_json_with_names_and_sources(borealtc_table):
-    back = DesiredSlipTable.from_json(borealtc_table.to_json(), robot="husky")
+    back = DesiredSlipTable.from_json(borealtc_table.to_json(), robot=load_robot("husky"))
     assert back.class_names == borealtc_table.class_names
     assert back.row("SNOW").sources == borealtc_table.row("SNOW").sources
     assert [r.rigid_surface for r in back.rows] == [True, True, False, False, False]
@@ -166,8 +166,8 @@ def test_heavier_load_per_wheel_moves_the_bekker_peak_as_the_equations_say(tmp_p
 def test_direct_targets_do_not_depend_on_the_robot(tmp_path):
     path = tmp_path / "given.yaml"
     path.write_text(yaml.safe_dump(THREE_CLASSES))
-    a = DesiredSlipTable.from_catalogue(path, "agrimaro")
-    b = DesiredSlipTable.from_catalogue(path, "husky")
+    a = DesiredSlipTable.from_catalogue(path, load_robot("agrimaro"))
+    b = DesiredSlipTable.from_catalogue(path, load_robot("husky"))
     assert a.to_summary() == b.to_summary()
     assert a.robot_sha256 != b.robot_sha256
 
@@ -190,7 +190,7 @@ THREE_CLASSES = {
 def three(tmp_path):
     path = tmp_path / "three.yaml"
     path.write_text(yaml.safe_dump(THREE_CLASSES, sort_keys=False))
-    return DesiredSlipTable.from_catalogue(path, "agrimaro")
+    return DesiredSlipTable.from_catalogue(path, load_robot("agrimaro"))
 
 
 def test_lookup_by_name_and_unknown_name(three, borealtc_table):
@@ -231,7 +231,7 @@ def test_check_classes_refuses_a_table_without_the_model_classes_at_their_ids(th
 
 def test_a_class_set_the_catalogue_lacks_is_refused_naming_the_file_and_classes():
     with pytest.raises(CatalogueError, match=r"^borealtc: missing classes \['GRASS'\]"):
-        DesiredSlipTable.from_catalogue("borealtc", "husky", class_names=["ASPHALT", "GRASS"])
+        DesiredSlipTable.from_catalogue("borealtc", load_robot("husky"), class_names=["ASPHALT", "GRASS"])
 
 
 # ---------------------------------------------------------------- validation

@@ -34,7 +34,7 @@ def test_build_writes_a_verified_table_and_show_reads_it(tmp_path):
     out = tmp_path / "sub" / "table.json"
     res = runner.invoke(app, ["lookup", "build", "--robot", "husky", "--out", str(out)])
     assert res.exit_code == 0, res.output
-    table = DesiredSlipTable.load(out, robot="husky")
+    table = DesiredSlipTable.load(out, robot=load_robot("husky"))
     assert table.robot_sha256 == load_robot("husky").sha256()
     res = runner.invoke(app, ["lookup", "show", "--table", str(out), "--robot", "husky"])
     assert res.exit_code == 0 and "pavement" in res.stdout
@@ -93,7 +93,7 @@ def test_build_from_a_catalogue_for_a_robot_spec_file(tmp_path):
     res = runner.invoke(app, ["lookup", "build", "--catalogue", "borealtc", "--robot",
                               str(robot_yaml), "--out", str(out)])
     assert res.exit_code == 0, res.output
-    table = DesiredSlipTable.load(out, robot=str(robot_yaml))
+    table = DesiredSlipTable.load(out, robot=load_robot(robot_yaml))
     assert table.class_names == ("ASPHALT", "FLOORING", "ICE", "SANDY_LOAM", "SNOW")
     assert table.wheel_loads_n == pytest.approx([100.0 * 9.81 / 4] * 4, rel=1e-3)
     res = runner.invoke(app, ["lookup", "show", "--catalogue", "borealtc", "--classes",

@@ -41,7 +41,7 @@ def heavy_table(robot):
 
 @pytest.fixture(scope="module")
 def husky_table():
-    return DesiredSlipTable.build("husky")
+    return DesiredSlipTable.build(load_robot("husky"))
 
 
 def mu_net(cid, robot, s):
@@ -211,7 +211,7 @@ def test_from_json_refuses_tampered_wrong_robot_and_broken_tables(table, robot):
     with pytest.raises(LookupTableError, match="checksum"):
         DesiredSlipTable.from_json(json.dumps(doc))
     with pytest.raises(LookupTableError, match="not for 'husky'"):
-        DesiredSlipTable.from_json(table.to_json(), robot="husky")
+        DesiredSlipTable.from_json(table.to_json(), robot=load_robot("husky"))
     # robot spec edited and checksum recomputed: the spec hash no longer matches
     from terrainml.lookup.table import _checksum
 

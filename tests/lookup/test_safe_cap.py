@@ -19,6 +19,7 @@ import yaml
 
 from terrainml.lookup.policy import safe_cap_per_wheel
 from terrainml.lookup.table import DesiredSlipTable, LookupTableError, SafeCap
+from terrainml.robot import load_robot
 
 ROWS = {"A": (0.12, -0.10, 0.02), "B": (0.30, -0.45, 0.15), "C": (0.45, -0.25, 0.40)}
 
@@ -32,7 +33,7 @@ def three(tmp_path):
                        for name, (t, b, s) in ROWS.items()}}
     path = tmp_path / "three.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
-    return DesiredSlipTable.from_catalogue(path, "agrimaro")
+    return DesiredSlipTable.from_catalogue(path, load_robot("agrimaro"))
 
 
 def test_safe_cap_hand_worked(three):
@@ -66,7 +67,7 @@ def test_safe_cap_per_wheel_signs(three):
 
 def test_safe_cap_of_the_reference_table_is_wet_mud():
     # design §10 table: largest traction 0.524 and most negative braking -0.540, both wet mud
-    cap = DesiredSlipTable.build("agrimaro").safe_cap()
+    cap = DesiredSlipTable.build(load_robot("agrimaro")).safe_cap()
     assert (cap.traction_class, cap.braking_class) == ("wet_mud", "wet_mud")
     assert cap.traction == pytest.approx(0.524, abs=5e-4)
     assert cap.braking == pytest.approx(-0.540, abs=5e-4)
@@ -76,7 +77,7 @@ def test_the_served_fallback_is_the_safe_cap_not_a_class():
     """Serving (stream/policy.py) serves the cap on fallback, naming no class (issue 19)."""
     from terrainml.stream.policy import ServingPolicy
 
-    table = DesiredSlipTable.build("agrimaro")
+    table = DesiredSlipTable.build(load_robot("agrimaro"))
     policy = ServingPolicy(table, table.class_ids, table.class_names)
 
     class NoClass:
