@@ -265,19 +265,15 @@ class _Layout:
 
 @lru_cache(maxsize=128)
 def _layout(channels: tuple[str, ...], T: int, rate_hz: float) -> _Layout:
+    """The feature layout of windows of ``channels`` (T samples at ``rate_hz``), worked out once."""
     C = len(channels)
-    if len(set(channels)) != C:
-        raise ValueError(f"features: duplicate channel names in {list(channels)}")
-    if T < 1:
-        raise ValueError(f"features: windows need at least one sample, got T={T}")
+    if len(set(channels)) != C or T < 1:
+        raise ValueError(f"features: duplicate channel names in {list(channels)}" if len(set(channels)) != C
+                         else f"features: windows need at least one sample, got T={T}")
     pos = {c: k for k, c in enumerate(channels)}
     spec_ch = [c for c in channels if _is_spectral(c)]
     spos = {c: k for k, c in enumerate(spec_ch)}
-    slip_w = sorted((int(c[5:]), c) for c in channels if c.startswith("slip_"))
-    cur_w = sorted((int(c[8:]), c) for c in channels if _is_current(c))
-    for fam, ws in (("slip", slip_w), ("current", cur_w)):
-        if len({i for i, _ in ws}) != len(ws):
-            raise ValueError(f"features: two {fam} channels share a wheel number in {list(channels)}")
+    slip_w, cur_w = _wheel_channels(channels)
     slips = dict(slip_w)
     has_speed = "vx" in pos and "vy" in pos
     flat: dict[str, int] = {}
@@ -289,23 +285,14 @@ def _layout(channels: tuple[str, ...], T: int, rate_hz: float) -> _Layout:
 
     spec_need = {c: (("spec", k),) for c, k in spos.items()}
     for ci, c in enumerate(channels):
-        for s, k in enumerate(STATS):
-            put(f"{c}__{k}", ci * len(STATS) + s, _STAT_NEEDS[k])
+        for j, k in enumerate(STATS):
+            put(f"{c}__{k}", ci * len(STATS) + j, _STAT_NEEDS[k])
     o_spec = C * len(STATS)
     for si, c in enumerate(spec_ch):
-        for s, k in enumerate(SPECTRAL):
-            put(f"{c}__{k}", o_spec + si * len(SPECTRAL) + s, spec_need[c])
+        for j, k in enumerate(SPECTRAL):
+            put(f"{c}__{k}", o_spec + si * len(SPECTRAL) + j, spec_need[c])
     o_ctx = o_spec + len(spec_ch) * len(SPECTRAL)
-    ctx: list[tuple[str, tuple]] = []
-    rough = []
-    if has_speed:
-        ctx.append(("body__speed_mean", ("speed",)))
-        if "r" in pos:
-            ctx.append(("body__abs_yaw_rate_mean", ("yaw",)))
-        rough = [c for c in ("imu_az", "imu_ax") if c in pos]
-        ctx += [(f"{c}__std_per_speed2", ("speed", "rough")) for c in rough]
-        if "imu_az" in spos:
-            ctx.append(("imu_az__centroid_per_m", ("speed", "cpm") + spec_need["imu_az"]))
+    ctx, rough = _context_columns(pos, spos, spec_need, has_speed)
     ctx_names = [nm for nm, _ in ctx]
     for k, (nm, need) in enumerate(ctx):
         put(nm, o_ctx + k, need)
@@ -327,53 +314,17 @@ def _layout(channels: tuple[str, ...], T: int, rate_hz: float) -> _Layout:
             put(f"slip_wheels__{k}__{agg}", o_agg_slip + j * len(AGGREGATES) + a,
                 ("agg_slip",) + _STAT_NEEDS[k])
     o_agg_cur = o_agg_slip + len(slip_keys) * len(AGGREGATES)
-    agg_phys: list[int] = []
-    if cur_w:
-        # keys of the first current channel (channel order), as in a per-wheel dict
-        first = [c for c in channels if _is_current(c)][0]
-        agg_phys = phys_keys[[c for _, c in cur_w].index(first)]
-        for (i, c), keys in zip(cur_w, phys_keys):
-            if not set(agg_phys) <= set(keys):
-                raise ValueError(f"features: wheel {i} has no slip channel but {first}'s wheel has "
-                                 "one; give every wheel with a current a slip channel, or none")
-    all_cur_spec = tuple(n for _, c in cur_w for n in spec_need[c])
-    cur_keys = ([(k, _STAT_NEEDS[k]) for k in STATS] if cur_w else []) \
-        + ([(k, all_cur_spec) for k in SPECTRAL] if cur_w else []) \
-        + [(PHYSICS[k], _PHYS_NEEDS[PHYSICS[k]]) for k in agg_phys]
+    agg_phys, cur_keys = _current_aggregate_keys(channels, cur_w, phys_keys, spec_need)
     for j, (k, need) in enumerate(cur_keys):
         for a, agg in enumerate(AGGREGATES):
             put(f"current_wheels__{k}__{agg}", o_agg_cur + j * len(AGGREGATES) + a, ("agg_cur",) + need)
     n_flat = o_agg_cur + len(cur_keys) * len(AGGREGATES)
 
-    # public column order (per channel: stats then spectra; context; physics; slip; aggregates)
-    names = []
-    for c in channels:
-        names += [f"{c}__{k}" for k in STATS] + ([f"{c}__{k}" for k in SPECTRAL] if c in spos else [])
-    names += ctx_names
-    for (i, c), keys in zip(cur_w, phys_keys):
-        names += [f"{c}__{PHYSICS[k]}" for k in keys]
-    if slip_w:
-        names += ["slip_wheels__mean", "slip_wheels__spread"]
-    names += [f"slip_wheels__{k}__{agg}" for k in slip_keys for agg in AGGREGATES]
-    names += [f"current_wheels__{k}__{agg}" for k, _ in cur_keys for agg in AGGREGATES]
+    names = _public_names(channels, spos, ctx_names, cur_w, phys_keys, slip_w, slip_keys, cur_keys)
     order = np.asarray([flat[nm] for nm in names], dtype=np.intp)
+    lo, hi, base, coef = _percentile_plan(T)
 
-    # percentiles: numpy's "linear" method, virtual index (T - 1) q, interpolation weight t
-    q = np.true_divide(np.asarray(PERCENTILES), 100)
-    vi = (T - 1) * q
-    lo = np.floor(vi).astype(np.intp)
-    hi = np.minimum(lo + 1, T - 1)
-    top = vi >= T - 1
-    lo[top], hi[top] = T - 1, T - 1
-    t = vi - lo
-    base = np.where(t >= 0.5, hi, lo)  # numpy's _lerp: b - (b - a)(1 - t) when t >= 0.5
-    coef = np.where(t >= 0.5, -(1 - t), t)
-
-    if spec_ch:
-        seg_idx, dft, f, M = _welch_parts(T, float(rate_hz))
-        df_hz = float(f[1] - f[0]) if f.size > 1 else 1.0
-    else:
-        seg_idx, dft, M, df_hz = np.zeros((0, 0), np.intp), np.zeros((0, 0)), np.zeros((0, 6)), 1.0
+    seg_idx, dft, M, df_hz = _spectral_plan(bool(spec_ch), T, rate_hz)
     cur_slip = [(j, pos[slips[i]]) for j, (i, _) in enumerate(cur_w) if i in slips]
     at = {nm: k for k, nm in enumerate(ctx_names)}
     return _Layout(
@@ -393,6 +344,90 @@ def _layout(channels: tuple[str, ...], T: int, rate_hz: float) -> _Layout:
         slope_slip=_ip([p for _, p in cur_slip]), slip_pos=_ip([pos[c] for _, c in slip_w]),
         cur_agg_phys=_ip(agg_phys), o_spec=o_spec, o_ctx=o_ctx, o_phys=o_phys,
         o_slipw=o_slipw, o_agg_slip=o_agg_slip, o_agg_cur=o_agg_cur)
+
+
+def _wheel_channels(channels: tuple[str, ...]) -> tuple[list, list]:
+    """(wheel number, channel) of the slip and of the current channels, sorted by wheel."""
+    slip_w = sorted((int(c[5:]), c) for c in channels if c.startswith("slip_"))
+    cur_w = sorted((int(c[8:]), c) for c in channels if _is_current(c))
+    for fam, ws in (("slip", slip_w), ("current", cur_w)):
+        if len({i for i, _ in ws}) != len(ws):
+            raise ValueError(f"features: two {fam} channels share a wheel number in {list(channels)}")
+    return slip_w, cur_w
+
+
+def _context_columns(pos: dict, spos: dict, spec_need: dict, has_speed: bool) -> tuple[list, list]:
+    """Context columns (name, needs) and the roughness channels: speed, yaw rate, roughness, cpm."""
+    ctx: list[tuple[str, tuple]] = []
+    rough: list[str] = []
+    if has_speed:
+        ctx.append(("body__speed_mean", ("speed",)))
+        if "r" in pos:
+            ctx.append(("body__abs_yaw_rate_mean", ("yaw",)))
+        rough = [c for c in ("imu_az", "imu_ax") if c in pos]
+        ctx += [(f"{c}__std_per_speed2", ("speed", "rough")) for c in rough]
+        if "imu_az" in spos:
+            ctx.append(("imu_az__centroid_per_m", ("speed", "cpm") + spec_need["imu_az"]))
+    return ctx, rough
+
+
+def _current_aggregate_keys(channels, cur_w: list, phys_keys: list, spec_need: dict) -> tuple[list, list]:
+    """Physics keys aggregated over wheels and the (key, needs) of every current aggregate."""
+    agg_phys: list[int] = []
+    if cur_w:
+        # keys of the first current channel (channel order), as in a per-wheel dict
+        first = [c for c in channels if _is_current(c)][0]
+        agg_phys = phys_keys[[c for _, c in cur_w].index(first)]
+        for (i, c), keys in zip(cur_w, phys_keys):
+            if not set(agg_phys) <= set(keys):
+                raise ValueError(f"features: wheel {i} has no slip channel but {first}'s wheel has "
+                                 "one; give every wheel with a current a slip channel, or none")
+    all_cur_spec = tuple(n for _, c in cur_w for n in spec_need[c])
+    cur_keys = ([(k, _STAT_NEEDS[k]) for k in STATS] if cur_w else []) \
+        + ([(k, all_cur_spec) for k in SPECTRAL] if cur_w else []) \
+        + [(PHYSICS[k], _PHYS_NEEDS[PHYSICS[k]]) for k in agg_phys]
+    return agg_phys, cur_keys
+
+
+def _public_names(channels, spos, ctx_names, cur_w, phys_keys, slip_w, slip_keys, cur_keys) -> list[str]:
+    """Public column order (per channel: stats then spectra; context; physics; slip; aggregates)."""
+    names = []
+    for c in channels:
+        names += [f"{c}__{k}" for k in STATS] + ([f"{c}__{k}" for k in SPECTRAL] if c in spos else [])
+    names += ctx_names
+    for (i, c), keys in zip(cur_w, phys_keys):
+        names += [f"{c}__{PHYSICS[k]}" for k in keys]
+    if slip_w:
+        names += ["slip_wheels__mean", "slip_wheels__spread"]
+    names += [f"slip_wheels__{k}__{agg}" for k in slip_keys for agg in AGGREGATES]
+    names += [f"current_wheels__{k}__{agg}" for k, _ in cur_keys for agg in AGGREGATES]
+    return names
+
+
+def _spectral_plan(any_spectral: bool, T: int, rate_hz: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Welch segment indices, DFT matrix, band matrix and bin width (Hz); empty without spectra."""
+    if not any_spectral:
+        return np.zeros((0, 0), np.intp), np.zeros((0, 0)), np.zeros((0, 6)), 1.0
+    seg_idx, dft, f, M = _welch_parts(T, float(rate_hz))
+    return seg_idx, dft, M, float(f[1] - f[0]) if f.size > 1 else 1.0
+
+
+def _percentile_plan(T: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Percentiles as numpy's "linear" method: virtual index (T - 1) q, interpolation weight t.
+
+    Returns the lower and upper sorted indices, the base index and the weight of numpy's _lerp
+    (``b - (b - a)(1 - t)`` when t >= 0.5), per percentile of :data:`PERCENTILES`.
+    """
+    q = np.true_divide(np.asarray(PERCENTILES), 100)
+    vi = (T - 1) * q
+    lo = np.floor(vi).astype(np.intp)
+    hi = np.minimum(lo + 1, T - 1)
+    top = vi >= T - 1
+    lo[top], hi[top] = T - 1, T - 1
+    t = vi - lo
+    base = np.where(t >= 0.5, hi, lo)
+    coef = np.where(t >= 0.5, -(1 - t), t)
+    return lo, hi, base, coef
 
 
 def feature_names(channels: Sequence[str], n_samples: int = 200, rate_hz: float = 100.0) -> list[str]:
@@ -433,7 +468,8 @@ def _flat_features(X: np.ndarray, lay: _Layout, torque_constant_nm_per_a: float,
     """Features of X (n, C, T) in the layout's buffer order, shape (n, lay.n_flat).
 
     ``columns`` (indices into ``lay.names``, None: all): only what these need is computed; the
-    other buffer positions are left at 0.
+    other buffer positions are left at 0. The steps write their blocks of one buffer in order:
+    statistics, spectra, context, physics, aggregates.
     """
     n, C, T = X.shape
     if columns is None:
@@ -448,7 +484,18 @@ def _flat_features(X: np.ndarray, lay: _Layout, torque_constant_nm_per_a: float,
     if flip is not None:
         X = np.where(flip[..., None], -X, X)
         mean = np.where(flip, -mean, mean)  # exact: the mean of -x is -(mean of x)
-    # --- statistics of every channel
+    st, c, m2 = _stat_block(X, mean, lay, has, finite, out)
+    sp = _spectral_block(X, lay, spec_k, out)
+    speed = _context_block(X, lay, has, st, sp, out)
+    ph = _physics_block(lay, has, mean, c, m2, speed, out, torque_constant_nm_per_a, wheel_radius_m,
+                        wheel_loads_n)
+    _aggregate_block(X, lay, has, st, sp, ph, out)
+    return out
+
+
+def _stat_block(X, mean, lay: _Layout, has, finite: bool, out: np.ndarray):
+    """Statistics of every channel into ``out``; returns the block (n, C, k), x - mean and m2."""
+    n, C, T = X.shape
     st = out[:, :lay.o_spec].reshape(n, C, len(STATS))
     c = X - mean[..., None]
     c2 = c * c
@@ -477,7 +524,12 @@ def _flat_features(X: np.ndarray, lay: _Layout, torque_constant_nm_per_a: float,
         else:
             st[..., 8] = m3 / m2 ** 1.5
             st[..., 9] = m4 / m2 ** 2 - 3.0
-    # --- Welch spectra (imu_az, currents): band powers (log10) and centroid
+    return st, c, m2
+
+
+def _spectral_block(X, lay: _Layout, spec_k, out: np.ndarray) -> np.ndarray:
+    """Welch spectra (imu_az, currents): band powers (log10) and centroid; returns the block."""
+    n = X.shape[0]
     sp = out[:, lay.o_spec:lay.o_ctx].reshape(n, lay.spec_pos.size, len(SPECTRAL))
     n_spec = len(lay.spec_pos[spec_k])
     if n_spec:
@@ -490,7 +542,12 @@ def _flat_features(X: np.ndarray, lay: _Layout, torque_constant_nm_per_a: float,
             np.where(total > 0, R[..., 4] / np.where(total > 0, total, 1.0), 0.0)
         sp[:, spec_k, :4] = np.log10(R[..., :4] * lay.df_hz + 1e-12)
         sp[:, spec_k, 4] = cent
-    # --- context: body speed, yaw rate, roughness invariants
+    return sp
+
+
+def _context_block(X, lay: _Layout, has, st, sp, out: np.ndarray):
+    """Context: body speed, yaw rate, roughness invariants; returns the mean speed (or None)."""
+    T = X.shape[-1]
     speed = None
     ctx = out[:, lay.o_ctx:lay.o_phys]
     if lay.ctx_yaw >= 0 and has("yaw"):
@@ -505,7 +562,13 @@ def _flat_features(X: np.ndarray, lay: _Layout, torque_constant_nm_per_a: float,
                                                                  + 1e-9)
         if lay.ctx_cpm >= 0 and has("cpm"):
             ctx[:, lay.ctx_cpm] = sp[:, lay.az_spec, 4] / v
-    # --- physics per wheel
+    return speed
+
+
+def _physics_block(lay: _Layout, has, mean, c, m2, speed, out: np.ndarray, torque_constant_nm_per_a: float,
+                   wheel_radius_m: float, wheel_loads_n: tuple | None) -> np.ndarray:
+    """Physics per wheel (current per speed, effort, current-slip slope); returns the block."""
+    n, T = out.shape[0], c.shape[-1]
     Nc = lay.cur_pos.size
     ph = out[:, lay.o_phys:lay.o_slipw].reshape(n, Nc, len(PHYSICS))
     if Nc and has("phys"):
@@ -517,8 +580,13 @@ def _flat_features(X: np.ndarray, lay: _Layout, torque_constant_nm_per_a: float,
     if lay.slope_cur.size and has("slope"):
         cov = _add(c[:, lay.slope_slip] * c[:, lay.cur_pos[lay.slope_cur]], axis=-1) / T
         ph[:, lay.slope_cur, 2] = cov / (m2[:, lay.slope_slip] + SLOPE_RIDGE)
-    # --- slip across wheels, and wheel-order-invariant aggregates
-    Ns = lay.slip_pos.size
+    return ph
+
+
+def _aggregate_block(X, lay: _Layout, has, st, sp, ph, out: np.ndarray) -> None:
+    """Slip across wheels, and wheel-order-invariant aggregates (mean, max, spread over wheels)."""
+    n, T = X.shape[0], X.shape[-1]
+    Nc, Ns = lay.cur_pos.size, lay.slip_pos.size
     if Ns and (has("slipw_mean") or has("slipw_spread")):
         Sw = X[:, lay.slip_pos]  # (n, N, T)
         if has("slipw_mean"):
@@ -536,7 +604,6 @@ def _flat_features(X: np.ndarray, lay: _Layout, torque_constant_nm_per_a: float,
         if agg_cur:
             A = np.concatenate((st[:, lay.cur_pos], sp[:, lay.cur_spec], ph[..., lay.cur_agg_phys]), axis=2)
             _aggregate(A, out[:, lay.o_agg_cur:].reshape(n, A.shape[2], 3))
-    return out
 
 
 def _check_input(X, channels) -> tuple[np.ndarray, tuple[str, ...]]:

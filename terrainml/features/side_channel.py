@@ -79,80 +79,15 @@ def side_channel_features(X: np.ndarray, channels: Sequence[str], rate_hz: float
         raise ValueError(f"features: X has {C} channels, got {len(channels)} names")
     X = np.where(np.isfinite(X), X, np.nanmean(X, axis=2, keepdims=True))
     X = np.nan_to_num(X)
-    cols: dict[str, np.ndarray] = {}
-    mean = X.mean(axis=2)
-    c = X - mean[..., None]
-    m2 = (c * c).mean(axis=2)
-    std = np.sqrt(m2)
-    safe = np.where(m2 > 1e-20, m2, 1.0)
-    skew = np.where(m2 > 1e-20, (c ** 3).mean(axis=2) / safe ** 1.5, 0.0)
-    kurt = np.where(m2 > 1e-20, (c ** 4).mean(axis=2) / safe ** 2 - 3.0, 0.0)
-    p10, p50, p90 = np.percentile(X, [10, 50, 90], axis=2)
-    dabs = np.abs(np.diff(X, axis=2)).mean(axis=2)
-    f, P = welch(X, fs=rate_hz, nperseg=min(64, T), detrend="constant", axis=2)
-    dfreq = f[1] - f[0]
-    tot = P.sum(axis=2)
-    centroid = np.where(tot > 0, (P * f).sum(axis=2) / np.where(tot > 0, tot, 1.0), 0.0)
-    for j, ch in enumerate(channels):
-        for nm, v in (("mean", mean), ("std", std), ("min", X.min(axis=2)), ("max", X.max(axis=2)),
-                      ("p10", p10), ("p50", p50), ("p90", p90), ("skew", skew), ("kurtosis", kurt),
-                      ("mad_diff", dabs), ("centroid_hz", centroid)):
-            cols[f"{ch}__{nm}"] = v[:, j]
-        for k, (lo, hi) in enumerate(bands_hz):
-            last = k == len(bands_hz) - 1
-            sel = (f >= lo) & ((f <= hi) if last else (f < hi))
-            if sel.any():
-                cols[f"{ch}__bp_{lo:g}_{hi:g}hz"] = np.log10(P[:, j, sel].sum(axis=1) * dfreq + 1e-12)
+    cols: dict[str, np.ndarray] = {}  # insertion order is the feature order
+    c, std, dabs = _channel_stats(X, channels, rate_hz, bands_hz, cols)
     if correlations and C > 1:
         z = c / np.where(std > 1e-9, std, np.inf)[..., None]
         R = np.einsum("nit,njt->nij", z, z) / T
         for a in range(C):
             for b in range(a + 1, C):
                 cols[f"corr__{channels[a]}__{channels[b]}"] = R[:, a, b]
-    pos = {ch: j for j, ch in enumerate(channels)}
-    has_i = {"current_left", "current_right"} <= pos.keys()
-    has_v = {"speed_left_mps", "speed_right_mps"} <= pos.keys()
-    if has_i:
-        iL, iR = X[:, pos["current_left"]], X[:, pos["current_right"]]
-        cols["current_lr__diff_mean"] = (iL - iR).mean(axis=1)
-        cols["current_lr__diff_std"] = (iL - iR).std(axis=1)
-        cols["current_lr__sum_mean"] = (iL + iR).mean(axis=1)
-        cols["current_lr__sum_std"] = (iL + iR).std(axis=1)
-    if has_v:
-        vL, vR = X[:, pos["speed_left_mps"]], X[:, pos["speed_right_mps"]]
-        v = 0.5 * (vL + vR)
-        cols["speed__forward_mean"] = v.mean(axis=1)
-        cols["speed_lr__diff_mean"] = (vR - vL).mean(axis=1)
-        cols["speed_lr__diff_std"] = (vR - vL).std(axis=1)
-        if "imu_wz" in pos:
-            wz = X[:, pos["imu_wz"]]
-            wkin = (vR - vL) / track_m
-            res = wz - wkin
-            cols["skid__yaw_residual_mean"] = res.mean(axis=1)
-            cols["skid__yaw_residual_std"] = res.std(axis=1)
-            cols["skid__yaw_residual_abs"] = np.abs(res).mean(axis=1)
-            cols["skid__yaw_ratio"] = np.abs(wz).mean(axis=1) / np.maximum(np.abs(wkin).mean(axis=1), MIN_SPEED_MPS)
-    if has_v:
-        # roughness invariants (as on the reference robot, features.sets): the vibration a surface
-        # profile excites grows with speed, so the spread per speed and per speed^2 describes the
-        # surface rather than the manoeuvre (speed floored at 0.2 m/s; log10 for scale)
-        v_floor = np.maximum(np.abs(v.mean(axis=1)), ROUGHNESS_MIN_SPEED_MPS)
-        for ch in ROUGHNESS_CHANNELS:
-            if ch not in pos:
-                continue
-            s_ch, d_ch = std[:, pos[ch]], dabs[:, pos[ch]]  # the per-channel std and mad_diff above
-            cols[f"{ch}__log_std_per_speed2"] = np.log10(s_ch / v_floor ** 2 + 1e-9)
-            cols[f"{ch}__log_std_per_speed"] = np.log10(s_ch / v_floor + 1e-9)
-            cols[f"{ch}__log_mad_diff_per_speed"] = np.log10(d_ch / v_floor + 1e-9)
-        if has_i:
-            cols["current_total__log_abs_per_speed"] = np.log10(np.abs(iL + iR).mean(axis=1) / v_floor + 1e-6)
-    if has_i and has_v:
-        vm = np.maximum(np.abs(v.mean(axis=1)), MIN_SPEED_MPS)
-        cols["current_left__per_speed"] = iL.mean(axis=1) / np.maximum(np.abs(vL.mean(axis=1)), MIN_SPEED_MPS)
-        cols["current_right__per_speed"] = iR.mean(axis=1) / np.maximum(np.abs(vR.mean(axis=1)), MIN_SPEED_MPS)
-        cols["current_total__per_speed"] = (iL + iR).mean(axis=1) / vm
-        cols["power_left__mean"] = (iL * vL).mean(axis=1)
-        cols["power_right__mean"] = (iR * vR).mean(axis=1)
+    _side_physics(X, {ch: j for j, ch in enumerate(channels)}, std, dabs, track_m, cols)
     names = list(cols)
     F = np.stack([cols[k] for k in names], axis=1)
     return np.nan_to_num(F, nan=0.0, posinf=0.0, neginf=0.0), names
@@ -204,3 +139,78 @@ class SideChannelFeatures(TransformerMixin, BaseEstimator):
     def get_feature_names_out(self, input_features=None) -> np.ndarray:
         check_is_fitted(self, "feature_names_out_")
         return np.asarray(self.feature_names_out_, dtype=object)
+
+
+def _channel_stats(X: np.ndarray, channels: list[str], rate_hz: float, bands_hz, cols: dict):
+    """Per channel statistics, band powers and centroid into ``cols``; returns x - mean, std, mad_diff."""
+    T = X.shape[2]
+    mean = X.mean(axis=2)
+    c = X - mean[..., None]
+    m2 = (c * c).mean(axis=2)
+    std = np.sqrt(m2)
+    safe = np.where(m2 > 1e-20, m2, 1.0)
+    skew = np.where(m2 > 1e-20, (c ** 3).mean(axis=2) / safe ** 1.5, 0.0)
+    kurt = np.where(m2 > 1e-20, (c ** 4).mean(axis=2) / safe ** 2 - 3.0, 0.0)
+    p10, p50, p90 = np.percentile(X, [10, 50, 90], axis=2)
+    dabs = np.abs(np.diff(X, axis=2)).mean(axis=2)
+    f, P = welch(X, fs=rate_hz, nperseg=min(64, T), detrend="constant", axis=2)
+    dfreq = f[1] - f[0]
+    tot = P.sum(axis=2)
+    centroid = np.where(tot > 0, (P * f).sum(axis=2) / np.where(tot > 0, tot, 1.0), 0.0)
+    for j, ch in enumerate(channels):
+        for nm, v in (("mean", mean), ("std", std), ("min", X.min(axis=2)), ("max", X.max(axis=2)),
+                      ("p10", p10), ("p50", p50), ("p90", p90), ("skew", skew), ("kurtosis", kurt),
+                      ("mad_diff", dabs), ("centroid_hz", centroid)):
+            cols[f"{ch}__{nm}"] = v[:, j]
+        for k, (lo, hi) in enumerate(bands_hz):
+            last = k == len(bands_hz) - 1
+            sel = (f >= lo) & ((f <= hi) if last else (f < hi))
+            if sel.any():
+                cols[f"{ch}__bp_{lo:g}_{hi:g}hz"] = np.log10(P[:, j, sel].sum(axis=1) * dfreq + 1e-12)
+    return c, std, dabs
+
+
+def _side_physics(X: np.ndarray, pos: dict[str, int], std, dabs, track_m: float, cols: dict) -> None:
+    """Left-right current and speed, the skid indicator, roughness invariants, current per speed."""
+    has_i = {"current_left", "current_right"} <= pos.keys()
+    has_v = {"speed_left_mps", "speed_right_mps"} <= pos.keys()
+    if has_i:
+        iL, iR = X[:, pos["current_left"]], X[:, pos["current_right"]]
+        cols["current_lr__diff_mean"] = (iL - iR).mean(axis=1)
+        cols["current_lr__diff_std"] = (iL - iR).std(axis=1)
+        cols["current_lr__sum_mean"] = (iL + iR).mean(axis=1)
+        cols["current_lr__sum_std"] = (iL + iR).std(axis=1)
+    if not has_v:
+        return
+    vL, vR = X[:, pos["speed_left_mps"]], X[:, pos["speed_right_mps"]]
+    v = 0.5 * (vL + vR)
+    cols["speed__forward_mean"] = v.mean(axis=1)
+    cols["speed_lr__diff_mean"] = (vR - vL).mean(axis=1)
+    cols["speed_lr__diff_std"] = (vR - vL).std(axis=1)
+    if "imu_wz" in pos:
+        wz = X[:, pos["imu_wz"]]
+        wkin = (vR - vL) / track_m
+        res = wz - wkin
+        cols["skid__yaw_residual_mean"] = res.mean(axis=1)
+        cols["skid__yaw_residual_std"] = res.std(axis=1)
+        cols["skid__yaw_residual_abs"] = np.abs(res).mean(axis=1)
+        cols["skid__yaw_ratio"] = np.abs(wz).mean(axis=1) / np.maximum(np.abs(wkin).mean(axis=1), MIN_SPEED_MPS)
+    # roughness invariants (as on the reference robot, features.sets): the vibration a surface
+    # profile excites grows with speed, so the spread per speed and per speed^2 describes the
+    # surface rather than the manoeuvre (speed floored at 0.2 m/s; log10 for scale)
+    v_floor = np.maximum(np.abs(v.mean(axis=1)), ROUGHNESS_MIN_SPEED_MPS)
+    for ch in ROUGHNESS_CHANNELS:
+        if ch not in pos:
+            continue
+        s_ch, d_ch = std[:, pos[ch]], dabs[:, pos[ch]]  # the per-channel std and mad_diff above
+        cols[f"{ch}__log_std_per_speed2"] = np.log10(s_ch / v_floor ** 2 + 1e-9)
+        cols[f"{ch}__log_std_per_speed"] = np.log10(s_ch / v_floor + 1e-9)
+        cols[f"{ch}__log_mad_diff_per_speed"] = np.log10(d_ch / v_floor + 1e-9)
+    if has_i:
+        cols["current_total__log_abs_per_speed"] = np.log10(np.abs(iL + iR).mean(axis=1) / v_floor + 1e-6)
+        vm = np.maximum(np.abs(v.mean(axis=1)), MIN_SPEED_MPS)
+        cols["current_left__per_speed"] = iL.mean(axis=1) / np.maximum(np.abs(vL.mean(axis=1)), MIN_SPEED_MPS)
+        cols["current_right__per_speed"] = iR.mean(axis=1) / np.maximum(np.abs(vR.mean(axis=1)), MIN_SPEED_MPS)
+        cols["current_total__per_speed"] = (iL + iR).mean(axis=1) / vm
+        cols["power_left__mean"] = (iL * vL).mean(axis=1)
+        cols["power_right__mean"] = (iR * vR).mean(axis=1)

@@ -635,7 +635,6 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec,
     """
     spec = spec or WindowSpec()
     channels = spec.channels_for(robot)
-    N = robot.n_wheels
     cols = _Columns(est)
     n = cols.n
     T = spec.n_samples
@@ -646,120 +645,29 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec,
     if len(starts) == 0:
         return Windows(np.zeros((0, C, T)), channels, _empty_meta() if with_meta else None,
                        spec.rate_hz), counts
-
-    # ---- per-row arrays (elementwise only: identical whatever rows surround a window)
-    t = cols.float("t_s")
-    vx = cols.float("ekf_vx_mps")
-    vy = cols.float("ekf_vy_mps")
-    r = cols.float("ekf_yaw_rate_radps")
-    ax = cols.float("ekf_ax_mps2")
-    ay = cols.float("ekf_ay_mps2")
-    if spec.remove_centripetal:
-        ax, ay = ax - r * vy, ay + r * vx
-    speed = np.hypot(vx, vy)
-    active = spec.active_rules
-    # a share of ticks is never below 0: with min_steady_fraction <= 0 (``short``) the wheel-state
-    # rule cannot reject a window, so the state columns are not read at all
-    check_states = "wheel_state" in active and spec.min_steady_fraction > 0
-    steady = np.ones((N, n), dtype=bool)
-    # "dominant" mode: per wheel, one boolean row per moving state (the window keeps the
-    # state that holds >= min_steady_fraction of its ticks)
-    moving = np.zeros((len(MOVING_STATES), N, n), dtype=bool)
-    if check_states:
-        for i in range(1, N + 1):
-            col = f"state{i}"
-            if cols.has(col):
-                st = cols.text(col)
-                steady[i - 1] = (st == STEADY_STATES[0]) | (st == STEADY_STATES[1])
-                for k, name in enumerate(MOVING_STATES):
-                    moving[k, i - 1] = st == name
-            else:
-                steady[i - 1] = False
-    steer = np.empty((N, n))
-    for i in range(1, N + 1):
-        name = f"ekf_steer{i}_rad" if cols.has(f"ekf_steer{i}_rad") else f"wheel{i}_steer_rad"
-        steer[i - 1] = cols.float(name) if cols.has(name) else 0.0
-    labelled = cols.has("terrain")
-    if labelled:
-        lab = cols.float("terrain")
-        lab = np.where(np.isfinite(lab) & (lab >= 0), lab, np.nan)
-    plan = _channel_plan(channels, robot)  # ValueError: a channel names a missing wheel
-    data = np.empty((C, n))
-    valid = np.empty((C, n), dtype=bool)
-    for k, (col, vcols, scale) in enumerate(plan):
-        x = cols.float(col)
-        if scale != 1.0:
-            x = x * scale
-        ok = np.isfinite(x)
-        for vc in vcols:
-            ok &= cols.bool(vc)
-        data[k], valid[k] = x, ok
-
-    # ---- per-window rules
-    dt = 1.0 / spec.rate_hz
-    no_labels = np.zeros(0)
+    rows = _RowArrays(cols, robot, spec, channels)
     X_kept, meta_rows = [], []
     for s in starts:
-        e = s + T
-        fails = []
-        tw = t[s:e]
-        span = tw[-1] - tw[0]
-        if not (np.all(np.isfinite(tw)) and abs(span - (T - 1) * dt) <= 0.5 * dt):
-            fails.append("time_gap")
-        if check_states:
-            if spec.wheel_state_mode == "dominant":
-                frac = moving[:, :, s:e].mean(axis=2).max(axis=0)  # (N,) share of each wheel's top state
-                if N and np.any(frac < spec.min_steady_fraction):
-                    fails.append("wheel_state")
-            elif np.any(steady[:, s:e].mean(axis=1) < spec.min_steady_fraction):
-                fails.append("wheel_state")
-        sp = speed[s:e]
-        sp = sp[np.isfinite(sp)]
-        if sp.size == 0 or not sp.mean() >= spec.min_speed_mps:
-            fails.append("speed")
-        axw, ayw = ax[s:e], ay[s:e]
-        axw, ayw = axw[np.isfinite(axw)], ayw[np.isfinite(ayw)]
-        if (axw.size == 0 or ayw.size == 0 or not abs(axw.mean()) < spec.max_mean_abs_accel_mps2
-                or not abs(ayw.mean()) < spec.max_mean_abs_accel_mps2):
-            fails.append("acceleration")
-        if N and np.any(_steer_std(steer[:, s:e]) >= spec.max_steer_std_rad):
-            fails.append("steering")
-        if labelled:
-            lw = lab[s:e]
-            labels = np.unique(lw[np.isfinite(lw)])
-        else:  # no label column (the serving path): nothing to check
-            labels = no_labels
-        if labels.size > 1:
-            if spec.label_at == "end":  # the terrain under the robot when the window ends
-                labels = lw[np.isfinite(lw)][-1:]
-            else:
-                fails.append("terrain_label")
-        vw = valid[:, s:e]
-        all_valid = bool(vw.all())
-        if C and not all_valid and np.any(vw.mean(axis=1) < spec.min_valid_fraction):
-            fails.append("channel_valid")
-        if spec.rules is not None:
-            fails = [f for f in fails if f in active]
+        fails, labels = rows.fails(int(s), T)
         if fails:
             counts["n_rejected"] += 1
             for f in fails:
                 counts[f] += 1
             continue
-        if all_valid:  # nothing to fill: one copy of the window
-            xw = data[:, s:e].copy()
-        else:
-            xw = np.empty((C, T))
-            for k in range(C):
-                xw[k] = _fill_invalid(data[k, s:e], vw[k])
-        X_kept.append(xw)
-        meta_rows.append((int(s), int(labels[0]) if labels.size else -1, float(tw[0]), float(tw[-1])))
+        X_kept.append(rows.window(int(s), T))
+        meta_rows.append((int(s), int(labels[0]) if labels.size else -1, float(rows.t[s]), float(rows.t[s + T - 1])))
     counts["n_kept"] = len(X_kept)
     if not with_meta:
         X = np.stack(X_kept) if X_kept else np.zeros((0, C, T))
         return Windows(X, channels, None, spec.rate_hz), counts  # type: ignore[arg-type]
     if not X_kept:
         return Windows(np.zeros((0, C, T)), channels, _empty_meta(), spec.rate_hz), counts
-    # run ids only for the metadata (the serving path has none to read)
+    return Windows(np.stack(X_kept), channels, _window_meta(cols, meta_rows, run_id), spec.rate_hz), counts
+
+
+def _window_meta(cols: "_Columns", meta_rows: list[tuple], run_id: str | None) -> pd.DataFrame:
+    """The kept windows' metadata (run ids read only here: the serving path has none to read)."""
+    n = cols.n
     if cols.has("run_id") and n:
         run_ids = cols.text("run_id")
     else:
@@ -767,4 +675,129 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec,
     meta = pd.DataFrame([(str(run_ids[s]), lab_, t0, t1, s) for s, lab_, t0, t1 in meta_rows],
                         columns=["run_id", "terrain", "t_start_s", "t_end_s", "start_index"])
     meta["run_id"] = meta["run_id"].astype(object)
-    return Windows(np.stack(X_kept), channels, meta, spec.rate_hz), counts
+    return meta
+
+
+class _RowArrays:
+    """The per-row arrays of one :func:`cut_windows` call and the per-window rules on them.
+
+    Every per-row conversion is elementwise, so a window's arrays are identical whatever rows
+    surround it (offline table or online ring buffer).
+    """
+
+    def __init__(self, cols: "_Columns", robot: RobotSpec, spec: WindowSpec, channels: tuple[str, ...]):
+        self.spec = spec
+        N = self.N = robot.n_wheels
+        n = cols.n
+        self.t = cols.float("t_s")
+        vx, vy = cols.float("ekf_vx_mps"), cols.float("ekf_vy_mps")
+        r = cols.float("ekf_yaw_rate_radps")
+        ax, ay = cols.float("ekf_ax_mps2"), cols.float("ekf_ay_mps2")
+        if spec.remove_centripetal:
+            ax, ay = ax - r * vy, ay + r * vx
+        self.ax, self.ay = ax, ay
+        self.speed = np.hypot(vx, vy)
+        self.active = spec.active_rules
+        # a share of ticks is never below 0: with min_steady_fraction <= 0 (``short``) the wheel-state
+        # rule cannot reject a window, so the state columns are not read at all
+        self.check_states = "wheel_state" in self.active and spec.min_steady_fraction > 0
+        self.steady = np.ones((N, n), dtype=bool)
+        # "dominant" mode: per wheel, one boolean row per moving state (the window keeps the
+        # state that holds >= min_steady_fraction of its ticks)
+        self.moving = np.zeros((len(MOVING_STATES), N, n), dtype=bool)
+        if self.check_states:
+            self._read_states(cols)
+        self.steer = np.empty((N, n))
+        for i in range(1, N + 1):
+            name = f"ekf_steer{i}_rad" if cols.has(f"ekf_steer{i}_rad") else f"wheel{i}_steer_rad"
+            self.steer[i - 1] = cols.float(name) if cols.has(name) else 0.0
+        self.labelled = cols.has("terrain")
+        if self.labelled:
+            lab = cols.float("terrain")
+            self.lab = np.where(np.isfinite(lab) & (lab >= 0), lab, np.nan)
+        self._read_channels(cols, robot, channels)
+
+    def _read_states(self, cols: "_Columns") -> None:
+        for i in range(1, self.N + 1):
+            col = f"state{i}"
+            if cols.has(col):
+                st = cols.text(col)
+                self.steady[i - 1] = (st == STEADY_STATES[0]) | (st == STEADY_STATES[1])
+                for k, name in enumerate(MOVING_STATES):
+                    self.moving[k, i - 1] = st == name
+            else:
+                self.steady[i - 1] = False
+
+    def _read_channels(self, cols: "_Columns", robot: RobotSpec, channels: tuple[str, ...]) -> None:
+        plan = _channel_plan(channels, robot)  # ValueError: a channel names a missing wheel
+        C, n = len(channels), cols.n
+        self.C = C
+        self.data = np.empty((C, n))
+        self.valid = np.empty((C, n), dtype=bool)
+        for k, (col, vcols, scale) in enumerate(plan):
+            x = cols.float(col)
+            if scale != 1.0:
+                x = x * scale
+            ok = np.isfinite(x)
+            for vc in vcols:
+                ok &= cols.bool(vc)
+            self.data[k], self.valid[k] = x, ok
+
+    def fails(self, s: int, T: int) -> tuple[list[str], np.ndarray]:
+        """The rules the window of rows ``s .. s + T - 1`` fails (of the active ones) and its labels."""
+        spec, e = self.spec, s + T
+        fails = []
+        dt = 1.0 / spec.rate_hz
+        tw = self.t[s:e]
+        span = tw[-1] - tw[0]
+        if not (np.all(np.isfinite(tw)) and abs(span - (T - 1) * dt) <= 0.5 * dt):
+            fails.append("time_gap")
+        if self.check_states and self._wheel_state_fails(s, e):
+            fails.append("wheel_state")
+        sp = self.speed[s:e]
+        sp = sp[np.isfinite(sp)]
+        if sp.size == 0 or not sp.mean() >= spec.min_speed_mps:
+            fails.append("speed")
+        axw, ayw = self.ax[s:e], self.ay[s:e]
+        axw, ayw = axw[np.isfinite(axw)], ayw[np.isfinite(ayw)]
+        if (axw.size == 0 or ayw.size == 0 or not abs(axw.mean()) < spec.max_mean_abs_accel_mps2
+                or not abs(ayw.mean()) < spec.max_mean_abs_accel_mps2):
+            fails.append("acceleration")
+        if self.N and np.any(_steer_std(self.steer[:, s:e]) >= spec.max_steer_std_rad):
+            fails.append("steering")
+        labels = _NO_LABELS
+        if self.labelled:  # no label column (the serving path): nothing to check
+            lw = self.lab[s:e]
+            labels = np.unique(lw[np.isfinite(lw)])
+            if labels.size > 1:
+                if spec.label_at == "end":  # the terrain under the robot when the window ends
+                    labels = lw[np.isfinite(lw)][-1:]
+                else:
+                    fails.append("terrain_label")
+        vw = self.valid[:, s:e]
+        self._all_valid = bool(vw.all())
+        if self.C and not self._all_valid and np.any(vw.mean(axis=1) < spec.min_valid_fraction):
+            fails.append("channel_valid")
+        if spec.rules is not None:
+            fails = [f for f in fails if f in self.active]
+        return fails, labels
+
+    def _wheel_state_fails(self, s: int, e: int) -> bool:
+        if self.spec.wheel_state_mode == "dominant":
+            frac = self.moving[:, :, s:e].mean(axis=2).max(axis=0)  # (N,) share of each wheel's top state
+            return bool(self.N and np.any(frac < self.spec.min_steady_fraction))
+        return bool(np.any(self.steady[:, s:e].mean(axis=1) < self.spec.min_steady_fraction))
+
+    def window(self, s: int, T: int) -> np.ndarray:
+        """The window (C, T) of the rows :meth:`fails` last checked; invalid samples interpolated."""
+        e = s + T
+        if self._all_valid:  # nothing to fill: one copy of the window
+            return self.data[:, s:e].copy()
+        vw = self.valid[:, s:e]
+        xw = np.empty((self.C, T))
+        for k in range(self.C):
+            xw[k] = _fill_invalid(self.data[k, s:e], vw[k])
+        return xw
+
+
+_NO_LABELS = np.zeros(0)
