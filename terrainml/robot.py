@@ -230,45 +230,15 @@ def _parse_spec(data: Any, source: str) -> RobotSpec:
     if drive not in ("swerve", "skid", "differential"):
         raise RobotSpecError(f"{source}: field 'drive' must be swerve, skid or differential, got {drive!r}")
 
-    wheels_raw = data.get("wheels")
-    if not isinstance(wheels_raw, list) or not wheels_raw:
-        raise RobotSpecError(f"{source}: field 'wheels' must be a non-empty list")
-    wheels = []
-    for i, w in enumerate(wheels_raw):
-        where = f"{source}: wheels[{i}]"
-        if not isinstance(w, dict):
-            raise RobotSpecError(f"{where} must be a mapping with x_m, y_m, steerable")
-        if "xy_m" in w:
-            x, y = _pair(w, "xy_m", where)
-        else:
-            x, y = _num(w, "x_m", where), _num(w, "y_m", where)
-        steer = w.get("steerable", drive == "swerve")
-        if not isinstance(steer, bool):
-            raise RobotSpecError(f"{where}: field 'steerable' must be true or false")
-        wheels.append(WheelSpec(name=str(w.get("name", f"wheel{i + 1}")), x_m=x, y_m=y, steerable=steer))
-    _check_unique_names(wheels, source)
+    wheels = _parse_wheels(data.get("wheels"), drive, source)
 
     if "com_xy_m" in data:
         com_x, com_y = _pair(data, "com_xy_m", source)
     else:
         com_x, com_y = _num(data, "com_x_m", source, default=0.0), _num(data, "com_y_m", source, default=0.0)
 
-    camera = None
-    if data.get("camera") is not None:
-        c = data["camera"]
-        if not isinstance(c, dict):
-            raise RobotSpecError(f"{source}: field 'camera' must be a mapping or null")
-        camera = CameraSpec(x_m=_num(c, "x_m", f"{source}: camera"), y_m=_num(c, "y_m", f"{source}: camera"),
-                            z_m=_num(c, "z_m", f"{source}: camera", default=0.0),
-                            model=str(c.get("model", "t265")))
-    imu_raw = data.get("imu") or {}
-    if not isinstance(imu_raw, dict):
-        raise RobotSpecError(f"{source}: field 'imu' must be a mapping")
-    imu = ImuSpec(**{k: _num(imu_raw, k, f"{source}: imu", default=0.0)
-                     for k in ("roll_rad", "pitch_rad", "yaw_rad", "x_m", "y_m", "z_m")})
-    bad_imu = sorted(set(imu_raw) - {"roll_rad", "pitch_rad", "yaw_rad", "x_m", "y_m", "z_m"})
-    if bad_imu:
-        raise RobotSpecError(f"{source}: unknown field(s) imu.{', imu.'.join(bad_imu)}")
+    camera = _parse_camera(data.get("camera"), source)
+    imu = _parse_imu(data.get("imu") or {}, source)
 
     tyre = data.get("tyre", "pneumatic")
     if tyre not in ("pneumatic", "rigid"):
@@ -277,20 +247,7 @@ def _parse_spec(data: Any, source: str) -> RobotSpec:
     if data.get("track_width_range_m") is not None:
         track = _pair(data, "track_width_range_m", source)
 
-    motor = None
-    if data.get("motor") is not None:
-        m = data["motor"]
-        if not isinstance(m, dict):
-            raise RobotSpecError(f"{source}: field 'motor' must be a mapping")
-        keys = ("phase_resistance_ohm", "driver_efficiency", "regen_efficiency")
-        bad = sorted(set(m) - set(keys))
-        if bad:
-            raise RobotSpecError(f"{source}: unknown field(s) motor.{', motor.'.join(bad)}")
-        dflt = MotorSpec()
-        motor = MotorSpec(**{k: _num(m, k, f"{source}: motor", nonneg=True, default=getattr(dflt, k)) for k in keys})
-        if not (0.0 < motor.driver_efficiency <= 1.0 and 0.0 <= motor.regen_efficiency <= 1.0):
-            raise RobotSpecError(f"{source}: motor.driver_efficiency must be in (0, 1] and "
-                                 "motor.regen_efficiency in [0, 1]")
+    motor = _parse_motor(data["motor"], source) if data.get("motor") is not None else None
     clearance = None
     if data.get("ground_clearance_m") is not None:
         clearance = _num(data, "ground_clearance_m", source, positive=True)
@@ -325,6 +282,65 @@ def _parse_spec(data: Any, source: str) -> RobotSpec:
     if drive != "swerve" and spec.has_steering:
         raise RobotSpecError(f"{source}: field 'wheels': a {drive}-drive robot cannot have steerable wheels")
     return spec
+
+
+def _parse_wheels(wheels_raw: Any, drive: str, source: str) -> list[WheelSpec]:
+    """The ``wheels`` list: position (``x_m, y_m`` or ``xy_m``), ``steerable`` (default: swerve), name."""
+    if not isinstance(wheels_raw, list) or not wheels_raw:
+        raise RobotSpecError(f"{source}: field 'wheels' must be a non-empty list")
+    wheels = []
+    for i, w in enumerate(wheels_raw):
+        where = f"{source}: wheels[{i}]"
+        if not isinstance(w, dict):
+            raise RobotSpecError(f"{where} must be a mapping with x_m, y_m, steerable")
+        if "xy_m" in w:
+            x, y = _pair(w, "xy_m", where)
+        else:
+            x, y = _num(w, "x_m", where), _num(w, "y_m", where)
+        steer = w.get("steerable", drive == "swerve")
+        if not isinstance(steer, bool):
+            raise RobotSpecError(f"{where}: field 'steerable' must be true or false")
+        wheels.append(WheelSpec(name=str(w.get("name", f"wheel{i + 1}")), x_m=x, y_m=y, steerable=steer))
+    _check_unique_names(wheels, source)
+    return wheels
+
+
+def _parse_camera(c: Any, source: str) -> CameraSpec | None:
+    """The ``camera`` mapping (mount position, model), or None for a robot without camera."""
+    if c is None:
+        return None
+    if not isinstance(c, dict):
+        raise RobotSpecError(f"{source}: field 'camera' must be a mapping or null")
+    return CameraSpec(x_m=_num(c, "x_m", f"{source}: camera"), y_m=_num(c, "y_m", f"{source}: camera"),
+                      z_m=_num(c, "z_m", f"{source}: camera", default=0.0), model=str(c.get("model", "t265")))
+
+
+def _parse_imu(imu_raw: Any, source: str) -> ImuSpec:
+    """The ``imu`` mapping: mount rotation (rad) and position (m), every field defaulting to 0."""
+    if not isinstance(imu_raw, dict):
+        raise RobotSpecError(f"{source}: field 'imu' must be a mapping")
+    imu = ImuSpec(**{k: _num(imu_raw, k, f"{source}: imu", default=0.0)
+                     for k in ("roll_rad", "pitch_rad", "yaw_rad", "x_m", "y_m", "z_m")})
+    bad_imu = sorted(set(imu_raw) - {"roll_rad", "pitch_rad", "yaw_rad", "x_m", "y_m", "z_m"})
+    if bad_imu:
+        raise RobotSpecError(f"{source}: unknown field(s) imu.{', imu.'.join(bad_imu)}")
+    return imu
+
+
+def _parse_motor(m: Any, source: str) -> MotorSpec:
+    """The ``motor`` mapping (phase resistance, driver and regeneration efficiency)."""
+    if not isinstance(m, dict):
+        raise RobotSpecError(f"{source}: field 'motor' must be a mapping")
+    keys = ("phase_resistance_ohm", "driver_efficiency", "regen_efficiency")
+    bad = sorted(set(m) - set(keys))
+    if bad:
+        raise RobotSpecError(f"{source}: unknown field(s) motor.{', motor.'.join(bad)}")
+    dflt = MotorSpec()
+    motor = MotorSpec(**{k: _num(m, k, f"{source}: motor", nonneg=True, default=getattr(dflt, k)) for k in keys})
+    if not (0.0 < motor.driver_efficiency <= 1.0 and 0.0 <= motor.regen_efficiency <= 1.0):
+        raise RobotSpecError(f"{source}: motor.driver_efficiency must be in (0, 1] and "
+                             "motor.regen_efficiency in [0, 1]")
+    return motor
 
 
 def _check_unique_names(wheels: list[WheelSpec], source: str) -> None:

@@ -93,32 +93,43 @@ def evaluate_protocol_cmd(
                 fail(f"{source}: protocol ({p}): {exc}")
             results.update({(p, m): r for m, r in res.items()})
     for (p, m), res in results.items():
-        t = Table(title=f"protocol ({p}) {m}: accuracy {100 * res.accuracy:.2f}%, balanced "
-                        f"{100 * res.balanced_accuracy:.2f}%", title_justify="left")
-        t.add_column("true \\ predicted")
-        for c in res.class_names:
-            t.add_column(c, justify="right")
-        t.add_column("recall %", justify="right")
-        cm = res.confusion_frame()
-        rec = res.recall_per_class()
-        for c in res.class_names:
-            t.add_row(c, *[str(int(v)) for v in cm.loc[c]], f"{100 * rec[c]:.1f}")
-        Console().print(t)
+        Console().print(_confusion_table(p, m, res))
     if out_json is not None:
-        payload = {f"{p}:{m}": {"accuracy": r.accuracy, "balanced_accuracy": r.balanced_accuracy,
-                                "recall_per_class": r.recall_per_class(),
-                                "confusion_matrix": r.pooled["confusion_matrix"], "classes": r.class_names,
-                                "folds": [_fold_json(f) for f in r.fold_metrics]}
-                   for (p, m), r in results.items()}
-        payload["_setup"] = {"source": str(source), "window_s": window_s, "chunk_s": chunk_s,
-                             "windows_per_chunk": per_chunk, "n_windows": len(W), "n_chunks": len(chunks),
-                             "runs_without_chunks": chunks.runs_without_chunks, "quick": quick}
-        try:
-            out_json.write_text(json.dumps(payload, indent=2))
-        except OSError as exc:
-            fail(f"{out_json}: cannot write ({exc})")
-        if not quiet:
-            console.print(f"[green]wrote[/] {out_json}", highlight=False)
+        setup = {"source": str(source), "window_s": window_s, "chunk_s": chunk_s,
+                 "windows_per_chunk": per_chunk, "n_windows": len(W), "n_chunks": len(chunks),
+                 "runs_without_chunks": chunks.runs_without_chunks, "quick": quick}
+        _write_json(out_json, results, setup, quiet)
+
+
+def _confusion_table(p: str, m: str, res) -> Table:
+    """Protocol ``p``, model ``m``: accuracies in the title, confusion matrix and recall per class."""
+    t = Table(title=f"protocol ({p}) {m}: accuracy {100 * res.accuracy:.2f}%, balanced "
+                    f"{100 * res.balanced_accuracy:.2f}%", title_justify="left")
+    t.add_column("true \\ predicted")
+    for c in res.class_names:
+        t.add_column(c, justify="right")
+    t.add_column("recall %", justify="right")
+    cm = res.confusion_frame()
+    rec = res.recall_per_class()
+    for c in res.class_names:
+        t.add_row(c, *[str(int(v)) for v in cm.loc[c]], f"{100 * rec[c]:.1f}")
+    return t
+
+
+def _write_json(out_json: Path, results: dict, setup: dict, quiet: bool) -> None:
+    """The metrics of every (protocol, model) and the setup, as JSON (``--json``)."""
+    payload = {f"{p}:{m}": {"accuracy": r.accuracy, "balanced_accuracy": r.balanced_accuracy,
+                            "recall_per_class": r.recall_per_class(),
+                            "confusion_matrix": r.pooled["confusion_matrix"], "classes": r.class_names,
+                            "folds": [_fold_json(f) for f in r.fold_metrics]}
+               for (p, m), r in results.items()}
+    payload["_setup"] = setup
+    try:
+        out_json.write_text(json.dumps(payload, indent=2))
+    except OSError as exc:
+        fail(f"{out_json}: cannot write ({exc})")
+    if not quiet:
+        console.print(f"[green]wrote[/] {out_json}", highlight=False)
 
 
 def _fold_json(m: dict) -> dict:

@@ -40,6 +40,21 @@ def save_plots(run: pd.DataFrame, est: pd.DataFrame, diag: Diagnostics, robot: R
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t = est["t_s"].to_numpy()
+    files = _twist_figures(run, est, robot, t, out_dir)
+    files += _innovation_figures(diag, t, out_dir)
+    files.append(_slip_figure(est, robot, t, out_dir))
+    files.append(_nis_figure(est, t, out_dir))
+    return files
+
+
+def _save(f: Figure, path: Path) -> Path:
+    f.tight_layout()
+    f.savefig(path, dpi=110)
+    return path
+
+
+def _twist_figures(run: pd.DataFrame, est: pd.DataFrame, robot: RobotSpec, t, out_dir: Path) -> list[Path]:
+    """vx, vy, yaw rate (Fig. 6.1, 6.3, 6.5): wheel kinematics, camera, IMU, truth and the EKF."""
     files: list[Path] = []
     fk_vx, fk_vy, fk_r = wheel_kinematics_twist(run, robot)
     has_cam = "cam_vx_mps" in run.columns
@@ -63,11 +78,13 @@ def save_plots(run: pd.DataFrame, est: pd.DataFrame, diag: Diagnostics, robot: R
         ax.set_ylabel(label)
         ax.legend(loc="best", fontsize=8)
         ax.grid(alpha=0.3)
-        p = out_dir / f"fig{fig}_{name}.png"
-        f.tight_layout()
-        f.savefig(p, dpi=110)
-        files.append(p)
-    # innovations (Fig. 6.2, 6.4, 6.6)
+        files.append(_save(f, out_dir / f"fig{fig}_{name}.png"))
+    return files
+
+
+def _innovation_figures(diag: Diagnostics, t, out_dir: Path) -> list[Path]:
+    """Camera-row innovations (Fig. 6.2, 6.4, 6.6), their variance in the title."""
+    files: list[Path] = []
     for row, fig in (("cam_vx", "6_2"), ("cam_vy", "6_4"), ("cam_yaw_rate", "6_6")):
         if row not in diag.rows:
             continue
@@ -79,11 +96,12 @@ def save_plots(run: pd.DataFrame, est: pd.DataFrame, diag: Diagnostics, robot: R
         ax.set_title(f"innovation {row}: var {np.var(y[m]) if m.any() else float('nan'):.2e}")
         ax.set_xlabel("t [s]")
         ax.grid(alpha=0.3)
-        p = out_dir / f"fig{fig}_innovation_{row}.png"
-        f.tight_layout()
-        f.savefig(p, dpi=110)
-        files.append(p)
-    # slip per wheel (Fig. 7.2-7.4)
+        files.append(_save(f, out_dir / f"fig{fig}_innovation_{row}.png"))
+    return files
+
+
+def _slip_figure(est: pd.DataFrame, robot: RobotSpec, t, out_dir: Path) -> Path:
+    """Slip per wheel (Fig. 7.2-7.4), truth dashed where the run has it."""
     N = robot.n_wheels
     f = Figure(figsize=(10, 2.2 * N))
     axes = f.subplots(N, 1, sharex=True, squeeze=False)
@@ -96,11 +114,11 @@ def save_plots(run: pd.DataFrame, est: pd.DataFrame, diag: Diagnostics, robot: R
         ax.legend(loc="upper right", fontsize=8)
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("t [s]")
-    p = out_dir / "fig7_slip_per_wheel.png"
-    f.tight_layout()
-    f.savefig(p, dpi=110)
-    files.append(p)
-    # NIS with the 95 % band
+    return _save(f, out_dir / "fig7_slip_per_wheel.png")
+
+
+def _nis_figure(est: pd.DataFrame, t, out_dir: Path) -> Path:
+    """NIS with the 95 % chi-square band."""
     nis = est["nis"].to_numpy(float)
     dof = est["nis_dof"].to_numpy(float)
     lo, hi = nis_band(dof)
@@ -112,8 +130,4 @@ def save_plots(run: pd.DataFrame, est: pd.DataFrame, diag: Diagnostics, robot: R
     ax.set_xlabel("t [s]")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    p = out_dir / "nis.png"
-    f.tight_layout()
-    f.savefig(p, dpi=110)
-    files.append(p)
-    return files
+    return _save(f, out_dir / "nis.png")

@@ -72,20 +72,7 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | None = None,
     n = len(table)
     m = len(est.row_columns)
     N = robot.n_wheels
-    t = table["t_s"].to_numpy(dtype=float)
-    Z = np.full((n, m), np.nan)
-    for k, c in enumerate(est.row_columns):
-        if c in cols:
-            Z[:, k] = table[c].to_numpy(dtype=float)
-    gv = {}
-    for g in ("wheels", "imu", "cam", "steer"):
-        name = f"{g}_valid"
-        gv[g] = table[name].to_numpy(dtype=bool) if name in cols else np.ones(n, dtype=bool)
-    V = np.isfinite(Z)
-    for k, g in enumerate(est.row_groups):
-        V[:, k] &= gv[g]
-    omega = np.column_stack([table[wheel_col("omega", i)].to_numpy(dtype=float) for i in range(1, N + 1)])
-    omega = np.where(gv["wheels"][:, None], omega, np.nan)
+    t, Z, V, omega = _measurements(table, est, N)
 
     out_x = np.empty((n, est.model.n))
     out_steer = np.empty((n, N))
@@ -120,6 +107,42 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | None = None,
     if progress is not None:
         progress(n, n)
 
+    df = _est_table(table, robot, est, t, out_x, out_steer, out_slip, out_state, out_vlong,
+                    {"nis": out_nis, "nis_dof": out_dof, "estimator_ok": out_ok, "slip_available": out_sa})
+    diag = Diagnostics(rows=[r.name for r in est.model.rows], innovation=innov,
+                       innovation_var=innov_var, n_gated=ekf.n_gated, preset=est.preset.name)
+    return df, diag
+
+
+def _measurements(table: pd.DataFrame, est: OnlineEstimator, N: int):
+    """The run table as the estimator's arrays: t (n,), rows Z (n, m), usable V (n, m), omega (n, N).
+
+    A row is usable where its value is finite and its sensor group valid; omega is NaN where the
+    wheels are invalid.
+    """
+    cols = set(table.columns)
+    n, m = len(table), len(est.row_columns)
+    t = table["t_s"].to_numpy(dtype=float)
+    Z = np.full((n, m), np.nan)
+    for k, c in enumerate(est.row_columns):
+        if c in cols:
+            Z[:, k] = table[c].to_numpy(dtype=float)
+    gv = {}
+    for g in ("wheels", "imu", "cam", "steer"):
+        name = f"{g}_valid"
+        gv[g] = table[name].to_numpy(dtype=bool) if name in cols else np.ones(n, dtype=bool)
+    V = np.isfinite(Z)
+    for k, g in enumerate(est.row_groups):
+        V[:, k] &= gv[g]
+    omega = np.column_stack([table[wheel_col("omega", i)].to_numpy(dtype=float) for i in range(1, N + 1)])
+    omega = np.where(gv["wheels"][:, None], omega, np.nan)
+    return t, Z, V, omega
+
+
+def _est_table(table: pd.DataFrame, robot: RobotSpec, est: OnlineEstimator, t, out_x, out_steer, out_slip,
+               out_state, out_vlong, health: dict) -> pd.DataFrame:
+    """The EST table (contract 2) of the per-tick outputs, pass-through columns copied from ``table``."""
+    N = robot.n_wheels
     data: dict[str, object] = {
         "t_s": t, "ekf_x_m": out_x[:, 0], "ekf_y_m": out_x[:, 1], "ekf_yaw_rad": out_x[:, 2],
         "ekf_vx_mps": out_x[:, 3], "ekf_vy_mps": out_x[:, 4], "ekf_yaw_rate_radps": out_x[:, 5],
@@ -135,7 +158,7 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | None = None,
         data[f"state{i + 1}"] = names[out_state[:, i]]
     for i in range(N):
         data[f"v_long{i + 1}_mps"] = out_vlong[:, i]
-    data.update({"nis": out_nis, "nis_dof": out_dof, "estimator_ok": out_ok, "slip_available": out_sa})
+    data.update(health)
     df = pd.DataFrame(data, columns=est_state_columns(N))
     for i in range(N):
         df[f"state{i + 1}"] = df[f"state{i + 1}"].astype(str)
@@ -143,9 +166,7 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | None = None,
         df[c] = table[c].to_numpy()
     df.attrs["terrainml"] = dict(table_metadata(table), estimation_preset=est.preset.name,
                                  estimation_robot=robot.name)
-    diag = Diagnostics(rows=[r.name for r in est.model.rows], innovation=innov,
-                       innovation_var=innov_var, n_gated=ekf.n_gated, preset=est.preset.name)
-    return df, diag
+    return df
 
 
 def estimate_run(table: pd.DataFrame, robot: RobotSpec | None = None,

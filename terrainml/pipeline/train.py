@@ -190,9 +190,9 @@ class TrainResult:
     seed: int
     dataset_summary: dict
     ablation: pd.DataFrame | None = None
+    open_set: Any = None
     manifest: dict = field(default_factory=dict)
     fitted: dict = field(default_factory=dict)
-    open_set: Any = None
 
 
 def _ablation(ds: Dataset, folds, seed: int, n_jobs: int, table, classes, cv_all=None,
@@ -247,57 +247,12 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     """
     say = progress or (lambda msg: None)
     out = Path(out)
-    W = ds.windows
-    if len(W) == 0:
-        raise ValueError("the dataset has no windows (see the rejection counts of `dataset build`)")
-    y, groups = W.y, W.groups
-    classes = np.asarray(sorted(set(y.tolist())))
-    if len(classes) < 2:
-        raise ValueError(f"need at least 2 classes to train, the dataset has {classes.tolist()}")
     models = parse_models(models)
-    names = list(ds.class_names) if ds.class_names else [str(c) for c in classes]
-    name_of = dict(zip(classes.tolist(), names))
+    plan = _cv_plan(ds, folds, seed, say)
+    W = plan.W
     table = desired_slip_table_for(ds, ds.robot)
-    # classes with a single run: never tested on an unseen run under grouped CV -> out of the CV
-    runs_per_class = {int(c): len(set(groups[y == c])) for c in classes}
-    excluded = [int(c) for c in classes if runs_per_class[int(c)] < MIN_RUNS_PER_CLASS]
-    cv_classes = np.asarray([c for c in classes if int(c) not in excluded])
-    if len(cv_classes) < 2:
-        raise ValueError(f"grouped CV needs at least 2 classes with >= {MIN_RUNS_PER_CLASS} runs; runs per "
-                         f"class: { {name_of[c]: n for c, n in runs_per_class.items()} }; record more runs")
-    for c in excluded:
-        say(f"warning: class {name_of[c]!r} has {runs_per_class[c]} run(s): excluded from the "
-            f"cross-validation mean (grouped CV cannot test it on an unseen run; record another run "
-            f"of it), kept in the final model")
-    keep = np.isin(y, cv_classes)
-    Wcv = W.subset(np.flatnonzero(keep)) if not keep.all() else W
-    ycv, gcv = Wcv.y, Wcv.groups
-    fold_list = grouped_folds(ycv, gcv, folds, seed)
-    cv_names = [name_of[int(c)] for c in cv_classes]
-    results: dict[str, dict] = {}
-    fitted: dict[str, Any] = {}
-    factories: dict[str, Callable[[], Any]] = {}
     bases = list(dict.fromkeys(q for m in models for q in m.split("+")))
-    for kind in bases:
-        params = (model_params or {}).get(kind, {})
-        inner_jobs = 1 if n_jobs != 1 else None
-        if kind == "cnn" and n_jobs != 1:
-            params = {"n_threads": 1, **params}
-        factory = make_factory(kind, ds, seed, n_jobs=inner_jobs, params=params)
-        factories[kind] = factory
-        say(f"{kind}: grouped {len(fold_list)}-fold cross-validation")
-        cv = cross_validate(factory, Wcv, ycv, gcv, folds=fold_list, n_jobs=n_jobs, table=table,
-                            classes=cv_classes, class_names=cv_names, name=kind)
-        say(f"{kind}: final fit on {len(W)} windows")
-        model = factory()
-        t0 = time.perf_counter()
-        model.fit(W, y, groups=groups)
-        fit_s = time.perf_counter() - t0
-        p = dict(getattr(model, "best_params_", {}) or {})
-        if kind == "cnn":
-            p = {"best_epoch": getattr(model, "best_epoch_", None), "n_epochs": getattr(model, "n_epochs_", None)}
-        results[kind] = {"cv": cv, "fit_time_s": fit_s, "params": p}
-        fitted[kind] = model
+    results, fitted, factories = _fit_bases(ds, bases, plan, table, seed, n_jobs, model_params, say)
     for name in models:
         if "+" in name:
             members = name.split("+")
@@ -313,42 +268,126 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     abl = None
     if ablation and "svm" in models and feature_family(W.channels) == "canonical":
         say("svm: feature-set ablation")
-        abl = _ablation(ds, fold_list, seed, n_jobs, table, cv_classes, results["svm"]["cv"],
-                        (model_params or {}).get("svm"), windows=Wcv)
+        abl = _ablation(ds, plan.folds, seed, n_jobs, table, plan.cv_classes, results["svm"]["cv"],
+                        (model_params or {}).get("svm"), windows=plan.Wcv)
     order = list(results)
     default = max((k for k in results if k in models),
                   key=lambda k: (results[k]["cv"].summary["balanced_accuracy"]["mean"], -order.index(k)))
-    summary = {"n_runs": int(len(np.unique(groups))), "n_windows": int(len(W)),
-               "windows_per_class": {str(n): int((y == c).sum()) for c, n in zip(classes, names)},
-               "runs_per_class": {name_of[c]: n for c, n in runs_per_class.items()},
-               "excluded_classes": [{"class": name_of[c], "runs": runs_per_class[c],
-                                     "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: grouped CV cannot "
-                                               "test it on an unseen run; excluded from the CV mean"}
-                                    for c in excluded],
-               "feature_family": feature_family(W.channels), "sensors": ds.sensors,
-               "window_spec": ds.spec.name,
-               "robot": ds.robot.name, "preset": ds.preset, "channels": list(W.channels),
-               "fingerprint": ds.fingerprint, "rejections": ds.counts}
-    res = TrainResult(out, results, default, classes.tolist(), names, len(fold_list), seed, summary, abl,
-                      fitted=fitted)
+    summary = _dataset_summary(ds, plan)
+    res = TrainResult(out, results, default, plan.classes.tolist(), plan.names, len(plan.folds), seed, summary,
+                      abl, fitted=fitted)
     novelty = _served_novelty(fitted[default], default, W, seed, say)
     if open_set and novelty is not None:
-        members = [factories[q] for q in default.split("+")]
-        factory = members[0] if len(members) == 1 else (lambda: ProbabilityAverage([f() for f in members]))
-        res.open_set = leave_one_class_out(factory, Wcv, folds=fold_list, classes=cv_classes.tolist(),
-                                           class_names=cv_names, seed=seed, n_jobs=n_jobs, progress=say)
+        res.open_set = _open_set(default, factories, plan, seed, n_jobs, say)
     metrics_summary = {k: r["cv"].summary for k, r in results.items()}
-    save_artifact(out, fitted, classes=classes.tolist(), class_names=names, channels=W.channels,
+    save_artifact(out, fitted, classes=plan.classes.tolist(), class_names=plan.names, channels=W.channels,
                   window_spec=ds.spec, robot=ds.robot, training_fingerprint=ds.fingerprint,
                   metrics_summary=metrics_summary, default_model=default, preset=ds.preset,
                   sensors=ds.sensors, feature_family=feature_family(W.channels), novelty=novelty,
                   attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
-                  extra={"folds": len(fold_list), "seed": seed, "n_windows": len(W),
+                  extra={"folds": len(plan.folds), "seed": seed, "n_windows": len(W),
                          "latency_ms": {k: r["latency"] for k, r in results.items()},
                          "excluded_classes": summary["excluded_classes"]})
     write_report(out, res)
     res.manifest = write_manifest(out)  # hash the report files too
     return res
+
+
+@dataclass
+class _CVPlan:
+    """What :func:`train` cross-validates on: the classes, the runs per class, the folds.
+
+    ``W`` all windows (the final fit); ``Wcv`` the windows of the classes with at least
+    :data:`MIN_RUNS_PER_CLASS` runs (``cv_classes``), split into grouped ``folds``.
+    """
+
+    W: Any
+    classes: np.ndarray
+    names: list
+    name_of: dict
+    runs_per_class: dict
+    excluded: list
+    cv_classes: np.ndarray
+    Wcv: Any
+    folds: list
+    cv_names: list
+
+
+def _cv_plan(ds: Dataset, folds: int, seed: int, say: Callable[[str], None]) -> _CVPlan:
+    """Classes, runs per class and grouped folds; classes with a single run leave the CV (named)."""
+    W = ds.windows
+    if len(W) == 0:
+        raise ValueError("the dataset has no windows (see the rejection counts of `dataset build`)")
+    y, groups = W.y, W.groups
+    classes = np.asarray(sorted(set(y.tolist())))
+    if len(classes) < 2:
+        raise ValueError(f"need at least 2 classes to train, the dataset has {classes.tolist()}")
+    names = list(ds.class_names) if ds.class_names else [str(c) for c in classes]
+    name_of = dict(zip(classes.tolist(), names))
+    # classes with a single run: never tested on an unseen run under grouped CV -> out of the CV
+    runs_per_class = {int(c): len(set(groups[y == c])) for c in classes}
+    excluded = [int(c) for c in classes if runs_per_class[int(c)] < MIN_RUNS_PER_CLASS]
+    cv_classes = np.asarray([c for c in classes if int(c) not in excluded])
+    if len(cv_classes) < 2:
+        raise ValueError(f"grouped CV needs at least 2 classes with >= {MIN_RUNS_PER_CLASS} runs; runs per "
+                         f"class: { {name_of[c]: n for c, n in runs_per_class.items()} }; record more runs")
+    for c in excluded:
+        say(f"warning: class {name_of[c]!r} has {runs_per_class[c]} run(s): excluded from the "
+            f"cross-validation mean (grouped CV cannot test it on an unseen run; record another run "
+            f"of it), kept in the final model")
+    keep = np.isin(y, cv_classes)
+    Wcv = W.subset(np.flatnonzero(keep)) if not keep.all() else W
+    fold_list = grouped_folds(Wcv.y, Wcv.groups, folds, seed)
+    return _CVPlan(W, classes, names, name_of, runs_per_class, excluded, cv_classes, Wcv, fold_list,
+                   [name_of[int(c)] for c in cv_classes])
+
+
+def _fit_bases(ds: Dataset, bases: list[str], plan: _CVPlan, table, seed: int, n_jobs: int,
+               model_params: dict | None, say: Callable[[str], None]) -> tuple[dict, dict, dict]:
+    """Cross-validate and fit every base model kind on all windows: (results, fitted, factories) by kind."""
+    W, Wcv = plan.W, plan.Wcv
+    results: dict[str, dict] = {}
+    fitted: dict[str, Any] = {}
+    factories: dict[str, Callable[[], Any]] = {}
+    for kind in bases:
+        params = (model_params or {}).get(kind, {})
+        inner_jobs = 1 if n_jobs != 1 else None
+        if kind == "cnn" and n_jobs != 1:
+            params = {"n_threads": 1, **params}
+        factory = make_factory(kind, ds, seed, n_jobs=inner_jobs, params=params)
+        factories[kind] = factory
+        say(f"{kind}: grouped {len(plan.folds)}-fold cross-validation")
+        cv = cross_validate(factory, Wcv, Wcv.y, Wcv.groups, folds=plan.folds, n_jobs=n_jobs, table=table,
+                            classes=plan.cv_classes, class_names=plan.cv_names, name=kind)
+        say(f"{kind}: final fit on {len(W)} windows")
+        model = factory()
+        t0 = time.perf_counter()
+        model.fit(W, W.y, groups=W.groups)
+        fit_s = time.perf_counter() - t0
+        p = dict(getattr(model, "best_params_", {}) or {})
+        if kind == "cnn":
+            p = {"best_epoch": getattr(model, "best_epoch_", None), "n_epochs": getattr(model, "n_epochs_", None)}
+        results[kind] = {"cv": cv, "fit_time_s": fit_s, "params": p}
+        fitted[kind] = model
+    return results, fitted, factories
+
+
+def _dataset_summary(ds: Dataset, plan: _CVPlan) -> dict:
+    """The report's dataset summary: runs, windows and runs per class, excluded classes, provenance."""
+    W = plan.W
+    y, groups = W.y, W.groups
+    name_of, runs_per_class = plan.name_of, plan.runs_per_class
+    return {"n_runs": int(len(np.unique(groups))), "n_windows": int(len(W)),
+            "windows_per_class": {str(n): int((y == c).sum()) for c, n in zip(plan.classes, plan.names)},
+            "runs_per_class": {name_of[c]: n for c, n in runs_per_class.items()},
+            "excluded_classes": [{"class": name_of[c], "runs": runs_per_class[c],
+                                  "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: grouped CV cannot "
+                                            "test it on an unseen run; excluded from the CV mean"}
+                                 for c in plan.excluded],
+            "feature_family": feature_family(W.channels), "sensors": ds.sensors,
+            "window_spec": ds.spec.name,
+            "robot": ds.robot.name, "preset": ds.preset, "channels": list(W.channels),
+            "fingerprint": ds.fingerprint, "rejections": ds.counts}
 
 
 def _served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], None]):
@@ -360,6 +399,15 @@ def _served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], No
         say(f"{name}: no novelty score ({exc})")
         return None
     return name, scorer, info
+
+
+def _open_set(default: str, factories: dict, plan: _CVPlan, seed: int, n_jobs: int,
+              say: Callable[[str], None]):
+    """Leave-one-class-out evaluation of the served model's novelty on the CV folds."""
+    members = [factories[q] for q in default.split("+")]
+    factory = members[0] if len(members) == 1 else (lambda: ProbabilityAverage([f() for f in members]))
+    return leave_one_class_out(factory, plan.Wcv, folds=plan.folds, classes=plan.cv_classes.tolist(),
+                               class_names=plan.cv_names, seed=seed, n_jobs=n_jobs, progress=say)
 
 
 def parse_class_map(text: str | None) -> dict[str, str]:
