@@ -25,11 +25,11 @@ from terrainml.classes import TERRAIN_CLASSES
 from terrainml.estimation.consistency import (THESIS_INNOVATION_VAR, consistency_report, min_state_duration_s,
                                               truth_metrics)
 from terrainml.estimation.ekf import Ekf, get_preset
+from terrainml.estimation import reference as reference_ekf  # the numpy reference filter and model
 from terrainml.estimation.online import OnlineEstimator
 from terrainml.estimation.run import estimate_run_detailed
 from terrainml.robot import load_robot
 from terrainml.testing import kinematic_run
-from tests.estimation import reference_ekf  # the numpy reference filter and model
 
 SYNTH_SLIP = (0.005, 0.03, 0.125, 0.135, 0.19, 0.2, 0.3, 0.42)  # per class, design §6.1 targets
 
@@ -242,7 +242,7 @@ def _speed_section(quick: bool) -> str:
              f"{reps} runs each (least disturbed by other jobs on the machine). The state "
              "difference is the largest over all ticks and states of both of ours against filterpy. "
              "numpy reference: the dense numpy form of the same filter "
-             "(`tests/estimation/reference_ekf.py`, on the filterpy ticks); filterpy is given that "
+             "(`terrainml/estimation/reference.py`, on the filterpy ticks); filterpy is given that "
              "reference's numpy f, F, h, H. Whole chain: `estimate_run` (EKF, slip, dynamic state, "
              "EST table). Online: "
              "`OnlineEstimator.step(dict)` per sample, dict in, EST row dict out.\n",

@@ -28,6 +28,10 @@ def register(app: typer.Typer) -> None:
         plot: Optional[Path] = typer.Option(None, help="Folder for figures (like thesis Fig. 6.1-6.6, 7.2-7.4)."),
         topics: Optional[str] = typer.Option(None, help="Topic map YAML (or built-in name) for .mcap/.bag "
                                              "logs whose topics differ from the defaults."),
+        reference: bool = typer.Option(False, "--reference", help="Run the readable numpy reference "
+                                       "filter (terrainml.estimation.reference, the EKF's specification) "
+                                       "instead of the compiled one: the same numbers, much slower; to "
+                                       "check the compiled filter on your data."),
     ) -> None:
         """Estimate body velocity, per-wheel slip and wheel state for one run.
 
@@ -68,12 +72,15 @@ def register(app: typer.Typer) -> None:
             task = prog.add_task(run.name, total=len(table))
             try:
                 est, diag = estimate_run_detailed(
-                    table, spec, preset, progress=lambda k, n: prog.update(task, completed=k))
+                    table, spec, preset, progress=lambda k, n: prog.update(task, completed=k),
+                    reference=reference)
             except ValueError as exc:
                 fail(f"{run}: {exc}")
         damage = damage_summary(table)
         report = {"run": str(run), "preset": preset, "robot": spec.name, "n_ticks": len(est),
                   "consistency": consistency_report(est, diag), "damage": damage.to_dict()}
+        if reference:
+            report["filter"] = "reference (terrainml.estimation.reference)"
         if any(c.startswith("gt_") for c in est.columns):
             report["truth"] = truth_metrics(est, spec.n_wheels)
         try:

@@ -25,12 +25,14 @@ valid sample this tick are dropped from the update)::
     d_j     = delta_j                                                  (steering encoders)
     vx_cam  = vx - r y_c,  vy_cam = vy + r x_c,  r_cam = r,  psi_cam = psi   (lever arm, eq. 6.6)
 
-The filter is written filterpy-style: ``x`` and ``P`` are plain arrays and :meth:`Ekf.predict`
-/ :meth:`Ekf.update` follow the textbook equations. The models f, F, h, H and the equations are
-written once, in :mod:`terrainml.estimation._kernel` (compiled with numba; loops that visit only
-the nonzeros of F and H); :class:`Ekf` packs the robot and the tuning for those kernels,
-:meth:`Ekf.step` runs predict and update in one compiled call and :meth:`Ekf.batch_filter` a
-whole table without Python between ticks.
+Where to read it: :mod:`terrainml.estimation.reference` is the filter written the way the
+equations read (dense numpy, f, F, h, H and the textbook predict / Joseph update line by line):
+the specification. :class:`Ekf` here is the production filter: ``x`` and ``P`` are plain arrays,
+but :meth:`Ekf.predict`, :meth:`Ekf.update`, :meth:`Ekf.step` (both in one call) and
+:meth:`Ekf.batch_filter` (a whole table without Python between ticks) are one-line calls into
+the compiled kernels of :mod:`terrainml.estimation._kernel` (numba; loops that visit only the
+nonzeros of F and H). The kernel is tested against the reference tick by tick to 1e-9
+(``tests/estimation/test_ekf.py``); ``terrainml estimate --reference`` runs the reference instead.
 
 Presets (:data:`PRESETS`)
 -------------------------

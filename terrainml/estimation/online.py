@@ -29,6 +29,7 @@ from terrainml.estimation._kernel import (MAX_P_DIAG, MAX_SPEED_MPS, SLIP_MEMORY
                                          SLIP_MEMORY_MIN_SPEED_MPS, measurements_tick, wheels_tick)
 from terrainml.estimation.dynamic_state import DWELL_S, MANOEUVRE_TAU_S, THETA_M2PS3, WheelStateMachine
 from terrainml.estimation.ekf import Ekf, EkfPreset, PlanarModel, get_preset
+from terrainml.estimation.reference import ReferenceEkf
 from terrainml.estimation.slip import DEAD_BAND_MPS
 from terrainml.robot import RobotSpec
 from terrainml.schema import VALID_GROUPS, WHEEL_STATES, wheel_col
@@ -89,6 +90,8 @@ class OnlineEstimator:
         used for the wheel Power. theta = 0.02 m^2/s^3 is ~0.02 m/s^2 at 1 m/s, below the IMU's
         noise and terrain vibration; without smoothing the state chatters or freezes
         (*departure*: design §7.2 does not filter the acceleration).
+    reference : run the readable numpy filter (:class:`~terrainml.estimation.reference.ReferenceEkf`,
+        the specification) instead of the compiled one: the same numbers within 1e-9, much slower.
 
     Examples
     --------
@@ -100,11 +103,11 @@ class OnlineEstimator:
     def __init__(self, robot: RobotSpec, preset: str | EkfPreset = "robust", *,
                  has_imu_yaw: bool = True, has_cam_yaw: bool = True,
                  theta: float = THETA_M2PS3, dwell_s: float = DWELL_S,
-                 accel_tau_s: float = ACCEL_TAU_S) -> None:
+                 accel_tau_s: float = ACCEL_TAU_S, reference: bool = False) -> None:
         self.robot = robot
         self.preset = get_preset(preset)
         self.model = PlanarModel(self.robot, has_imu_yaw=has_imu_yaw, has_cam_yaw=has_cam_yaw)
-        self.ekf = Ekf(self.model, self.preset)
+        self.ekf = (ReferenceEkf if reference else Ekf)(self.model, self.preset)
         rows = self.model.rows
         p = self.preset
         N = self.robot.n_wheels

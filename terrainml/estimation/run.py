@@ -55,11 +55,12 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | None = None,
                           preset: str | EkfPreset = "robust",
                           progress: Callable[[int, int], None] | None = None,
                           on_tick: Callable[[int, OnlineEstimator], None] | None = None,
-                          ) -> tuple[pd.DataFrame, Diagnostics]:
+                          reference: bool = False) -> tuple[pd.DataFrame, Diagnostics]:
     """Like :func:`estimate_run`, also returning :class:`Diagnostics` (innovations, S).
 
     ``progress(k, n)`` is called about 100 times; ``on_tick(k, estimator)`` after every tick
-    (tests use it to inspect ``estimator.ekf.P``).
+    (tests use it to inspect ``estimator.ekf.P``). ``reference``: run the numpy reference filter
+    (:mod:`terrainml.estimation.reference`) instead of the compiled one (same numbers, slower).
     """
     robot = run_robot(table, robot)
     n_wh = infer_n_wheels(table)
@@ -68,7 +69,7 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | None = None,
                          f"spec '{robot.name}' has {robot.n_wheels}")
     cols = set(table.columns)
     est = OnlineEstimator(robot, preset, has_imu_yaw="imu_yaw_rad" in cols,
-                          has_cam_yaw="cam_yaw_rad" in cols)
+                          has_cam_yaw="cam_yaw_rad" in cols, reference=reference)
     n = len(table)
     m = len(est.row_columns)
     N = robot.n_wheels

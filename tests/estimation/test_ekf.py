@@ -1,15 +1,15 @@
 """EKF model: analytic Jacobians vs finite differences, the compiled filter vs the numpy
-reference (``reference_ekf``) and filterpy, covariance health, invalid rows."""
+reference (``terrainml.estimation.reference``) and filterpy, covariance health, invalid rows."""
 
 import math
 
 import numpy as np
 import pytest
-import reference_ekf as ref
-from reference_ekf import ReferenceEkf
 
+from terrainml.estimation import reference as ref
 from terrainml.estimation.ekf import Ekf, PlanarModel, wrap_angle
 from terrainml.estimation.online import OnlineEstimator
+from terrainml.estimation.reference import ReferenceEkf
 from terrainml.estimation.run import estimate_run, estimate_run_detailed
 from terrainml.robot import load_robot
 from terrainml.testing import kinematic_run

@@ -1,9 +1,19 @@
-"""Dense numpy form of the EKF of ``terrainml.estimation.ekf`` (design §7): the test reference.
+"""The EKF of :mod:`terrainml.estimation.ekf` in readable dense numpy: its specification (design §7).
 
-Written independently of the compiled kernels (``terrainml.estimation._kernel``): its own f, F,
-h, H from the equations of the ``ekf`` module docstring, and the textbook predict / Joseph
-update with dense products and a LAPACK Cholesky solve. Only the layout (``PlanarModel``: rows,
-steering states, wheel positions) and the tuning (P0, Q0 from ``Ekf``) are shared.
+The compiled filter (:class:`~terrainml.estimation.ekf.Ekf`, kernels in
+:mod:`terrainml.estimation._kernel`) visits only the structural nonzeros of F and H, in loops
+written for numba; this module is the same filter written the way the equations read: its own
+f, F, h, H (transcribed from the ``ekf`` module docstring, thesis eq. 4.33-4.34, 4.46, 6.6) and
+the textbook predict and Joseph-form update with dense products and a LAPACK Cholesky solve.
+Only the layout (:class:`~terrainml.estimation.ekf.PlanarModel`: rows, steering states, wheel
+positions) and the tuning (P0, Q0 of ``Ekf``) are shared with the kernel.
+
+The kernel is tested against it, tick by tick, to 1e-9 (``tests/estimation/test_ekf.py``), and
+``terrainml estimate --reference`` runs a whole run through it (slow: dense products and Python
+per tick) to check the compiled filter on a user's own data; the estimation benchmark times it
+beside filterpy. :class:`ReferenceEkf` has the interface of ``Ekf`` (``x``, ``P``, ``y``,
+``S_diag``, ``nis``, ``nis_dof``, ``n_gated``, ``predict``, ``update``, ``step``,
+``batch_filter``), so :class:`~terrainml.estimation.online.OnlineEstimator` runs either.
 """
 
 from __future__ import annotations
@@ -15,10 +25,13 @@ from scipy.linalg import cho_factor, cho_solve
 
 from terrainml.estimation.ekf import Ekf, PlanarModel, get_preset
 
+__all__ = ["ReferenceEkf", "f", "F", "h", "H"]
+
 X, Y, PSI, VX, VY, R, AX, AY = range(8)
 
 
 def wrap(a):
+    """Angle wrapped to (-pi, pi] (rad), as the kernel wraps psi."""
     w = (a + math.pi) % (2 * math.pi) - math.pi
     return math.pi if w == -math.pi else w
 
@@ -97,8 +110,15 @@ def H(model: PlanarModel, x: np.ndarray) -> np.ndarray:
 
 
 class ReferenceEkf:
-    """Same interface as :class:`terrainml.estimation.ekf.Ekf` (``x``, ``P``, ``y``, ``S_diag``,
-    ``nis``, ``nis_dof``, ``n_gated``, ``predict``, ``update``, ``step``, ``batch_filter``)."""
+    """The EKF in dense numpy; same interface as :class:`terrainml.estimation.ekf.Ekf` (``x``,
+    ``P``, ``y``, ``S_diag``, ``nis``, ``nis_dof``, ``n_gated``, ``predict``, ``update``, ``step``,
+    ``batch_filter``).
+
+    Parameters
+    ----------
+    model : PlanarModel (the robot's rows and states). preset : ``thesis``, ``robust`` or an
+        :class:`~terrainml.estimation.ekf.EkfPreset` (P0, Q0, the camera gate).
+    """
 
     def __init__(self, model: PlanarModel, preset="robust"):
         self.model = model
@@ -114,11 +134,19 @@ class ReferenceEkf:
         self.gated_run, self.gate_release = 0, False
 
     def predict(self, dt):
-        Fk = F(self.model, self.x, dt)  # at the prior mean
-        self.x = f(self.model, self.x, dt)
-        self.P = Fk @ self.P @ Fk.T + self.Q0 * (dt / 0.01)
+        """Propagate over ``dt`` (s): x = f(x), P = F P F^T + Q0 dt / 0.01 (Q per 100 Hz tick)."""
+        Fk = F(self.model, self.x, dt)  # F = df/dx at the prior mean
+        self.x = f(self.model, self.x, dt)  # x(k|k-1) = f(x(k-1|k-1))
+        self.P = Fk @ self.P @ Fk.T + self.Q0 * (dt / 0.01)  # P(k|k-1) = F P F^T + Q
 
     def update(self, z, use, r_diag, gate_enabled=True):
+        """Update with the rows ``use`` of ``z`` (m,), variances ``r_diag`` (m,); chi-square gate.
+
+        y = z - h(x) (angles wrapped), S = H P H^T + R, K = P H^T S^-1, x = x + K y,
+        P = (I - K H) P (I - K H)^T + K R K^T (Joseph form, symmetrised); NIS = y^T S^-1 y.
+        Gated rows (camera, and IMU acceleration in presets that gate it) whose y^2 exceeds
+        ``cam_gate_chi2`` S_ii are dropped, unless they have been for ``cam_gate_max_ticks``.
+        """
         self.y.fill(np.nan)
         self.S_diag.fill(np.nan)
         idx = np.flatnonzero(use)
@@ -144,23 +172,25 @@ class ReferenceEkf:
             self.nis, self.nis_dof = float("nan"), 0
             return
         Hk, y, Rk = H_all[idx], y_all[idx], np.diag(r_diag[idx])
-        S = Hk @ self.P @ Hk.T + Rk
+        S = Hk @ self.P @ Hk.T + Rk  # S = H P H^T + R
         cho = cho_factor(S, lower=True)
-        K = cho_solve(cho, Hk @ self.P).T  # K = P H^T S^-1
-        self.x = self.x + K @ y
+        K = cho_solve(cho, Hk @ self.P).T  # K = P H^T S^-1 (S symmetric)
+        self.x = self.x + K @ y  # x(k|k) = x(k|k-1) + K y
         self.x[PSI] = wrap(self.x[PSI])
         A = np.eye(self.model.n) - K @ Hk
-        P = A @ self.P @ A.T + K @ Rk @ K.T
+        P = A @ self.P @ A.T + K @ Rk @ K.T  # Joseph form: P stays positive semi-definite
         self.P = 0.5 * (P + P.T)
-        self.nis, self.nis_dof = float(y @ cho_solve(cho, y)), len(idx)
+        self.nis, self.nis_dof = float(y @ cho_solve(cho, y)), len(idx)  # NIS = y^T S^-1 y
         self.y[idx], self.S_diag[idx] = y, np.diag(S)
 
     def step(self, dt, z, use, r_diag, gate_enabled=True):
+        """One tick: predict over ``dt`` (when > 0), then update."""
         if dt > 0.0:
             self.predict(dt)
         self.update(z, use, r_diag, gate_enabled)
 
     def batch_filter(self, t_s, z, use, r_diag, gate_enabled=True):
+        """:meth:`step` over every row (``dt = t_s[k] - t_s[k - 1]``); states, NIS and rows used."""
         xs, nis, dof = np.empty((len(t_s), self.model.n)), np.empty(len(t_s)), np.empty(len(t_s), dtype=int)
         for k in range(len(t_s)):
             self.step(t_s[k] - t_s[k - 1] if k else 0.0, z[k], use[k], r_diag, gate_enabled)
