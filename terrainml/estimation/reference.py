@@ -23,7 +23,7 @@ import math
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
-from terrainml.estimation.ekf import Ekf, PlanarModel, get_preset
+from terrainml.estimation.ekf import REACQUIRE_VAR, Ekf, PlanarModel, get_preset
 
 __all__ = ["ReferenceEkf", "f", "F", "h", "H"]
 
@@ -182,6 +182,26 @@ class ReferenceEkf:
         self.P = 0.5 * (P + P.T)
         self.nis, self.nis_dof = float(y @ cho_solve(cho, y)), len(idx)  # NIS = y^T S^-1 y
         self.y[idx], self.S_diag[idx] = y, np.diag(S)
+
+    def reacquire(self, variance: float = REACQUIRE_VAR) -> None:
+        """Re-initialise after a stale stretch (:meth:`terrainml.estimation.ekf.Ekf.reacquire`).
+
+        Motion states restart at 0 with ``variance``; pose and gyro bias keep their values, the
+        pose variance restarts at ``p0_pose``, the yaw's is capped at ``variance`` (the bias's kept);
+        cross-covariances cleared, gate memory restarted.
+        """
+        n = self.model.n
+        old = np.diag(self.P).copy()
+        diag = np.full(n, float(variance))
+        diag[X] = diag[Y] = self.preset.p0_pose
+        diag[PSI] = min(old[PSI], variance) if np.isfinite(old[PSI]) else variance
+        diag[n - 1] = old[n - 1] if np.isfinite(old[n - 1]) else self.preset.p0_bias
+        keep = self.x[[X, Y, PSI, n - 1]]
+        keep[~np.isfinite(keep)] = 0.0
+        self.x = np.zeros(n)
+        self.x[[X, Y, PSI, n - 1]] = keep
+        self.P = np.diag(diag)
+        self.gated_run, self.gate_release = 0, False
 
     def step(self, dt, z, use, r_diag, gate_enabled=True):
         """One tick: predict over ``dt`` (when > 0), then update."""

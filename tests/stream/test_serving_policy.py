@@ -8,6 +8,7 @@ import pytest
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.lookup.table import DesiredSlipTable
+from terrainml.robot import load_robot
 from terrainml.stream.policy import FALLBACK_REASONS, NO_CLASS_ID, ServingPolicy
 
 
@@ -106,7 +107,7 @@ def test_posterior_entries_are_the_classifier_class_ids():
 
 
 def test_the_cap_of_a_desired_slip_table_is_taken_over_the_model_classes():
-    table = DesiredSlipTable.build("agrimaro")
+    table = DesiredSlipTable.build(load_robot("agrimaro"))
     ids = [0, 2, 5]
     policy = ServingPolicy(table, ids, table.class_names)
     cap = table.safe_cap([table.class_name(c) for c in ids])
