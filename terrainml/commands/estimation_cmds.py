@@ -58,7 +58,7 @@ def register(app: typer.Typer) -> None:
         rb = open_robot(robot) if robot is not None else None  # None: the spec the run carries
         table = open_run(run, robot=rb, topics=topics)
         from terrainml.estimation.consistency import consistency_report, truth_metrics
-        from terrainml.estimation.run import estimate_run_detailed, run_robot
+        from terrainml.estimation.run import run_robot
         from terrainml.schema import infer_n_wheels, write_run_parquet
 
         try:
@@ -66,16 +66,7 @@ def register(app: typer.Typer) -> None:
             check_wheel_count(spec, infer_n_wheels(table), run)
         except ValueError as exc:  # RobotSpecError is a ValueError
             fail(str(exc))
-        with Progress(TextColumn("[bold]estimate[/bold] {task.description}"), BarColumn(),
-                      TextColumn("{task.percentage:>3.0f}%"), TimeRemainingColumn(),
-                      console=console, transient=True) as prog:
-            task = prog.add_task(run.name, total=len(table))
-            try:
-                est, diag = estimate_run_detailed(
-                    table, spec, preset, progress=lambda k, n: prog.update(task, completed=k),
-                    reference=reference)
-            except ValueError as exc:
-                fail(f"{run}: {exc}")
+        est, diag = _estimate_with_progress(run, table, spec, preset, reference)
         damage = damage_summary(table)
         report = {"run": str(run), "preset": preset, "robot": spec.name, "n_ticks": len(est),
                   "consistency": consistency_report(est, diag), "damage": damage.to_dict()}
@@ -97,6 +88,21 @@ def register(app: typer.Typer) -> None:
             files = save_plots(table, est, diag, spec, plot)
             console.print(f"wrote {len(files)} figures to {plot}")
         console.print(f"wrote {out} ({len(est)} ticks) and {rep_path}")
+
+
+def _estimate_with_progress(run: Path, table, spec, preset: str, reference: bool):
+    """:func:`~terrainml.estimation.run.estimate_run_detailed` with a progress bar (exit 2 on refusal)."""
+    from terrainml.estimation.run import estimate_run_detailed
+
+    with Progress(TextColumn("[bold]estimate[/bold] {task.description}"), BarColumn(),
+                  TextColumn("{task.percentage:>3.0f}%"), TimeRemainingColumn(),
+                  console=console, transient=True) as prog:
+        task = prog.add_task(run.name, total=len(table))
+        try:
+            return estimate_run_detailed(table, spec, preset, progress=lambda k, n: prog.update(task, completed=k),
+                                         reference=reference)
+        except ValueError as exc:
+            fail(f"{run}: {exc}")
 
 
 def _print_report(report: dict) -> None:

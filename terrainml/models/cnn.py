@@ -546,33 +546,8 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
         """
         t0 = time.perf_counter()
         self._check_params()
-        if groups is None and hasattr(X, "groups") and hasattr(X, "channels"):
-            groups = X.groups
-        given_names = _channels_of(X)
-        X = self._check_X(X)
+        X, groups, classes, y_idx, names = self._fit_inputs(X, y, groups, channel_names)
         n, C, T = X.shape
-        y = np.asarray(y)
-        if y.ndim != 1 or len(y) != n:
-            raise ValueError(f"CNNClassifier: y must have shape ({n},), got {y.shape}")
-        if groups is not None:
-            groups = np.asarray(groups)
-            if groups.shape != (n,):
-                raise ValueError(f"CNNClassifier: groups must have shape ({n},), got {groups.shape}")
-        n_pool = len(self.conv_channels) - 1
-        if T < 2 ** n_pool:
-            raise ValueError(f"CNNClassifier: windows of {T} samples are too short for "
-                             f"{len(self.conv_channels)} blocks (need >= {2 ** n_pool})")
-        classes, y_idx = np.unique(y, return_inverse=True)
-        if len(classes) < 2:
-            raise ValueError(f"CNNClassifier: need at least 2 classes, got {classes.tolist()}")
-        if channel_names is None:
-            channel_names = self.channel_names if self.channel_names is not None else given_names
-        if channel_names is None:
-            names = [f"ch{i}" for i in range(C)]
-        else:
-            names = [str(c) for c in channel_names]
-            if len(names) != C:
-                raise ValueError(f"CNNClassifier: {len(names)} channel_names for {C} channels")
         seed = int(check_random_state(self.random_state).randint(0, 2**31 - 1))
         self.channel_names_ = names
         pre = self._preprocess_module()
@@ -609,6 +584,38 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
             p.requires_grad_(False)
         self.fit_time_s_ = time.perf_counter() - t0
         return self
+
+    def _fit_inputs(self, X, y, groups, channel_names):
+        """Checked inputs of :meth:`fit`: X (n, C, T), groups (or None), classes, labels as class
+        indices, channel names (ValueError names a bad shape or too short windows)."""
+        if groups is None and hasattr(X, "groups") and hasattr(X, "channels"):
+            groups = X.groups
+        given_names = _channels_of(X)
+        X = self._check_X(X)
+        n, C, T = X.shape
+        y = np.asarray(y)
+        if y.ndim != 1 or len(y) != n:
+            raise ValueError(f"CNNClassifier: y must have shape ({n},), got {y.shape}")
+        if groups is not None:
+            groups = np.asarray(groups)
+            if groups.shape != (n,):
+                raise ValueError(f"CNNClassifier: groups must have shape ({n},), got {groups.shape}")
+        n_pool = len(self.conv_channels) - 1
+        if T < 2 ** n_pool:
+            raise ValueError(f"CNNClassifier: windows of {T} samples are too short for "
+                             f"{len(self.conv_channels)} blocks (need >= {2 ** n_pool})")
+        classes, y_idx = np.unique(y, return_inverse=True)
+        if len(classes) < 2:
+            raise ValueError(f"CNNClassifier: need at least 2 classes, got {classes.tolist()}")
+        if channel_names is None:
+            channel_names = self.channel_names if self.channel_names is not None else given_names
+        if channel_names is None:
+            names = [f"ch{i}" for i in range(C)]
+        else:
+            names = [str(c) for c in channel_names]
+            if len(names) != C:
+                raise ValueError(f"CNNClassifier: {len(names)} channel_names for {C} channels")
+        return X, groups, classes, y_idx, names
 
     def _train(self, net: ConvNet1d, Z: np.ndarray, y_idx: np.ndarray, tr: np.ndarray,
                va: np.ndarray, seed: int, n_epochs: int | None = None) -> None:

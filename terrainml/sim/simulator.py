@@ -133,6 +133,43 @@ class SimResult:
         return self.terrain.layout.class_at(self.log[rows, ph.L_X], self.log[rows, ph.L_Y])
 
 
+def _vehicle_pack(rb: RobotSpec, wx: np.ndarray, wy: np.ndarray, gains: DriveGains, dt: float) -> tuple:
+    """The physics kernel's vehicle pack (:class:`terrainml.sim.physics.Vehicle`) of a robot spec."""
+    a = np.vstack([np.ones(rb.n_wheels), wx, wy])
+    motor = rb.motor_or_default
+    return tuple(ph.Vehicle(
+        wx=wx, wy=wy, xc=float(rb.com_x_m), yc=float(rb.com_y_m), mass=float(rb.mass_kg),
+        iz=float(rb.yaw_inertia_kgm2), rw=float(rb.wheel_radius_m), jw=float(rb.wheel_inertia_kgm2),
+        hcg=float(rb.com_height_m), load_pinv=np.ascontiguousarray(np.linalg.pinv(a)),
+        kp=float(gains.kp_nms_per_rad), ki=float(gains.ki_nm_per_rad), tau_max=float(rb.max_wheel_torque_nm),
+        steer_rate_max=float(rb.steering_rate_max_radps), steer_deadband=float(rb.steering_deadband_rad),
+        steer_tau=float(gains.steer_tau_s), omega_lag_tau=float(gains.omega_lag_tau_s), dt=dt,
+        kt=float(rb.torque_constant_nm_per_a), r_ph=float(motor.phase_resistance_ohm),
+        eta_drv=float(motor.driver_efficiency), eta_regen=float(motor.regen_efficiency),
+        clearance=float(rb.ground_clearance_or_default_m), belly_mu=BELLY_MU, belly_ramp=BELLY_RAMP_M))
+
+
+def _ground_pack(ter, lay, towed: TowedLoad | None) -> tuple:
+    """The physics kernel's ground pack (:class:`terrainml.sim.physics.Ground`): force tables per
+    cell, layout grid, grades, sinkage and cart rolling resistance per class."""
+    classes = lay.grid.reshape(-1).astype(np.int64)
+    digs = [dig_params(int(c)) for c in classes]
+    slope_x, slope_y = lay.slopes()
+    crr_cls = cart_crr_per_class(towed.crr if towed is not None else 0.0)
+    return tuple(ph.Ground(
+        h_tab=ter.h_coef, r_tab=ter.r_coef, y_tab=ter.y_coef, hmax_tab=ter.hmax_coef,
+        w_ref=float(ter.load_ref_n), load_grid=LOAD_FACTORS, alpha_lo=float(ALPHA_GRID[0]),
+        alpha_step=float(ALPHA_GRID[1] - ALPHA_GRID[0]), rough_amp=ter.rough_amp_m,
+        rough_k=ter.rough_k_radpm, rough_phase=ter.rough_phase,
+        lay_grid=np.ascontiguousarray(lay.grid.astype(np.int64)), lay_cell=float(lay.cell_m),
+        lay_ox=float(lay.origin_xy_m[0]), lay_oy=float(lay.origin_xy_m[1]),
+        grad_x=np.tan(slope_x).reshape(-1), grad_y=np.tan(slope_y).reshape(-1),
+        len_tab=np.ascontiguousarray(ter.len_tab_m), z_tab=np.ascontiguousarray(ter.z_tab_m),
+        free_slip=np.array([p.free_slip for p in ter.params], float),
+        dig_k=np.array([d.kappa for d in digs]), dig_relax=np.array([d.relax_m for d in digs]),
+        dig_cap=np.array([d.cap_m for d in digs]), cart_crr=crr_cls[classes]))
+
+
 class Simulator:
     """One simulated run. Build with a :class:`Scenario`; call :meth:`run` (or :meth:`step` per tick).
 
@@ -174,39 +211,11 @@ class Simulator:
         self.wy = np.array([w.y_m for w in rb.wheels], float)
         self.steerable = np.array([w.steerable for w in rb.wheels], bool)
         self._steer_i = self.steerable.astype(np.int64)
-        a = np.vstack([np.ones(n), self.wx, self.wy])
         self.static_loads = np.array(rb.static_wheel_loads_n())
-        lay = scenario.layout
-        ter = self.terrain
-        motor = rb.motor_or_default
-        classes = lay.grid.reshape(-1).astype(np.int64)
-        digs = [dig_params(int(c)) for c in classes]
-        slope_x, slope_y = lay.slopes()
         self.towed = towed
-        crr_cls = cart_crr_per_class(towed.crr if towed is not None else 0.0)
         # the physics kernel's packs, as plain tuples (see terrainml.sim.physics)
-        self._vehicle = tuple(ph.Vehicle(
-            wx=self.wx, wy=self.wy, xc=float(rb.com_x_m), yc=float(rb.com_y_m), mass=float(rb.mass_kg),
-            iz=float(rb.yaw_inertia_kgm2), rw=float(rb.wheel_radius_m), jw=float(rb.wheel_inertia_kgm2),
-            hcg=float(rb.com_height_m), load_pinv=np.ascontiguousarray(np.linalg.pinv(a)),
-            kp=float(gains.kp_nms_per_rad), ki=float(gains.ki_nm_per_rad), tau_max=float(rb.max_wheel_torque_nm),
-            steer_rate_max=float(rb.steering_rate_max_radps), steer_deadband=float(rb.steering_deadband_rad),
-            steer_tau=float(gains.steer_tau_s), omega_lag_tau=float(gains.omega_lag_tau_s), dt=self.dt,
-            kt=float(rb.torque_constant_nm_per_a), r_ph=float(motor.phase_resistance_ohm),
-            eta_drv=float(motor.driver_efficiency), eta_regen=float(motor.regen_efficiency),
-            clearance=float(rb.ground_clearance_or_default_m), belly_mu=BELLY_MU, belly_ramp=BELLY_RAMP_M))
-        self._ground = tuple(ph.Ground(
-            h_tab=ter.h_coef, r_tab=ter.r_coef, y_tab=ter.y_coef, hmax_tab=ter.hmax_coef,
-            w_ref=float(ter.load_ref_n), load_grid=LOAD_FACTORS, alpha_lo=float(ALPHA_GRID[0]),
-            alpha_step=float(ALPHA_GRID[1] - ALPHA_GRID[0]), rough_amp=ter.rough_amp_m,
-            rough_k=ter.rough_k_radpm, rough_phase=ter.rough_phase,
-            lay_grid=np.ascontiguousarray(lay.grid.astype(np.int64)), lay_cell=float(lay.cell_m),
-            lay_ox=float(lay.origin_xy_m[0]), lay_oy=float(lay.origin_xy_m[1]),
-            grad_x=np.tan(slope_x).reshape(-1), grad_y=np.tan(slope_y).reshape(-1),
-            len_tab=np.ascontiguousarray(ter.len_tab_m), z_tab=np.ascontiguousarray(ter.z_tab_m),
-            free_slip=np.array([p.free_slip for p in ter.params], float),
-            dig_k=np.array([d.kappa for d in digs]), dig_relax=np.array([d.relax_m for d in digs]),
-            dig_cap=np.array([d.cap_m for d in digs]), cart_crr=crr_cls[classes]))
+        self._vehicle = _vehicle_pack(rb, self.wx, self.wy, gains, self.dt)
+        self._ground = _ground_pack(self.terrain, scenario.layout, towed)
         # state
         self.body = np.zeros(ph.N_BODY)
         self.wheel = np.zeros((ph.N_WROWS, n))
