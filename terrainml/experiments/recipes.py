@@ -22,7 +22,7 @@ from typing import Any
 
 from terrainml._yaml_checks import read_yaml_file
 from terrainml.features.windows import WindowSpec
-from terrainml.pipeline.dataset import build_dataset, read_windows, write_windows
+from terrainml.pipeline.dataset import build_dataset, dataset_robot, read_windows, write_windows
 from terrainml.sim.generate import generate_dataset
 
 __all__ = ["load_recipe", "simulated_dataset", "RECIPES_DIR"]
@@ -98,11 +98,12 @@ def simulated_dataset(recipe: str | Path | dict = "sim_default", *, runs_per_cla
     if windows_path.is_file():
         return read_windows(windows_path)
     logs = folder / "logs"
+    robot = dataset_robot(r.get("robot"))  # the recipe's robot, resolved once for both steps
     if not (logs / "index.csv").is_file():
         generate_dataset(logs, int(r["runs_per_class"]), int(r["seed"]), n_jobs=n_jobs,
-                         duration_s=r.get("duration_s"), fmt=r.get("format", "mcap"), robot=r.get("robot"),
+                         duration_s=r.get("duration_s"), fmt=r.get("format", "mcap"), robot=robot,
                          progress=(lambda d, t: progress("simulate", d, t)) if progress else None)
-    ds = build_dataset(logs, r.get("robot"), r.get("preset", "robust"), spec, n_jobs=n_jobs,
+    ds = build_dataset(logs, robot, r.get("preset", "robust"), spec, n_jobs=n_jobs,
                        progress=(lambda d, t, n: progress("build", d, t)) if progress else None)
     write_windows(ds, windows_path)
     return ds
