@@ -90,26 +90,27 @@ def build_with_progress(source: Path, *, robot: Optional[str], preset: str, n_jo
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from terrainml.pipeline.dataset import DatasetError, build_dataset, dataset_robot, find_logs, resolve_spec
+    from terrainml.pipeline.dataset import DatasetError, build_dataset, dataset_robot, resolve_spec
     from terrainml.robot import RobotSpecError
 
     try:
         rb = dataset_robot(robot, fmt)
         spec = resolve_spec(spec, rb, sensors)
-        if fmt == "borealtc":  # tables, not logs: no progress bar
-            return build_dataset(source, rb, preset, spec, n_jobs=n_jobs, fmt=fmt,
-                                 say=None if quiet else (lambda line: console.print(line, highlight=False)))
-        paths = find_logs(source)
     except (DatasetError, RobotSpecError) as exc:
         fail(str(exc))
+    say = None if quiet else (lambda line: console.print(line, highlight=False))
     with Progress(TextColumn("[bold]dataset[/] {task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), console=console, transient=True, disable=quiet) as progress:
-        task = progress.add_task(str(source), total=len(paths))
+        task = progress.add_task(str(source), total=None)
 
         def cb(done: int, total: int, name: str) -> None:
             progress.update(task, completed=done, total=total, description=name)
 
-        return build_dataset(paths, rb, preset, spec, n_jobs=n_jobs, dask_address=dask_address, progress=cb)
+        try:
+            return build_dataset(source, rb, preset, spec, n_jobs=n_jobs, dask_address=dask_address,
+                                 progress=cb, fmt=fmt, say=say)
+        except DatasetError as exc:  # no logs, no BorealTC run: the message names the folder
+            fail(str(exc))
 
 
 def build(
