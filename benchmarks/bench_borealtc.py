@@ -3,8 +3,8 @@
 ``run(quick)`` returns a Markdown section with:
 
 1. Data: the BorealTC folder (Clearpath Husky, five terrains, CC0) read by
-   :mod:`terrainml.io.borealtc`, 5-s chunks, 1.7-s windows of the 10 raw channels (6 IMU, left
-   and right motor current, left and right wheel speed), class-balanced like the authors'
+   :func:`terrainml.io.ingest.load_dataset` (``borealtc``), 5-s chunks, 1.7-s windows of the 10
+   raw channels (6 IMU, left and right motor current, left and right wheel speed), class-balanced like the authors'
    "homogeneous augmentation"; the protocols run through :mod:`terrainml.experiments.borealtc`
    (the library behind ``terrainml evaluate-protocol`` too).
 2. Protocol (a), the authors' (stratified 5-fold over 5-s chunks, not grouped by run, seed 21):

@@ -28,7 +28,7 @@ import numpy as np
 from benchmarks.bench_real_robots import DATA, SHORT, _pct, served_course
 from terrainml.evaluation.report import markdown_table
 from terrainml.experiments.borealtc import course_runs, runs_by_class
-from terrainml.io.borealtc import load_borealtc
+from terrainml.io.ingest import load_dataset
 from terrainml.robot import load_robot
 
 SEGMENT_S = 30.0
@@ -64,7 +64,7 @@ def run(quick: bool = False) -> str:
     if not DATA.is_dir():
         return "## Course rotation sweep\n\nBorealTC not found at `../shared/datasets/borealtc`; skipped.\n"
     robot = load_robot("husky")
-    tables, report = load_borealtc(DATA, robot=robot)
+    tables, report = load_dataset("borealtc", DATA, robot=robot)
     names = list(report.classes)
     n_k = min(len(ids) for ids in runs_by_class(tables).values())
     ks = list(range(min(2, n_k) if quick else n_k))

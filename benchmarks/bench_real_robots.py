@@ -29,7 +29,7 @@ from terrainml.evaluation.report import markdown_table
 from terrainml.experiments.borealtc import (ProtocolData, course_runs, course_score, make_course,
                                             robot_track_m, run_protocol)
 from terrainml.features.windows import window_spec
-from terrainml.io.borealtc import load_borealtc
+from terrainml.io.ingest import load_dataset
 from terrainml.pipeline.dataset import build_from_tables
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
@@ -93,7 +93,7 @@ def run(quick: bool = False) -> str:
     if not DATA.is_dir():
         return "## Real robots\n\nBorealTC not found at `../shared/datasets/borealtc`; skipped.\n"
     robot = load_robot("husky")
-    tables, report = load_borealtc(DATA, robot=robot)
+    tables, report = load_dataset("borealtc", DATA, robot=robot)
     models = ["hgb"] if quick else ["svm", "hgb", "svm+hgb"]
     rows, info = compare_paths(tables, report, robot, models, 4 if quick else 11)
     names = info["names"]

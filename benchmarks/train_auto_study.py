@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from terrainml.evaluation.report import markdown_table
-from terrainml.io.borealtc import load_borealtc
+from terrainml.io.ingest import load_dataset
 from terrainml.io.ingest import load_run
 from terrainml.pipeline.autotrain import train_auto
 from terrainml.pipeline.dataset import find_logs
@@ -91,7 +91,7 @@ def _section(title: str, res, wall_s: float, cpu_s: float) -> list[str]:
 def boreal(n_jobs: int) -> list[str]:
     robot = load_robot("husky")
     t0, c0 = time.perf_counter(), _cpu_s()
-    tables, _ = load_borealtc(DATA, robot=robot)
+    tables, _ = load_dataset("borealtc", DATA, robot=robot)
     res = train_auto(tables, robot, OUT / "boreal", n_jobs=n_jobs, progress=_log)
     return _section("BorealTC, `terrainml train --data ... --format borealtc --out ...` (defaults)", res,
                     time.perf_counter() - t0, _cpu_s() - c0)

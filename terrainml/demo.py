@@ -27,8 +27,9 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
 from rich.table import Table
 
-from terrainml.io.ingest import load_run, write_run_mcap
+from terrainml.io.ingest import load_run
 from terrainml.io.inspect import inspect_log
+from terrainml.io.mcap_writer import write_run_mcap
 from terrainml.pipeline.dataset import build_dataset, write_windows
 from terrainml.pipeline.train import train
 from terrainml.robot import RobotSpec, reference_robot

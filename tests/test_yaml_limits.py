@@ -7,7 +7,7 @@ import pytest
 
 from terrainml._yaml_checks import MAX_YAML_ALIASES, MAX_YAML_BYTES, MAX_YAML_NODES, load_bounded_yaml
 from terrainml.experiments.recipes import load_recipe
-from terrainml.io.dataset_spec import DatasetSpecError, load_dataset_spec
+from terrainml.io.ingest.dataset_spec import DatasetSpecError, load_dataset_spec
 from terrainml.io.topicmap import TopicMapError, load_topic_map
 from terrainml.lookup.catalogue import CatalogueError, load_catalogue
 from terrainml.robot import RobotSpec, RobotSpecError

@@ -19,7 +19,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from terrainml.io.dataset_spec import DatasetSpecError, load_dataset_spec
+from terrainml.io.ingest.dataset_spec import DatasetSpecError, load_dataset_spec
 from terrainml.robot import RobotSpec, RobotSpecError, load_robot
 
 __all__ = ["EXIT_USAGE", "check_n_jobs", "check_output_writable", "console", "fail", "is_windows_file",
@@ -97,10 +97,9 @@ def open_run(path: Path, *, robot: str | Path | RobotSpec | None = None, topics:
             fail(str(exc))
     from terrainml.io.ingest import load_run
 
+    robot = open_robot(robot)
     try:
         res = load_run(path, robot=robot, topic_map=topics)
-    except RobotSpecError as exc:
-        fail(str(exc))
     except Exception as exc:  # noqa: BLE001 - any reader error becomes a message naming the file
         fail(f"{path}: cannot read run: {exc}")
     if not res.report.usable:

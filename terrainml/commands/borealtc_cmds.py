@@ -48,7 +48,7 @@ def evaluate_protocol_cmd(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from terrainml.experiments.borealtc import MODELS, load_protocol_data, run_protocol
-    from terrainml.io.borealtc import BorealTCError
+    from terrainml.io.ingest.dataset_spec import DatasetSpecError
 
     if protocol not in PROTOCOLS:
         fail(f"--protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
@@ -66,7 +66,7 @@ def evaluate_protocol_cmd(
         check_output_writable(out_json)
     try:
         data = load_protocol_data(source, rb, chunk_s=chunk_s, window_s=window_s, max_windows_per_chunk=per_chunk)
-    except (BorealTCError, ValueError) as exc:
+    except (DatasetSpecError, ValueError) as exc:
         fail(str(exc))
     W, chunks = data.windows, data.chunks
     if not quiet:

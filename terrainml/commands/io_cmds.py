@@ -14,7 +14,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from terrainml.commands._common import ALLOW_OUTSIDE_HELP, check_output_writable, console, fail, open_dataset_spec
+from terrainml.commands._common import (ALLOW_OUTSIDE_HELP, check_output_writable, console, fail,
+                                        open_dataset_spec, open_robot)
 
 
 def _progress_callback(progress, task):
@@ -59,11 +60,12 @@ def ingest(
 
     check_output_writable(out)
     dataset = open_dataset_spec(fmt, allow_outside)
+    robot_spec = None if robot is None else open_robot(robot)   # None: the dataset spec's, else agrimaro
     try:
         with Progress(TextColumn("[bold]ingest[/] {task.description}"), BarColumn(), TimeRemainingColumn(),
                       console=console, transient=True, disable=quiet) as progress:
             task = progress.add_task(str(log), total=None)
-            rep = ingest_to_parquet(log, out, robot=robot, topic_map=topics, rate_hz=rate_hz, chunk_s=chunk_s,
+            rep = ingest_to_parquet(log, out, robot=robot_spec, topic_map=topics, rate_hz=rate_hz, chunk_s=chunk_s,
                                     progress=_progress_callback(progress, task), dataset=dataset)
         for w in rep.warnings:
             if not quiet:

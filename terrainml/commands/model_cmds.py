@@ -164,13 +164,13 @@ def _load_tables(data: Path, *, robot, fmt: str, quiet: bool):
     from terrainml.commands._common import open_robot
 
     if fmt == "borealtc":
-        from terrainml.io.borealtc import load_borealtc
+        from terrainml.io.ingest import load_dataset
 
         rb = open_robot(robot or "husky")
-        tables, rep = load_borealtc(data, robot=rb)
+        tables, rep = load_dataset("borealtc", data, robot=rb)
         if not quiet:
             console.print(f"BorealTC: {rep.runs} runs, classes {rep.classes}; runs without IMU: "
-                          f"{len(rep.runs_without_imu)}; skipped: {len(rep.skipped)}", highlight=False)
+                          f"{len(rep.runs_without("imu"))}; skipped: {len(rep.skipped)}", highlight=False)
         return tables, rb
     if fmt != "auto":
         fail(f"unknown --format {fmt!r}; expected auto or borealtc")

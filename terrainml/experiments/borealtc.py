@@ -56,7 +56,7 @@ from terrainml.features.chunks import (SIDE_CHANNELS, ChunkSet, chunk_windows, m
                                        windows_per_chunk)
 from terrainml.features.side_channel import HUSKY_TRACK_M, SideChannelFeatures, track_of
 from terrainml.features.windows import Windows
-from terrainml.io.borealtc import BorealReport, load_borealtc
+from terrainml.io.ingest import DatasetReport, load_dataset
 from terrainml.models.svm import SVMClassifier
 from terrainml.models.trees import BoostedTrees
 from terrainml.robot import RobotSpec
@@ -147,13 +147,13 @@ class ProtocolData:
     Attributes
     ----------
     windows : Windows (n, 10, T) with meta ``run_id, terrain, chunk_id, ...``.
-    chunks : ChunkSet. report : the reader's BorealReport (``classes``: names of labels 0..K-1).
+    chunks : ChunkSet. report : the reader's DatasetReport (``classes``: names of labels 0..K-1).
     track_m : wheel track B (m) of the robot.
     """
 
     windows: Windows
     chunks: ChunkSet
-    report: BorealReport
+    report: DatasetReport
     track_m: float
 
     @property
@@ -167,10 +167,10 @@ def load_protocol_data(source: str | Path, robot: RobotSpec, chunk_s: float = 5.
 
     Raises
     ------
-    BorealTCError or ValueError
+    DatasetSpecError or ValueError
         The folder is unusable: no run could be read, or no complete chunk (message names it).
     """
-    tables, rep = load_borealtc(source, robot=robot)
+    tables, rep = load_dataset("borealtc", source, robot=robot)
     if not tables:
         raise ValueError(f"{source}: no run could be read ({rep.skipped})")
     chunks = make_chunks(tables, chunk_s=chunk_s)

@@ -24,10 +24,10 @@ from typing import Any, Mapping
 import pandas as pd
 import pyarrow.parquet as pq
 
-from terrainml.io.ingest_engine import IngestReport
+from terrainml.io.ingest.report import IngestReport
 from terrainml.schema import METADATA_KEY
 
-__all__ = ["DamageSummary", "damage_summary", "damage_metadata"]
+__all__ = ["DamageSummary", "damage_summary"]
 
 _LISTED = 3   # per-topic / per-column entries named in the one-line text
 
@@ -55,22 +55,9 @@ class DamageSummary:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
 
 
-def damage_metadata(rep: IngestReport) -> dict[str, Any]:
-    """The ``damage`` entry of a run table's metadata, from an ingest report."""
-    mapped = {t: d for t, d in rep.topics.items() if d.get("mapped")}
-    return {
-        "corrupt_per_topic": rep.corrupt_per_topic(),
-        "skipped_per_topic": {t: int(d["skipped"]) for t, d in mapped.items() if d.get("skipped")},
-        "non_finite_per_topic": {t: int(d["non_finite"]) for t, d in mapped.items() if d.get("non_finite")},
-        "bad_cells_per_column": {c: dict(k) for c, k in rep.bad_cells.items()},
-        "corrupt_chunks": int(rep.corrupt_chunks),
-        "truncation": dict(rep.truncation) if rep.truncation else None,
-    }
-
-
 def _damage_dict(obj: Any) -> dict[str, Any]:
     if isinstance(obj, IngestReport):
-        return damage_metadata(obj)
+        return obj.damage()
     if isinstance(obj, pd.DataFrame):
         obj = obj.attrs.get("terrainml", {})
     elif isinstance(obj, (str, Path)):

@@ -27,6 +27,9 @@ Message conventions (documented for users reproducing them on a robot)
 ``/sim/wheel_state``      sensor_msgs/msg/JointState: names ``wheel{i}``; position = state code
                           (0 idle, 1 steady, 2 traction, 3 braking).
 ``/sim/ground_truth``     nav_msgs/msg/Odometry: pose in ``world``, twist in ``body``.
+
+:func:`write_run_mcap` writes a canonical run table back to such a log (MCAP export), so a
+hand-made table round-trips through ingest.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
+import pandas as pd
 import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
@@ -48,8 +52,11 @@ from mcap.well_known import SchemaEncoding
 from mcap.writer import LIBRARY_IDENTIFIER, MCAP0_MAGIC
 from mcap_ros2._dynamic import serialize_dynamic
 from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
 
-from terrainml.io import cdr, topics
+from terrainml.io import cdr, t265, topics
+from terrainml.robot import RobotSpec
+from terrainml.schema import validate_run_table, valid_column, wheel_col
 
 _MSG_HEAD = struct.Struct("<BQHIQQ")      # Message record: opcode, length, channel, sequence, log, publish
 _INDEX_HEAD = struct.Struct("<BQHI")      # MessageIndex record: opcode, length, channel, entries' bytes
@@ -430,3 +437,79 @@ class RosMcapWriter:
 
     def write_wheel_state(self, t_s, state_codes) -> None:
         self._joints(topics.SIM_WHEEL_STATE, t_s, self._truth_names_b, state_codes, None, None)
+
+
+# ----------------------------------------------------------------------------- export
+def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec, *,
+                   start_time_ns: int = 1_700_000_000_000_000_000) -> Path:
+    """Write a canonical run table to a ROS 2 MCAP with the default topic map's messages.
+
+    One message per row and sensor group where that group is valid (rows that are invalid are not
+    written, so gaps survive the round trip). IMU vectors are rotated back to the IMU's own axes
+    (inverse of the spec's mount rotation); camera rows are turned into T265 messages with
+    :func:`terrainml.io.t265.body_to_t265_odometry` (robot pose integrated from the camera yaw and
+    velocities); labels are written when they change and once a second. ``robot``: the spec the
+    table was recorded with (its IMU and camera mounts).
+    """
+    n = robot.n_wheels
+    df = validate_run_table(table, n)
+    t = df["t_s"].to_numpy(float)
+    rot_inv = Rotation.from_euler("xyz", [robot.imu.roll_rad, robot.imu.pitch_rad, robot.imu.yaw_rad]).inv()
+
+    def col(name, default=np.nan):
+        return df[name].to_numpy(float) if name in df else np.full(len(df), default)
+
+    def valid(g):
+        c = valid_column(g).name
+        return df[c].to_numpy(bool) if c in df else np.zeros(len(df), bool)
+
+    acc = rot_inv.apply(np.column_stack([col("imu_ax_mps2"), col("imu_ay_mps2"), col("imu_az_mps2")]))
+    gyr = rot_inv.apply(np.column_stack([col("imu_roll_rate_radps", 0.0), col("imu_pitch_rate_radps", 0.0),
+                                         col("imu_yaw_rate_radps")]))
+    has_cam = "cam_vx_mps" in df and valid("cam").any() and robot.camera is not None
+    if has_cam:
+        mount = (robot.camera.x_m, robot.camera.y_m, robot.camera.z_m)
+        yaw = np.nan_to_num(col("cam_yaw_rad"))
+        vx, vy = t265.robot_velocity_from_mount(np.nan_to_num(col("cam_vx_mps")), np.nan_to_num(col("cam_vy_mps")),
+                                                np.nan_to_num(col("cam_yaw_rate_radps")), mount[:2])
+        dt = np.diff(t, prepend=t[0])
+        xw = np.cumsum(dt * (vx * np.cos(yaw) - vy * np.sin(yaw)))
+        yw = np.cumsum(dt * (vx * np.sin(yaw) + vy * np.cos(yaw)))
+        msg = t265.body_to_t265_odometry(xw, yw, yaw, vx, vy, np.nan_to_num(col("cam_yaw_rate_radps")), mount)
+        conf = col("cam_confidence", 3.0)
+    wv, sv, cv, iv, camv, cmdv = (valid(g) for g in ("wheels", "steer", "current", "imu", "cam", "cmd"))
+    omega = np.column_stack([col(wheel_col("omega", i)) for i in range(1, n + 1)])
+    steer = np.column_stack([col(wheel_col("steer", i), 0.0) for i in range(1, n + 1)])
+    cur = np.column_stack([col(wheel_col("current", i)) for i in range(1, n + 1)])
+    terrain = df["terrain"].to_numpy() if "terrain" in df else None
+    has_gt = "gt_vx_mps" in df
+    has_slip = "gt_slip1" in df
+    has_state = "gt_state1" in df
+    last_label, last_label_t = None, -1e9
+    with RosMcapWriter(path, n, start_time_ns=start_time_ns) as w:
+        for k in range(len(df)):
+            tk = float(t[k])
+            if iv[k]:
+                w.write_imu(tk, acc[k], gyr[k])
+            if has_cam and camv[k]:
+                w.write_camera_odom(tk, msg["position_m"][k], msg["orientation_xyzw"][k], msg["linear_mps"][k],
+                                    msg["angular_radps"][k], confidence=float(np.nan_to_num(conf[k], nan=3.0)))
+            if wv[k] or sv[k]:
+                w.write_wheel_joints(tk, omega[k] if wv[k] else np.full(n, np.nan),
+                                     steer[k] if sv[k] else np.full(n, np.nan))
+            if cv[k]:
+                w.write_motor_current(tk, cur[k])
+            if cmdv[k]:
+                w.write_cmd_vel(tk, df["cmd_vx_mps"].iat[k], df["cmd_vy_mps"].iat[k], df["cmd_yaw_rate_radps"].iat[k])
+            if terrain is not None and terrain[k] >= 0 and (terrain[k] != last_label or tk - last_label_t >= 1.0):
+                w.write_terrain_label(tk, int(terrain[k]))
+                last_label, last_label_t = terrain[k], tk
+            if has_gt:
+                w.write_ground_truth(tk, df["gt_x_m"].iat[k], df["gt_y_m"].iat[k], df["gt_yaw_rad"].iat[k],
+                                     df["gt_vx_mps"].iat[k], df["gt_vy_mps"].iat[k], df["gt_yaw_rate_radps"].iat[k])
+            if has_slip:
+                w.write_wheel_slip(tk, [df[f"gt_slip{i}"].iat[k] for i in range(1, n + 1)], [0.0] * n, omega[k])
+            if has_state:
+                w.write_wheel_state(tk, [topics.WHEEL_STATE_CODES.get(str(df[f"gt_state{i}"].iat[k]), -1)
+                                         for i in range(1, n + 1)])
+    return Path(path)

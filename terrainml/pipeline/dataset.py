@@ -36,9 +36,8 @@ from terrainml.estimation.run import estimate_run
 from terrainml.features.chunks import chunk_source, cut_chunked_runs, needs_estimation
 from terrainml.features.windows import (RULES, SENSOR_GROUPS, Windows, WindowSpec, channel_column,
                                         channel_sensor_group, cut_windows, window_spec)
-from terrainml.io.borealtc import load_borealtc
 from terrainml.io.damage import damage_summary
-from terrainml.io.ingest import load_run
+from terrainml.io.ingest import load_dataset, load_run
 from terrainml.robot import REFERENCE_ROBOT, RobotSpec, load_robot
 
 __all__ = ["find_logs", "process_log", "build_dataset", "build_from_tables", "Dataset", "RunResult",
@@ -355,7 +354,7 @@ def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | 
     Parameters
     ----------
     source : folder (see :func:`find_logs`) or list of log paths; with ``fmt="borealtc"`` a
-        BorealTC folder (``<CLASS>/pro_XX.csv``, read by :func:`terrainml.io.borealtc.load_borealtc`).
+        BorealTC folder (``<CLASS>/pro_XX.csv``, read by :func:`terrainml.io.ingest.load_dataset`).
     robot : RobotSpec, name or path (default: the format's robot, :func:`dataset_robot`).
     preset : estimation preset (``robust`` or ``thesis``).
     spec : WindowSpec (default :data:`DEFAULT_WINDOWS`), resolved here with ``sensors``
@@ -400,10 +399,10 @@ def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | 
 def _build_borealtc(source: Path, robot: RobotSpec, preset: str, spec: WindowSpec, n_jobs: int,
                     say: Callable[[str], None] | None) -> Dataset:
     """The dataset of a BorealTC folder (DatasetError when no run could be read)."""
-    tables, rep = load_borealtc(source, robot=robot)
+    tables, rep = load_dataset("borealtc", source, robot=robot)
     if say is not None:
         say(f"BorealTC: {rep.runs} runs, classes {rep.classes}; runs without IMU (wheel channels "
-            f"invalid, their windows rejected): {len(rep.runs_without_imu)}; skipped: {len(rep.skipped)}")
+            f"invalid, their windows rejected): {len(rep.runs_without("imu"))}; skipped: {len(rep.skipped)}")
     if not tables:
         raise DatasetError(f"{source}: no BorealTC runs read ({rep.skipped})")
     return _from_tables(tables, robot, preset, spec, n_jobs)

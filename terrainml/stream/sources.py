@@ -16,7 +16,7 @@ very same topic decoding, frame mapping and resampling to the base rate as train
 of another robot gets in the way ``terrainml ingest`` takes it: ``topic_map`` (``predict --topics``:
 a topic map YAML or built-in name, :mod:`terrainml.io.topicmap`) says which topics and fields of an
 MCAP/bag log feed which canonical columns, and ``dataset`` (``predict --format``: a dataset spec,
-:mod:`terrainml.io.dataset_spec`) reads a CSV/Parquet file as one run of that dataset, with its
+:mod:`terrainml.io.ingest.dataset_spec`) reads a CSV/Parquet file as one run of that dataset, with its
 column names, units and scales (m/s wheel speeds become rad/s through the wheel radius, mA become
 A, ms stamps become s) and its side-to-wheel mapping.
 A datagram or line ``{"eos": true}`` ends the stream.

@@ -23,6 +23,7 @@ from terrainml.io.damage import damage_summary
 from terrainml.io.ingest import ingest_to_parquet, load_run
 from terrainml.io.inspect import inspect_log
 from terrainml.io.mcap_writer import RosMcapWriter
+from terrainml.robot import load_robot
 from terrainml.schema import read_run_parquet
 
 from mcap_damage import corrupt_middle_chunk
@@ -371,7 +372,7 @@ def test_wheel_count_of_log_differs_from_spec(tmp_path):
     assert str(path) in msg and "4 wheel" in msg and "3" in msg
     rep = ingest_to_parquet(path, tmp_path / "four.parquet")
     assert not rep.usable and "4 wheel" in rep.errors[0]
-    assert load_run(path, robot="husky").report.usable
+    assert load_run(path, robot=load_robot("husky")).report.usable
 
 
 def test_wheel_count_of_table_differs_from_spec(tmp_path):

@@ -9,9 +9,8 @@ import yaml
 from typer.testing import CliRunner
 
 from terrainml.cli import app
-from terrainml.io.dataset_runs import iter_dataset_runs
-from terrainml.io.dataset_spec import DatasetSpecError, load_dataset_spec, parse_dataset_spec
-from terrainml.io.ingest import load_run
+from terrainml.io.ingest import load_dataset, load_run
+from terrainml.io.ingest.dataset_spec import DatasetSpecError, load_dataset_spec, parse_dataset_spec
 from terrainml.schema import read_run_parquet
 
 R_HUSKY = 0.1651
@@ -46,6 +45,12 @@ SPEC = {
         },
     },
 }
+
+
+def _runs(spec, root) -> dict:
+    """Every usable run of a dataset folder by run id."""
+    tables, report = load_dataset(spec, root)
+    return dict(zip(report.run_ids, tables))
 
 
 def _write_run(root: Path, run: str, surfaces, n_w: int = 60, imu: bool = True) -> None:
@@ -93,7 +98,7 @@ def test_units_sides_and_string_labels(dataset):
 
 def test_dataset_runs_share_class_ids(dataset):
     root, spec = dataset
-    runs = dict(iter_dataset_runs(spec, root))
+    runs = _runs(spec, root)
     assert sorted(runs) == ["trial_01", "trial_02"]
     for df in runs.values():
         assert df.attrs["terrainml"]["classes"] == ["grass", "gravel", "mud"]
@@ -124,12 +129,12 @@ def test_label_from_file_and_folder(tmp_path):
     folder = {"name": "f", "robot": "husky", "label": {"from": "folder"},
               "files": {"w": {"pattern": "{label}/w_{run}.csv",
                               "columns": {"w": {"to": "wheel{i}_omega_radps", "wheels": [1, 2, 3, 4]}}}}}
-    runs = dict(iter_dataset_runs(folder, tmp_path))
+    runs = _runs(folder, tmp_path)
     assert runs["clay_b"].attrs["terrainml"]["classes"] == ["clay", "sand"]
     assert set(runs["sand_a"]["terrain"]) == {1}
     (tmp_path / "labels.csv").write_text("run,terrain\na,wet\nb,dry\n")
     by_file = {**folder, "label": {"from": "file", "path": "labels.csv", "key": "run", "column": "terrain"}}
-    runs = dict(iter_dataset_runs(by_file, tmp_path))
+    runs = _runs(by_file, tmp_path)
     assert runs["sand_a"].attrs["terrainml"]["classes"] == ["dry", "wet"]
     assert set(runs["sand_a"]["terrain"]) == {1} and set(runs["clay_b"]["terrain"]) == {0}
 

@@ -11,10 +11,10 @@ from typer.testing import CliRunner
 
 from terrainml.cli import app
 from terrainml.io import t265, topics
-from terrainml.io.ingest import load_run, write_run_mcap
+from terrainml.io.ingest import load_run
+from terrainml.io.ingest.resample import resample
 from terrainml.io.inspect import inspect_log
-from terrainml.io.mcap_writer import RosMcapWriter
-from terrainml.io.resample import resample
+from terrainml.io.mcap_writer import RosMcapWriter, write_run_mcap
 from terrainml.robot import load_robot
 from terrainml.schema import write_run_parquet
 
@@ -130,14 +130,14 @@ def test_imu_mount_rotation_from_spec_and_topic_map(tmp_path):
         for k in range(50):
             w.write_imu(k / 100, (0.0, 9.81, 0.0), (0.0, 0.3, 0.0))   # gravity on sensor +y
             w.write_wheel_joints(k / 100, [1] * 4, [0] * 4)
-    r = load_run(path, robot="husky")  # husky spec: +90 deg about x
+    r = load_run(path, robot=load_robot("husky"))  # husky spec: +90 deg about x
     assert r.table["imu_az_mps2"].median() == pytest.approx(9.81)
     assert r.table["imu_yaw_rate_radps"].median() == pytest.approx(0.3)
     from terrainml.io.topicmap import load_topic_map
 
     m = load_topic_map().to_dict()
     m["imu_mount"] = {"roll_rad": 0.0, "pitch_rad": 0.0, "yaw_rad": 0.0}
-    r = load_run(path, robot="husky", topic_map=m)                 # override: no rotation
+    r = load_run(path, robot=load_robot("husky"), topic_map=m)                 # override: no rotation
     assert r.table["imu_ay_mps2"].median() == pytest.approx(9.81)
 
 

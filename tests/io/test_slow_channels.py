@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from terrainml.estimation.run import estimate_run
-from terrainml.io.borealtc import load_borealtc
+from terrainml.io.ingest import load_dataset
 from terrainml.io.ingest import load_run
 from terrainml.io.mcap_writer import RosMcapWriter
 from terrainml.robot import load_robot
@@ -43,7 +43,7 @@ def test_15hz_wheels_borealtc_layout_constant_and_not_braking(tmp_path):
     pd.DataFrame({"time": tw, "curL": 3.0, "curR": 3.0, "velL": V_MPS, "velR": V_MPS}).to_csv(
         tmp_path / "CONCRETE" / "pro_00.csv", index=False)
     _imu_rows(np.arange(0, SPAN_S, 0.01)).to_csv(tmp_path / "CONCRETE" / "imu_00.csv", index=False)
-    tables, _ = load_borealtc(tmp_path)
+    tables, _ = load_dataset("borealtc", tmp_path)
     df = tables[0]
     _check(df)
     est = estimate_run(df, load_robot("husky"), "robust")
@@ -61,7 +61,7 @@ def test_15hz_wheels_in_a_sparse_table_sharing_stamps_with_the_imu(tmp_path):
                            **{f"wheel{i}_current_a": 3.0 for i in range(1, 5)}})
     table = pd.concat([imu.drop(columns=["wx", "wy"]), wheels]).sort_values("t_s", kind="stable")
     table.to_csv(tmp_path / "run.csv", index=False)
-    res = load_run(tmp_path / "run.csv", robot="husky")
+    res = load_run(tmp_path / "run.csv", robot=load_robot("husky"))
     assert res.report.usable, res.report.errors
     _check(res.table)
     assert res.table["wheels_valid"].iloc[:10].all()        # the first wheel sample is at t = 0
@@ -78,14 +78,14 @@ def test_15hz_wheels_mcap(tmp_path):
                 w.write_motor_current(t, np.full(4, 3.0))
             else:
                 w.write_imu(t, np.array([0.0, 0.0, 9.81]), np.zeros(3))
-    res = load_run(tmp_path / "run.mcap", robot="husky")
+    res = load_run(tmp_path / "run.mcap", robot=load_robot("husky"))
     assert res.report.usable, res.report.errors
     _check(res.table)
 
 
 @pytest.mark.parametrize("method", ["linear", "previous"])
 def test_resample_holds_or_interpolates_a_slow_constant(method):
-    from terrainml.io.resample import gap_threshold_s, resample
+    from terrainml.io.ingest.resample import gap_threshold_s, resample
 
     t = _stamps_15hz(3)
     grid = np.arange(0, t[-1], 0.01)

@@ -9,8 +9,8 @@ import pytest
 from typer.testing import CliRunner
 
 from terrainml.cli import app
-from terrainml.io import ingest_engine, t265, topics
-from terrainml.io.ingest import ingest_to_parquet, load_run
+from terrainml.io import t265, topics
+from terrainml.io.ingest import ingest_to_parquet, load_run, logs
 from terrainml.io.mcap_writer import RosMcapWriter
 from terrainml.schema import read_run_parquet
 
@@ -77,15 +77,15 @@ def awkward(tmp_path_factory):
     mem = load_run(path)
     out = d / "awkward.parquet"
     with pytest.MonkeyPatch.context() as mp:   # merge every ~60 decoded rows: chunks are emitted while
-        mp.setattr(ingest_engine, "DRAIN_ROWS", 60)  # reading, not only at the end of the file
+        mp.setattr(logs, "DRAIN_ROWS", 60)  # reading, not only at the end of the file
         emitted_at = []
-        real = ingest_engine.Producer._emit_chunk
+        real = logs.Producer._emit_chunk
 
         def spy(self, a, b):
             emitted_at.append(self.rows_seen.get(topics.IMU, 0))
             return real(self, a, b)
 
-        mp.setattr(ingest_engine.Producer, "_emit_chunk", spy)
+        mp.setattr(logs.Producer, "_emit_chunk", spy)
         rep = ingest_to_parquet(path, out, chunk_s=CHUNK_S)
     total_imu = rep.topics[topics.IMU]["decoded"]
     assert len(emitted_at) == 8 and emitted_at[0] < 0.4 * total_imu   # streamed, one row group per chunk
@@ -183,7 +183,7 @@ def test_cli_ingest_streams_and_refuses_unusable(tmp_path, awkward):
 def test_streamed_gap_threshold_equals_whole_series_median(period_ms):
     """The scan's constant-memory median period == resample.gap_threshold_s on the whole series
     (jittered stamps, duplicates, a mix of periods around the base period, fed in pieces)."""
-    from terrainml.io.resample import clean_times, gap_threshold_s
+    from terrainml.io.ingest.resample import clean_times, gap_threshold_s
 
     rng = np.random.default_rng(int(period_ms))
     for trial in range(20):
@@ -191,7 +191,7 @@ def test_streamed_gap_threshold_equals_whole_series_median(period_ms):
         steps = rng.choice([period_ms, 10.0, 12.0, 0.0], size=n, p=[0.55, 0.2, 0.2, 0.05])
         t_ns = (np.cumsum(steps + rng.normal(0, 0.3, n) * (steps > 0)) * 1e6).astype(np.int64)
         t_ns = np.maximum.accumulate(t_ns) + 1_700_000_000_000_000_000
-        s = ingest_engine.Series(base_ns=1e9 / 100.0)
+        s = logs.Series(base_ns=1e9 / 100.0)
         for piece in np.array_split(t_ns, int(rng.integers(1, 6))):
             s.add(piece)
         order, _, dups = clean_times(t_ns)

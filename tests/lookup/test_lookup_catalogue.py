@@ -76,7 +76,7 @@ def test_reference_catalogue_table_equals_the_default_table(reference_table):
 # ---------------------------------------------------------------- BorealTC
 def test_borealtc_catalogue_names_the_dataset_classes_exactly():
     assert list(load_catalogue("borealtc").class_names) == BOREALTC
-    if BOREALTC_DIR.is_dir():  # the shipped dataset's folders (terrainml/io/borealtc.py)
+    if BOREALTC_DIR.is_dir():  # the shipped dataset's folders (the borealtc dataset spec)
         folders = sorted(d.name for d in BOREALTC_DIR.iterdir()
                          if d.is_dir() and any(d.glob("pro_*.csv")))
         assert folders == BOREALTC

@@ -13,9 +13,9 @@ BAG = SHARED / "robot_localization_husky" / "test1.bag"
 def boreal_tables():
     if not BOREAL.is_dir():
         pytest.skip(f"real dataset not present at {BOREAL}")
-    from terrainml.io.borealtc import load_borealtc
+    from terrainml.io.ingest import load_dataset
 
-    tables, report = load_borealtc(BOREAL)
+    tables, report = load_dataset("borealtc", BOREAL)
     return tables, report
 
 

@@ -1,31 +1,37 @@
-"""BorealTC layout reader on the real public data (../shared/datasets/borealtc)."""
+"""BorealTC through its built-in dataset spec, on the real public data (../shared/datasets/borealtc)."""
 
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
-from terrainml.io.borealtc import BorealTCError, discover, load_borealtc, read_pro_csv, run_table
+from terrainml.io.ingest import load_dataset, load_dataset_run, load_run
+from terrainml.io.ingest.dataset_spec import DatasetSpecError, load_dataset_spec
 
 ROOT = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "borealtc"
 pytestmark = pytest.mark.skipif(not ROOT.is_dir(), reason=f"real dataset not present at {ROOT}")
 
 
 def test_discovers_all_runs_and_missing_imu():
-    runs, classes = discover(ROOT)
+    spec = load_dataset_spec("borealtc")
+    runs = spec.discover(ROOT)
+    classes = spec.label_names(runs)
     assert classes == ["ASPHALT", "FLOORING", "ICE", "SANDY_LOAM", "SNOW"]
-    counts = {c: sum(r.terrain == c for r in runs) for c in classes}
+    counts = {c: sum(r.fields["label"] == c for r in runs) for c in classes}
     # SOURCE.md: ASPHALT 7, FLOORING 10, ICE 13, SANDY_LOAM 14, SNOW 27
     assert counts == {"ASPHALT": 7, "FLOORING": 10, "ICE": 13, "SANDY_LOAM": 14, "SNOW": 27}
-    missing = sorted(r.run_id for r in runs if r.imu_path is None)
+    missing = sorted(r.run_id for r in runs if r.files["imu"] is None)
     assert missing == ["FLOORING_04", "FLOORING_06", "ICE_01"]
 
 
 def test_run_table_units_and_gravity():
-    runs, classes = discover(ROOT)
+    spec = load_dataset_spec("borealtc")
+    runs = spec.discover(ROOT)
+    classes = spec.label_names(runs)
     run = next(r for r in runs if r.run_id == "ASPHALT_00")
-    df = run_table(run, classes)
-    raw = read_pro_csv(run.pro_path)
+    df = load_dataset_run(spec, run, label_names=classes).table
+    raw = pd.read_csv(run.files["pro"])
     assert df["t_s"].iloc[-1] == pytest.approx(raw["time"].iloc[-1], abs=0.2)
     assert np.diff(df["t_s"]).mean() == pytest.approx(0.01)
     assert df["imu_az_mps2"].mean() == pytest.approx(9.8, abs=0.3)
@@ -43,7 +49,7 @@ def test_columns_found_by_header_name_not_position(tmp_path):
         f"0.5,{k * 0.15},2.0,0.4,1.0" for k in range(40)))
     (cls / "imu_00.csv").write_text("az,ay,ax,time,wz,wy,wx\n" + "\n".join(
         f"9.8,0.0,0.1,{k * 0.01},0.2,0.0,0.0" for k in range(600)))
-    tables, report = load_borealtc(tmp_path)
+    tables, report = load_dataset("borealtc", tmp_path)
     df = tables[0]
     assert report.classes == ["GRAVEL"]
     assert df["wheel2_omega_radps"].iloc[10] == pytest.approx(0.5 / 0.1651)
@@ -56,13 +62,14 @@ def test_missing_column_named(tmp_path):
     cls = tmp_path / "ICE"
     cls.mkdir()
     (cls / "pro_00.csv").write_text("time,curL,velL,velR\n0,1,1,1\n0.1,1,1,1\n")
-    with pytest.raises(BorealTCError, match=r"pro_00\.csv: missing column 'curR'"):
-        read_pro_csv(cls / "pro_00.csv")
+    res = load_run(cls / "pro_00.csv", dataset="borealtc")
+    assert not res.report.usable
+    assert any("pro_00.csv: missing column 'curR'" in e for e in res.report.errors), res.report.errors
 
 
 def test_not_a_folder(tmp_path):
-    with pytest.raises(BorealTCError, match="not a folder"):
-        discover(tmp_path / "nope")
+    with pytest.raises(DatasetSpecError, match="not a folder"):
+        load_dataset("borealtc", tmp_path / "nope")
 
 
 def test_any_sampling_rates_resampled_to_100hz(tmp_path):
@@ -74,7 +81,7 @@ def test_any_sampling_rates_resampled_to_100hz(tmp_path):
         f"{k * 0.1},{2 * k * 0.1},{1.0},{0.5},{0.5 + k * 0.01}" for k in range(31)))
     (cls / "imu_07.csv").write_text("time,wx,wy,wz,ax,ay,az\n" + "\n".join(
         f"{k * 0.005},0,0,{k * 0.005},0,0,9.81" for k in range(601)))
-    tables, report = load_borealtc(tmp_path)
+    tables, report = load_dataset("borealtc", tmp_path)
     df = tables[0]
     assert report.runs == 1 and report.classes == ["SNOW"]
     assert np.diff(df["t_s"]).mean() == pytest.approx(0.01)
@@ -106,10 +113,7 @@ def test_cli_ingest_one_run_with_the_builtin_spec(tmp_path):
 
 
 def test_unknown_folder_label_is_an_error_naming_it(tmp_path):
-    from terrainml.io.dataset_runs import iter_dataset_runs
-    from terrainml.io.dataset_spec import DatasetSpecError, load_dataset_spec
-
     spec = load_dataset_spec("borealtc")
     spec.label = type(spec.label)(source="folder", names=("ASPHALT",))
     with pytest.raises(DatasetSpecError, match=r"FLOORING/pro_00\.csv: label 'FLOORING' \(from the folder\)"):
-        list(iter_dataset_runs(spec, ROOT))
+        load_dataset(spec, ROOT)

@@ -13,8 +13,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from terrainml.io.borealtc import discover, run_table
-from terrainml.io.dataset_runs import iter_dataset_runs
+from terrainml.io.ingest import load_dataset, load_dataset_run
+from terrainml.io.ingest.dataset_spec import load_dataset_spec
 
 BOREAL = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "borealtc"
 
@@ -53,15 +53,15 @@ SPEC = {
 @pytest.fixture(scope="module")
 def derived(tmp_path_factory):
     root = tmp_path_factory.mktemp("derived")
-    runs, _ = discover(BOREAL)
+    runs = load_dataset_spec("borealtc").discover(BOREAL)
     picked = [r for r in runs if r.run_id in RUNS]
     for r in picked:
-        pro = pd.read_csv(r.pro_path)
-        pd.DataFrame({"amps_left": pro["curL"], "speed_right_mps": pro["velR"], "terrain_name": r.terrain,
+        pro = pd.read_csv(r.files["pro"])
+        pd.DataFrame({"amps_left": pro["curL"], "speed_right_mps": pro["velR"], "terrain_name": r.fields["label"],
                       "t_ms": pro["time"] * 1000.0, "amps_right": pro["curR"], "speed_left_mps": pro["velL"]}
                      ).to_csv(root / f"{r.run_id}_wheels.csv", index=False)
-        if r.imu_path is not None:
-            imu = pd.read_csv(r.imu_path)
+        if r.files["imu"] is not None:
+            imu = pd.read_csv(r.files["imu"])
             pd.DataFrame({"gyro_z_dps": np.degrees(imu["wz"]), "acc_z": imu["az"], "t_ms": imu["time"] * 1000.0,
                           "acc_x": imu["ax"], "gyro_x_dps": np.degrees(imu["wx"]), "acc_y": imu["ay"],
                           "gyro_y_dps": np.degrees(imu["wy"])}).to_csv(root / f"{r.run_id}_imu.csv", index=False)
@@ -71,14 +71,15 @@ def derived(tmp_path_factory):
 
 def test_user_spec_gives_the_builtin_tables(derived):
     root, picked = derived
-    got = dict(iter_dataset_runs(root / "spec.yaml", root))
+    tables, report = load_dataset(root / "spec.yaml", root)
+    got = dict(zip(report.run_ids, tables))
     assert sorted(got) == sorted(RUNS)
     for r in picked:
-        want = run_table(r, CLASSES)
+        want = load_dataset_run(load_dataset_spec("borealtc"), r, label_names=CLASSES).table
         df = got[r.run_id]
         assert len(df) == len(want), r.run_id
         assert df.attrs["terrainml"]["classes"] == CLASSES
-        assert (df["terrain"] == CLASSES.index(r.terrain)).all()
+        assert (df["terrain"] == CLASSES.index(r.fields["label"])).all()
         for c in want.columns:
             if c in ("run_id",):
                 continue

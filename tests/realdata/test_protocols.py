@@ -23,7 +23,7 @@ BOREAL = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "b
 def test_chunks_follow_raw_durations_and_skip_runs_without_imu(boreal_tables, boreal_windows):
     tables, report = boreal_tables
     chunks, _ = boreal_windows
-    assert sorted(report.runs_without_imu) == ["FLOORING_04", "FLOORING_06", "ICE_01"]
+    assert sorted(report.runs_without("imu")) == ["FLOORING_04", "FLOORING_06", "ICE_01"]
     assert sorted(chunks.runs_without_chunks) == ["FLOORING_04", "FLOORING_06", "ICE_01"]
     per_run = chunks.meta.groupby("run_id").size()
     for cls_dir in sorted(p for p in BOREAL.iterdir() if p.is_dir() and p.name != "published_metrics"):

@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from terrainml.robot import load_robot
+
 BAG = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "robot_localization_husky" / "test1.bag"
 pytestmark = pytest.mark.skipif(not BAG.is_file(), reason=f"{BAG} not present")
 
@@ -23,7 +25,7 @@ NO_CURRENT = {k: v for k, v in {
 def bag_run():
     from terrainml.io.ingest import load_run
 
-    return load_run(BAG, robot="husky", topic_map="husky_robot_localization")
+    return load_run(BAG, robot=load_robot("husky"), topic_map="husky_robot_localization")
 
 
 def test_bag_ingests_with_expected_topics_and_duration(bag_run):

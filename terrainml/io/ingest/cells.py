@@ -11,7 +11,7 @@ Every cell of a canonical column is one of
   NaN) or ``wrong_type`` (a list, struct, binary or date cell).
 
 Ingest keeps a bad cell as a NaN sample, so the ticks it touches are invalid and nothing is
-interpolated or held across it (:func:`terrainml.io.ingest._from_tabular`).
+interpolated or held across it (:func:`terrainml.io.ingest.tables.file_signals`).
 """
 
 from __future__ import annotations

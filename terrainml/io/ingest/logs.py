@@ -1,4 +1,4 @@
-"""The log ingest engine: scan, plan, chunk producer (design §5, contract 1).
+"""The log path of the ingest engine: scan, plan, chunk producer (design §5, contract 1).
 
 One engine behind ``load_run`` (a DataFrame sink) and ``ingest_to_parquet`` (a Parquet sink). A log
 hands decoded parts (:mod:`terrainml.io.cdr`) to a consumer in file order: :class:`FileLog` re-reads
@@ -19,7 +19,7 @@ the file for every pass (bounded memory), :class:`MemoryLog` reads it once and r
    can bracket a tick within the gap threshold, or the source is exhausted). A source slice holds the
    last sample at or before ``ga`` and the first after ``gb``, so interpolation, hold and the gap
    rule see what they see on the whole log. The last hole tick (no sensor group valid) is carried
-   from chunk to chunk, so labels are never held across a hole (:func:`ingest_signals.assemble`).
+   from chunk to chunk, so labels are never held across a hole (:func:`terrainml.io.ingest.signals.assemble`).
 
 Damaged-log edge cases: the non-finite count and the IMU "orientation never set" test are taken
 before duplicate stamps of an out-of-order topic are dropped; a joint in several joint-name sets of
@@ -37,51 +37,18 @@ import numpy as np
 import pandas as pd
 
 from terrainml.io import cdr, t265
-from terrainml.io.ingest_signals import Signal, SourceFacts, assemble, joint_columns, last_hole_s, signals_for
+from terrainml.io.ingest.report import IngestReport
+from terrainml.io.ingest.signals import Signal, SourceFacts, assemble, joint_columns, last_hole_s, signals_for
 from terrainml.io.readers import ReadResult, log_size, read_bag, read_mcap
-from terrainml.io.resample import _EPS, clean_times, gap_threshold_s
+from terrainml.io.ingest.resample import _EPS, clean_times, gap_threshold_s
 from terrainml.io.topicmap import Source, TopicMap
 from terrainml.robot import RobotSpec, check_wheel_count
-from terrainml.schema import DEFAULT_RATE_HZ
 
 DRAIN_ROWS = 5_000            # decoded rows held before they are merged (scan, streamed produce)
 _JOINT_FIELDS = ("position", "velocity", "effort")
 _NOT_NONFINITE = ("t_ns", "orientation", "cov0", "names")
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 OnPart = Callable[[str, dict], None]
-
-
-@dataclass
-class IngestReport:
-    """What ingest found: per-topic counts, warnings, and whether a usable table resulted."""
-
-    source: str
-    format: str = ""
-    topics: dict[str, dict[str, Any]] = field(default_factory=dict)
-    warnings: list[str] = field(default_factory=list)
-    errors: list[str] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)   # e.g. optional topics absent
-    usable: bool = False
-    rows: int = 0
-    span_s: float = 0.0
-    rate_hz: float = DEFAULT_RATE_HZ
-    valid_fraction: dict[str, float] = field(default_factory=dict)
-    bad_cells: dict[str, dict[str, int]] = field(default_factory=dict)   # CSV/Parquet: column -> kind -> cells
-    truncation: dict[str, int] | None = None     # what a truncated log lost (ReadResult.truncation)
-    corrupt_chunks: int = 0
-
-    def skipped_per_topic(self) -> dict[str, int]:
-        return {t: d["skipped"] for t, d in self.topics.items() if d.get("skipped")}
-
-    def corrupt_per_topic(self) -> dict[str, int]:
-        return {t: d["corrupt"] for t, d in self.topics.items() if d.get("corrupt")}
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"source": self.source, "format": self.format, "usable": self.usable, "rows": self.rows,
-                "span_s": self.span_s, "rate_hz": self.rate_hz, "topics": self.topics,
-                "valid_fraction": self.valid_fraction, "warnings": self.warnings, "errors": self.errors,
-                "notes": self.notes, "bad_cells": self.bad_cells, "truncation": self.truncation,
-                "corrupt_chunks": self.corrupt_chunks}
 
 
 # ----------------------------------------------------------------------------- logs

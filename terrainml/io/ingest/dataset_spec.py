@@ -7,8 +7,8 @@ wheel speeds become rad/s through the robot's wheel radius, deg becomes rad), wh
 side's column feeds (a skid-steer Husky: left -> wheels 1 and 3), where the label comes from (a
 folder name, a column, or a file listing runs and labels), the label names, and the robot spec.
 The files then go through the tabular path of the one ingest engine
-(:mod:`terrainml.io.ingest_tables`); :func:`terrainml.io.ingest.load_run` with ``dataset=``
-reads one run, :func:`terrainml.io.dataset_runs.iter_dataset_runs` a whole folder.
+(:mod:`terrainml.io.ingest.tables`); :func:`terrainml.io.ingest.load_run` with ``dataset=``
+reads one run, :func:`terrainml.io.ingest.load_dataset` a whole folder.
 
 Built-in specs live in ``terrainml/io/datasets/*.yaml`` (``borealtc``). Every field is documented
 in docs/io.md ("Dataset specs"). Errors name the spec file and the entry, or the data file and
@@ -26,13 +26,12 @@ from typing import Any
 import pandas as pd
 
 from terrainml._yaml_checks import read_builtin_yaml, read_yaml_file
-from terrainml.io.ingest_tables import Binding, TableFile, label_values, table_header
+from terrainml.io.ingest.tables import SPANS, Binding, TableFile, label_values, table_header
 from terrainml.robot import RobotSpec
 from terrainml.schema import column_map
 
 BUILTIN_SPECS = ("borealtc",)
 LABEL_SOURCES = ("folder", "column", "file", "none")
-SPANS = ("overlap", "union", "first")
 _FIELD = re.compile(r"\{(\w+)\}")
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 # source unit -> factor to the canonical unit, per canonical unit (taken from the column's suffix)

@@ -4,7 +4,7 @@ A *signal* is one canonical column sampled at a source's own stamps (seconds fro
 message) with its resampling method and gap threshold. :func:`signals_for` turns a time slice of a
 decoded source (a :mod:`terrainml.io.cdr` part) into signals; :func:`assemble` resamples signals
 onto a slice of the base-rate grid and adds the ``{group}_valid`` columns. The ingest engine
-(:mod:`terrainml.io.ingest_engine`) calls both chunk by chunk; CSV/Parquet tables call
+(:mod:`terrainml.io.ingest.logs`) calls both chunk by chunk; CSV/Parquet tables call
 :func:`assemble` once.
 """
 
@@ -17,7 +17,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from terrainml.io import t265
-from terrainml.io.resample import _EPS, resample
+from terrainml.io.ingest.resample import _EPS, resample
 from terrainml.io.topicmap import Source, TopicMap
 from terrainml.robot import RobotSpec
 from terrainml.schema import VALID_GROUPS, WHEEL_STATES, column_map, valid_column, wheel_col

@@ -2,18 +2,18 @@
 
 One run is one or several table files. Each file has a time column (scaled to seconds) and
 *bindings* from its columns to canonical columns: a plain rename (a topic map's ``columns``) or,
-from a dataset spec (:mod:`terrainml.io.dataset_spec`), a unit scale (``canonical = scale * cell +
+from a dataset spec (:mod:`terrainml.io.ingest.dataset_spec`), a unit scale (``canonical = scale * cell +
 offset``), a fan-out (one side's speed given to two wheels: several canonical columns bound to one
 file column) and label names (text labels looked up by name; an unknown one is an error naming
 the file, the column and the value).
 
-Cell by cell (:mod:`terrainml.io.cells`): an empty/null cell is no sample; a bad cell
+Cell by cell (:mod:`terrainml.io.ingest.cells`): an empty/null cell is no sample; a bad cell
 (unparseable, non-finite, wrongly typed) is counted and makes its sensor group invalid at that
 row; a row the table flags invalid (``{group}_valid`` false) stays invalid. Both are kept as NaN
 samples, so nothing is interpolated or held across them. Every file's columns become
-:class:`~terrainml.io.ingest_signals.Signal` s at the file's own stamps, and one
-:func:`~terrainml.io.ingest_signals.assemble` resamples them all onto the base grid -- the same
-resampling, gap rule and label holding as the log path of :mod:`terrainml.io.ingest_engine`.
+:class:`~terrainml.io.ingest.signals.Signal` s at the file's own stamps, and one
+:func:`~terrainml.io.ingest.signals.assemble` resamples them all onto the base grid -- the same
+resampling, gap rule and label holding as the log path of :mod:`terrainml.io.ingest.logs`.
 """
 
 from __future__ import annotations
@@ -28,15 +28,15 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from terrainml.io import topics
-from terrainml.io.cells import Cells, arrow_cells, series_cells
-from terrainml.io.ingest_engine import IngestReport
-from terrainml.io.ingest_signals import PREVIOUS_COLUMNS, Signal, assemble
-from terrainml.io.resample import clean_times, gap_threshold_s
+from terrainml.io.ingest.cells import Cells, arrow_cells, series_cells
+from terrainml.io.ingest.report import IngestReport
+from terrainml.io.ingest.signals import PREVIOUS_COLUMNS, Signal, assemble
+from terrainml.io.ingest.resample import clean_times, gap_threshold_s
 from terrainml.robot import RobotSpec, check_wheel_count
 from terrainml.schema import VALID_GROUPS, column_map, valid_column, wheel_col
 
 _WHEEL_COLUMN = re.compile(r"^wheel(\d+)_(omega_radps|steer_rad|current_a)$")
-SPANS = ("first", "overlap", "union")
+SPANS = ("overlap", "union", "first")   # the time a multi-file run's grid covers (tables_to_run)
 
 
 @dataclass(frozen=True)
