@@ -247,80 +247,121 @@ class _TopicSink:
             self.datas, self.times = [], []
 
 
+class McapScanner:
+    """One pass over an MCAP file, record by record, in the manner of ``mcap.stream_reader.StreamReader``.
 
-def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: int = 4096,
-              use_header_stamp: bool = True, validate_crcs: bool = True, on_times: OnTimes | None = None,
-              progress: Callable[[int, int], None] | None = None,
-              on_part: Callable[[str, dict], None] | None = None) -> ReadResult:
-    """Stream an MCAP file.
+    The file's own framing (magic, then records of opcode, length and body) is followed to the end
+    of the data section; one method per job: the record loop (:meth:`read`), a top-level record
+    (:meth:`_top_level`), a Chunk (:meth:`_chunk`), its MessageIndex records
+    (:meth:`_message_index`), decoding the pending chunk (:meth:`_process_chunk`: vectorised from
+    its indexes, :meth:`_vectorised`, else record by record, :meth:`_walk`), a Schema, Channel or
+    Message record (:meth:`_record`), a cut last record (:meth:`_truncated_tail`) and the closing
+    counts (:meth:`_finish`). Damage handling: see the module docstring.
 
-    Parameters
-    ----------
-    wanted : ``(topic, type) -> kind or None``; messages of topics mapped to None are only counted.
-    block : messages per topic decoded at once (memory bound: block x message size per topic).
-    progress : optional ``(bytes_done, bytes_total)`` callback.
-    on_part : optional ``(topic, part)`` consumer of decoded parts, in file order; when given,
-        ``ReadResult.parts`` stays empty (streaming ingest: nothing decoded is kept by the reader).
-    on_times : optional ``(topic, log times ns (n,))`` consumer of every message's log time, per
-        topic in file order, in blocks (``inspect``: nothing is kept by the reader).
+    Parameters: as :func:`read_mcap`.
     """
-    path = Path(path)
-    res = ReadResult(path=path, format="mcap")
-    size = os.path.getsize(path)
-    schemas: dict[int, str] = {}
-    channels: dict[int, _TopicSink] = {}
 
-    def add_record(op: int, body: bytes) -> None:
-        """A Message, Schema or Channel record (top level or inside a chunk)."""
-        if op == Opcode.MESSAGE:
-            msg = _record(Message, body, len(body))
-            sink = channels.get(msg.channel_id)
-            if sink is None:
-                res.unattributed_corrupt += 1
+    def __init__(self, path: Path, wanted: Callable[[str, str], str | None], *, block: int = 4096,
+                 use_header_stamp: bool = True, validate_crcs: bool = True, on_times: OnTimes | None = None,
+                 progress: Callable[[int, int], None] | None = None,
+                 on_part: Callable[[str, dict], None] | None = None):
+        self.path = Path(path)
+        self.wanted, self.block, self.hdr = wanted, block, use_header_stamp
+        self.validate_crcs, self.on_times, self.progress, self.on_part = validate_crcs, on_times, progress, on_part
+        self.res = ReadResult(path=self.path, format="mcap")
+        self.size = os.path.getsize(self.path)
+        self.schemas: dict[int, str] = {}            # schema id -> type name
+        self.channels: dict[int, _TopicSink] = {}    # channel id -> its topic's sink
+        self.pending: tuple[bytes, list] | None = None   # a decompressed chunk awaiting its message indexes
+        self.bad_chunk = False                       # the last chunk was dropped: its indexes count the loss
+
+    # -- the record loop
+    def read(self) -> ReadResult:
+        """Every record up to DataEnd/Footer (or the cut of a truncated file), then the closing counts."""
+        res, size = self.res, self.size
+        with open(self.path, "rb") as f:
+            if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                raise LogReadError(f"{self.path}: not an MCAP file (bad magic)")
+            done = len(MCAP_MAGIC)
+            while True:
+                head = f.read(_HDR.size)
+                if len(head) < _HDR.size:
+                    res.truncated = True   # cut inside a record header, or no footer
+                    res.unread_bytes = size - done
+                    res.incomplete_records += bool(head)
+                    break
+                op, ln = _HDR.unpack(head)
+                if ln > size - done - _HDR.size:   # runs past the end of the file: truncated (or a corrupt length)
+                    res.unread_bytes = size - done
+                    res.missing_bytes = done + _HDR.size + ln - size
+                    res.incomplete_records += 1
+                    self._truncated_tail(op, f.read())
+                    break
+                body = f.read(ln)
+                done += _HDR.size + ln
+                if self.progress is not None:
+                    self.progress(done, size)
+                if not self._top_level(op, body, done - _HDR.size - ln):
+                    break
+        self._process_chunk()
+        return self._finish()
+
+    def _top_level(self, op: int, body: bytes, offset: int) -> bool:
+        """One record of the data section at byte ``offset``; False at its end (DataEnd, Footer)."""
+        if op != Opcode.MESSAGE_INDEX:
+            self._process_chunk()   # a chunk's indexes follow it: anything else means they are all read
+        if op == Opcode.CHUNK:
+            self._chunk(body, offset)
+        elif op == Opcode.MESSAGE_INDEX:
+            self._message_index(body)
+        elif op in (Opcode.DATA_END, Opcode.FOOTER):
+            return False
+        else:
+            self.bad_chunk = False
+            try:
+                self._record(op, body)
+            except _DAMAGE:
+                pass   # a damaged top-level record: only it is lost
+        return True
+
+    # -- chunks and their indexes
+    def _chunk(self, body: bytes, offset: int) -> None:
+        """Decompress a Chunk (CRC checked) and hold it until its message indexes are read."""
+        try:
+            buf = _chunk_bytes(body, self.validate_crcs)
+        except Exception as exc:  # noqa: BLE001 - any damage drops this chunk only
+            self.res.corrupt_chunks += 1
+            self.res.warnings.append(f"{self.path}: corrupt chunk at byte {offset} ({exc}); "
+                                     "its messages are counted as corrupt, reading goes on")
+            self.bad_chunk = True
+            return
+        self.bad_chunk = False
+        self.pending = (buf, [])
+
+    def _message_index(self, body: bytes) -> None:
+        """A MessageIndex: kept for the pending chunk, or the lost messages of a dropped one."""
+        cid, ix = _message_index(body)
+        if self.pending is not None:
+            self.pending[1].append((cid, ix))
+        elif self.bad_chunk:   # the indexes of a dropped chunk count its lost messages
+            if cid in self.channels:
+                self.channels[cid].stat.corrupt += len(ix)
             else:
-                sink.add(msg.data, msg.log_time)
-        elif op == Opcode.SCHEMA:
-            schema = _record(Schema, body)
-            schemas[schema.id] = schema.name
-        elif op == Opcode.CHANNEL:
-            ch = _record(Channel, body)
-            if ch.id not in channels:
-                type_name = cdr.normalize_type(schemas.get(ch.schema_id, ""))
-                channels[ch.id] = _TopicSink(ch.topic, type_name, wanted(ch.topic, type_name), res, block,
-                                             use_header_stamp, on_times, on_part)
+                self.res.unattributed_corrupt += len(ix)
 
-    def walk_records(buf: bytes) -> None:
-        """Every record of a decompressed chunk, in order; a record cut short ends the walk."""
-        p, end = 0, len(buf)
-        while p + _HDR.size <= end:
-            op, ln = _HDR.unpack_from(buf, p)
-            body = p + _HDR.size
-            if body + ln > end:
-                res.truncated = True
-                res.incomplete_records += 1
-                break
-            if op in (Opcode.MESSAGE, Opcode.SCHEMA, Opcode.CHANNEL):
-                try:
-                    add_record(op, buf[body:body + ln])
-                except _DAMAGE:
-                    pass   # a damaged record: only it is lost
-            p = body + ln
-
-    pending: list = []  # [decompressed chunk, [(channel id, index entries), ...]] awaiting its indexes
-
-    def process_chunk() -> None:
+    def _process_chunk(self) -> None:
         """Decode the pending chunk: vectorised from its message indexes when it holds only
         messages of known channels, else by walking its records."""
-        if not pending:
+        if self.pending is None:
             return
-        buf, indexes = pending
-        pending.clear()
-        if not (indexes and all(cid in channels for cid, _ in indexes) and _vectorised(buf, indexes)):
-            walk_records(buf)
-            for sink in channels.values():  # keep decoded parts in file order
+        buf, indexes = self.pending
+        self.pending = None
+        if not (indexes and all(cid in self.channels for cid, _ in indexes) and self._vectorised(buf, indexes)):
+            self._walk(buf)
+            for sink in self.channels.values():  # keep decoded parts in file order
                 sink.flush()
 
-    def _vectorised(buf: bytes, indexes: list) -> bool:
+    def _vectorised(self, buf: bytes, indexes: list) -> bool:
         """Decode a chunk's messages per channel and length at once; False (nothing decoded) when
         its message indexes do not account for every byte of it."""
         arr8 = np.frombuffer(buf, dtype=np.uint8)
@@ -336,7 +377,7 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
             if not np.all(arr8[off] == Opcode.MESSAGE) or np.any(ln < _MSG_HDR) or \
                     int((off + _HDR.size + ln).max()) > len(buf):
                 return False
-            per.append((channels[cid], t, off + _HDR.size + _MSG_HDR, ln - _MSG_HDR))
+            per.append((self.channels[cid], t, off + _HDR.size + _MSG_HDR, ln - _MSG_HDR))
             total += int((_HDR.size + ln).sum())
         if total != len(buf):
             return False
@@ -347,85 +388,93 @@ def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: in
                 sink.add_view(cdr.RowView(arr8, data_off[sel], int(n)), t[sel])
         return True
 
-    def read_truncated_tail(op: int, rest: bytes) -> None:
+    def _walk(self, buf: bytes) -> None:
+        """Every record of a decompressed chunk, in order; a record cut short ends the walk."""
+        p, end = 0, len(buf)
+        while p + _HDR.size <= end:
+            op, ln = _HDR.unpack_from(buf, p)
+            body = p + _HDR.size
+            if body + ln > end:
+                self.res.truncated = True
+                self.res.incomplete_records += 1
+                break
+            if op in (Opcode.MESSAGE, Opcode.SCHEMA, Opcode.CHANNEL):
+                try:
+                    self._record(op, buf[body:body + ln])
+                except _DAMAGE:
+                    pass   # a damaged record: only it is lost
+            p = body + ln
+
+    # -- records
+    def _record(self, op: int, body: bytes) -> None:
+        """A Message, Schema or Channel record (top level or inside a chunk)."""
+        if op == Opcode.MESSAGE:
+            msg = _record(Message, body, len(body))
+            sink = self.channels.get(msg.channel_id)
+            if sink is None:
+                self.res.unattributed_corrupt += 1
+            else:
+                sink.add(msg.data, msg.log_time)
+        elif op == Opcode.SCHEMA:
+            schema = _record(Schema, body)
+            self.schemas[schema.id] = schema.name
+        elif op == Opcode.CHANNEL:
+            ch = _record(Channel, body)
+            if ch.id not in self.channels:
+                type_name = cdr.normalize_type(self.schemas.get(ch.schema_id, ""))
+                self.channels[ch.id] = _TopicSink(ch.topic, type_name, self.wanted(ch.topic, type_name), self.res,
+                                                  self.block, self.hdr, self.on_times, self.on_part)
+
+    # -- the end
+    def _truncated_tail(self, op: int, rest: bytes) -> None:
         """The last record runs past the end of the file: keep what a cut chunk still holds."""
+        res = self.res
         res.truncated = True
-        process_chunk()
+        self._process_chunk()
         before = sum(st.read for st in res.stats.values())
         if op == Opcode.CHUNK:
             try:
                 chunk = _record(Chunk, rest)   # its data: the bytes that are there
-                walk_records(_partial_decompress(chunk.compression, chunk.data))
+                self._walk(_partial_decompress(chunk.compression, chunk.data))
             except _DAMAGE:
                 pass
         res.recovered_from_cut = sum(st.read for st in res.stats.values()) - before
 
-    pending_bad_chunk = False
-    with open(path, "rb") as f:
-        if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-            raise LogReadError(f"{path}: not an MCAP file (bad magic)")
-        done = len(MCAP_MAGIC)
-        while True:
-            head = f.read(_HDR.size)
-            if len(head) < _HDR.size:
-                res.truncated = True   # cut inside a record header, or no footer
-                res.unread_bytes = size - done
-                res.incomplete_records += bool(head)
-                break
-            op, ln = _HDR.unpack(head)
-            if ln > size - done - _HDR.size:   # runs past the end of the file: truncated (or a corrupt length)
-                res.unread_bytes = size - done
-                res.missing_bytes = done + _HDR.size + ln - size
-                res.incomplete_records += 1
-                read_truncated_tail(op, f.read())
-                break
-            body = f.read(ln)
-            done += _HDR.size + ln
-            if progress is not None:
-                progress(done, size)
-            if op != Opcode.MESSAGE_INDEX:
-                process_chunk()
-            if op == Opcode.CHUNK:
-                try:
-                    buf = _chunk_bytes(body, validate_crcs)
-                except Exception as exc:  # noqa: BLE001 - any damage drops this chunk only
-                    res.corrupt_chunks += 1
-                    res.warnings.append(f"{path}: corrupt chunk at byte {done - _HDR.size - ln} ({exc}); "
-                                        "its messages are counted as corrupt, reading goes on")
-                    pending_bad_chunk = True
-                    continue
-                pending_bad_chunk = False
-                pending.extend([buf, []])
-            elif op == Opcode.MESSAGE_INDEX:
-                cid, ix = _message_index(body)
-                if pending:
-                    pending[1].append((cid, ix))
-                elif pending_bad_chunk:   # the indexes of a dropped chunk count its lost messages
-                    if cid in channels:
-                        channels[cid].stat.corrupt += len(ix)
-                    else:
-                        res.unattributed_corrupt += len(ix)
-            elif op in (Opcode.DATA_END, Opcode.FOOTER):
-                break
-            else:
-                pending_bad_chunk = False
-                try:
-                    add_record(op, body)
-                except _DAMAGE:
-                    pass   # a damaged top-level record: only it is lost
-    process_chunk()
-    for sink in channels.values():
-        sink.flush()
-        sink.stamps()
-        if sink.kind is None:
-            sink.stat.skipped += sink.stat.read
-        res.kinds[sink.topic] = sink.kind or ""
-    if res.truncated:
-        res.warnings.append(_truncation_warning(path, res))
-    if res.unattributed_corrupt:
-        res.warnings.append(f"{path}: {res.unattributed_corrupt} message(s) on channels whose definition "
-                            "was lost (corrupt chunk) could not be attributed to a topic")
-    return res
+    def _finish(self) -> ReadResult:
+        """Flush every topic, count the skipped ones, and the truncation and lost-channel warnings."""
+        res = self.res
+        for sink in self.channels.values():
+            sink.flush()
+            sink.stamps()
+            if sink.kind is None:
+                sink.stat.skipped += sink.stat.read
+            res.kinds[sink.topic] = sink.kind or ""
+        if res.truncated:
+            res.warnings.append(_truncation_warning(self.path, res))
+        if res.unattributed_corrupt:
+            res.warnings.append(f"{self.path}: {res.unattributed_corrupt} message(s) on channels whose definition "
+                                "was lost (corrupt chunk) could not be attributed to a topic")
+        return res
+
+
+def read_mcap(path: Path, wanted: Callable[[str, str], str | None], *, block: int = 4096,
+              use_header_stamp: bool = True, validate_crcs: bool = True, on_times: OnTimes | None = None,
+              progress: Callable[[int, int], None] | None = None,
+              on_part: Callable[[str, dict], None] | None = None) -> ReadResult:
+    """Stream an MCAP file (one :class:`McapScanner` pass).
+
+    Parameters
+    ----------
+    wanted : ``(topic, type) -> kind or None``; messages of topics mapped to None are only counted.
+    block : messages per topic decoded at once (memory bound: block x message size per topic).
+    progress : optional ``(bytes_done, bytes_total)`` callback.
+    on_part : optional ``(topic, part)`` consumer of decoded parts, in file order; when given,
+        ``ReadResult.parts`` stays empty (streaming ingest: nothing decoded is kept by the reader).
+    on_times : optional ``(topic, log times ns (n,))`` consumer of every message's log time, per
+        topic in file order, in blocks (``inspect``: nothing is kept by the reader).
+    """
+    return McapScanner(path, wanted, block=block, use_header_stamp=use_header_stamp, validate_crcs=validate_crcs,
+                       on_times=on_times, progress=progress, on_part=on_part).read()
 
 
 def _truncation_warning(path: Path, res: ReadResult) -> str:
