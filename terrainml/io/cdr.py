@@ -390,25 +390,6 @@ def _slow_decode(kind: str, type_name: str, datas: list[bytes], log_ns: np.ndarr
     return parts, bad
 
 
-def concat_parts(kind: str, parts: list[dict]) -> dict | list[dict]:
-    """Join decoded parts of one topic (joint_state: one dict per joint-name set)."""
-    if kind == "joint_state":
-        groups: dict[tuple, list[dict]] = {}
-        for p in parts:
-            groups.setdefault(p["names"], []).append(p)
-        out = []
-        for names, ps in groups.items():
-            d = {k: np.concatenate([p[k] for p in ps]) for k in ("t_ns", "position", "velocity", "effort")}
-            d["names"] = names
-            out.append(d)
-        return out
-    if not parts:
-        return {}
-    if len(parts) == 1:
-        return parts[0]
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-
-
 # ----------------------------------------------------------------------------- encoding
 _ENCAP_LE = b"\x00\x01\x00\x00"
 _PACK_STAMP = struct.Struct("<iI").pack

@@ -83,11 +83,6 @@ def imu_to_body(vec_imu: np.ndarray) -> np.ndarray:
     return IMU_TO_BODY.apply(np.asarray(vec_imu, dtype=float))
 
 
-def body_to_imu(vec_body: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`imu_to_body`."""
-    return Q_ALIGN.apply(np.asarray(vec_body, dtype=float))
-
-
 def body_orientation(q_xyzw: np.ndarray, mount: Rotation | None = None) -> Rotation:
     """T265 orientation quaternions (n, 4) (``t265_pose -> t265_odom``) to body orientation.
 
@@ -96,12 +91,6 @@ def body_orientation(q_xyzw: np.ndarray, mount: Rotation | None = None) -> Rotat
     """
     a = POSE_TO_BODY if mount is None else mount * POSE_TO_BODY
     return a * _as_rot(q_xyzw) * a.inv()
-
-
-def yaw_from_quat(q_xyzw: np.ndarray, mount: Rotation | None = None) -> np.ndarray:
-    """Body yaw (rad, (-pi, pi]) from T265 orientation quaternions (n, 4), not zeroed."""
-    r = body_orientation(q_xyzw, mount)
-    return wrap_angle(r.as_euler("ZYX")[:, 0])
 
 
 def t265_odometry_to_body(position_m: np.ndarray, q_xyzw: np.ndarray, linear_mps: np.ndarray,

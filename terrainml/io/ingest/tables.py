@@ -197,22 +197,41 @@ class FileSignals:
     run_id: str | None = None
 
 
-def file_signals(tf: TableFile, robot: RobotSpec, rate_hz: float, rep: IngestReport) -> FileSignals | None:
-    """The canonical columns of one table file as signals (None: the reason in ``rep.errors``)."""
-    path = tf.path
+@dataclass
+class _Rows:
+    """The usable rows of one table file in time order (repeated stamps kept)."""
+
+    t_s: np.ndarray        # (n,) stamps (s, the file's time scaled)
+    index: np.ndarray      # (n,) their row numbers in the file
+    n_file: int            # rows in the file
+
+    def in_file(self, kept: np.ndarray) -> np.ndarray:
+        """(n_file,) bool: the file rows of the kept rows (``kept``: (n,) bool)."""
+        m = np.zeros(self.n_file, bool)
+        m[self.index[kept]] = True
+        return m
+
+
+def _open_columns(tf: TableFile, robot: RobotSpec, rep: IngestReport) -> _TableColumns | None:
+    """The file's columns, its time column checked and its wheel count checked against the robot."""
     try:
         cols = _TableColumns(tf)
     except Exception as exc:  # noqa: BLE001 - parser errors of several types
-        rep.errors.append(f"{path}: not a readable {tf.fmt.upper()} file ({exc})")
+        rep.errors.append(f"{tf.path}: not a readable {tf.fmt.upper()} file ({exc})")
         return None
-    tcol = tf.time_column
-    if tcol not in cols.source:
-        rep.errors.append(f"{path}: missing time column '{tcol}' (give a topic map with time_column "
+    if tf.time_column not in cols.source:
+        rep.errors.append(f"{tf.path}: missing time column '{tf.time_column}' (give a topic map with time_column "
                           "and columns to map your file's names)")
         return None
     n_in_table = _table_wheels(cols.names)
     if n_in_table:
-        check_wheel_count(robot, n_in_table, path)
+        check_wheel_count(robot, n_in_table, tf.path)
+    return cols
+
+
+def _time_rows(tf: TableFile, cols: _TableColumns, rep: IngestReport) -> _Rows | None:
+    """Rows with a finite time, in time order; the file's counts into the report."""
+    path, tcol = tf.path, tf.time_column
     tc = cols.cells(tcol)
     _count_bad(path, cols.label(tcol), tc.counts(), "time", rep)
     t = tc.values * float(tf.time_scale)
@@ -232,83 +251,118 @@ def file_signals(tf: TableFile, robot: RobotSpec, rate_hz: float, rep: IngestRep
     if len(rows) == 0:
         rep.errors.append(f"{path}: no rows")
         return None
-    t = t[rows]
-    spec = column_map(robot.n_wheels)
-    names = [c for c in cols.names if c in spec and c not in ("t_s", "run_id", tcol) and spec[c].group != "validity"]
-    run_id = None
-    if "run_id" in cols.names:
-        run_ids = cols.raw("run_id").iloc[rows]
-        if run_ids.nunique() == 1:
-            run_id = str(run_ids.iloc[0])
-    n_file = len(tc.values)
+    return _Rows(t[rows], rows, len(tc.values))
 
-    def file_rows(kept: np.ndarray) -> np.ndarray:   # (n_file,) bool of the kept rows selected
-        m = np.zeros(n_file, bool)
-        m[rows[kept]] = True
-        return m
 
-    every = np.ones(len(rows), bool)
-    # rows each group may not use: flagged invalid by the table, or holding a bad cell
+def _single_run_id(cols: _TableColumns, r: _Rows) -> str | None:
+    """The table's ``run_id`` when its rows hold a single one."""
+    if "run_id" not in cols.names:
+        return None
+    run_ids = cols.raw("run_id").iloc[r.index]
+    return str(run_ids.iloc[0]) if run_ids.nunique() == 1 else None
+
+
+def _flagged_rows(tf: TableFile, cols: _TableColumns, r: _Rows, rep: IngestReport) -> dict[str, np.ndarray]:
+    """Per sensor group, (n,) rows the table's own ``{group}_valid`` column flags invalid."""
     flagged: dict[str, np.ndarray] = {}
+    every = np.ones(len(r.index), bool)
     for g in VALID_GROUPS:
         vcol = valid_column(g).name
         if vcol in cols.names:
             vc = cols.cells(vcol, boolean=True)
-            _count_bad(path, cols.label(vcol), vc.counts(rows=file_rows(every)), g, rep)
-            flagged[g] = ~(vc.values[rows] == 1.0)
+            _count_bad(tf.path, cols.label(vcol), vc.counts(rows=r.in_file(every)), g, rep)
+            flagged[g] = ~(vc.values[r.index] == 1.0)
+    return flagged
+
+
+def _column_cells(tf: TableFile, cols: _TableColumns, names: list[str]) -> dict[str, Cells]:
+    """The cells of every canonical column (labels looked up by name; raises TableError)."""
     cells: dict[str, Cells] = {}
     for c in names:
         if c.startswith("gt_state"):
             continue
-        if c == "terrain" and tf.label_names is not None:
-            try:
-                cells[c] = _label_cells(cols.raw(c), tf, cols.label(c))
-            except TableError as exc:
-                rep.errors.append(str(exc))
-                return None
-        else:
-            cells[c] = cols.cells(c)
+        cells[c] = _label_cells(cols.raw(c), tf, cols.label(c)) if c == "terrain" and tf.label_names is not None \
+            else cols.cells(c)
+    return cells
+
+
+def _unusable_rows(tf: TableFile, cols: _TableColumns, names: list[str], spec: dict, cells: dict[str, Cells],
+                   flagged: dict[str, np.ndarray], r: _Rows, rep: IngestReport) -> dict[str, np.ndarray]:
+    """Per group, (n,) rows it may not use: flagged invalid by the table, or holding a bad cell
+    (counted per file column; cells on rows the table itself flags invalid are not counted)."""
+    every = np.ones(len(r.index), bool)
     unusable = {spec[c].group: flagged.get(spec[c].group, ~every).copy() for c in names}
     counted: set[str] = set()
     for c, cl in cells.items():
-        g = spec[c].group   # cells on rows the table itself flags invalid are not counted
+        g = spec[c].group
         if cols.label(c) not in counted:   # one file column feeding several wheels: counted once
             counted.add(cols.label(c))
-            _count_bad(path, cols.label(c), cl.counts(rows=file_rows(~flagged[g] if g in flagged else every)), g, rep)
-        unusable[g] |= cl.bad[rows]
-    signals = []
-    for col in names:
-        g = spec[col].group
-        if col.startswith("gt_state"):
-            codes = {**topics.WHEEL_STATE_CODES}
-            v = cols.raw(col).iloc[rows].map(lambda s: codes.get(str(s), np.nan)).to_numpy(float)
-            keep = np.isfinite(v)
-        else:
-            cl = cells[col]
-            v = cl.values[rows].copy()
-            if col == "terrain":
-                v = np.where(v < 0, np.nan, v)      # -1: unlabelled, a sample like any other
-            keep = ~cl.missing[rows] | unusable[g]   # empty cells on usable rows: no sample
-            if g in VALID_GROUPS:
-                v[unusable[g]] = np.nan
-            own = np.isfinite(cl.values[rows])
-            if not np.isfinite(v[keep]).any():
-                why = ("every cell bad" if cl.bad[rows].all() else "every cell empty" if cl.missing[rows].all()
-                       else f"every row flagged invalid by {g}_valid" if g in flagged and not own[~flagged[g]].any()
-                       else None)   # else: the group's bad cells in another column, reported there
-                if why:
-                    rep.warnings.append(f"{path}: column '{cols.label(col)}': no usable value in {len(rows)} "
-                                        f"row(s) ({why}); "
-                                        f"{'group ' + g + ' 0% valid' if g in VALID_GROUPS else 'column empty'}")
-        method = cols.source[col].method or (
-            "previous" if col.endswith(PREVIOUS_COLUMNS) or col == "cam_confidence" else
-            ("angle" if col.endswith("yaw_rad") else "linear"))
-        first, _, _ = clean_times(t[keep])      # one sample per stamp (the first in file order)
-        ts, v = t[keep][first], v[keep][first]
-        gap = np.inf if col == "terrain" or col.startswith("gt_state") else \
-            gap_threshold_s(ts, rate_hz, tf.gap_periods)
-        signals.append(Signal(col, ts, v, method, gap))
-    return FileSignals(float(t[0]), float(t[-1]), signals, names, run_id)
+            _count_bad(tf.path, cols.label(c), cl.counts(rows=r.in_file(~flagged[g] if g in flagged else every)),
+                       g, rep)
+        unusable[g] |= cl.bad[r.index]
+    return unusable
+
+
+def _column_signal(col: str, g: str, tf: TableFile, cols: _TableColumns, cells: dict[str, Cells],
+                   flagged: dict[str, np.ndarray], unusable: dict[str, np.ndarray], r: _Rows, rate_hz: float,
+                   rep: IngestReport) -> Signal:
+    """One canonical column of the file as a signal: one sample per stamp, NaN on unusable rows."""
+    rows = r.index
+    if col.startswith("gt_state"):
+        codes = {**topics.WHEEL_STATE_CODES}
+        v = cols.raw(col).iloc[rows].map(lambda s: codes.get(str(s), np.nan)).to_numpy(float)
+        keep = np.isfinite(v)
+    else:
+        cl = cells[col]
+        v = cl.values[rows].copy()
+        if col == "terrain":
+            v = np.where(v < 0, np.nan, v)      # -1: unlabelled, a sample like any other
+        keep = ~cl.missing[rows] | unusable[g]   # empty cells on usable rows: no sample
+        if g in VALID_GROUPS:
+            v[unusable[g]] = np.nan
+        own = np.isfinite(cl.values[rows])
+        if not np.isfinite(v[keep]).any():
+            why = ("every cell bad" if cl.bad[rows].all() else "every cell empty" if cl.missing[rows].all()
+                   else f"every row flagged invalid by {g}_valid" if g in flagged and not own[~flagged[g]].any()
+                   else None)   # else: the group's bad cells in another column, reported there
+            if why:
+                rep.warnings.append(f"{tf.path}: column '{cols.label(col)}': no usable value in {len(rows)} "
+                                    f"row(s) ({why}); "
+                                    f"{'group ' + g + ' 0% valid' if g in VALID_GROUPS else 'column empty'}")
+    method = cols.source[col].method or (
+        "previous" if col.endswith(PREVIOUS_COLUMNS) or col == "cam_confidence" else
+        ("angle" if col.endswith("yaw_rad") else "linear"))
+    first, _, _ = clean_times(r.t_s[keep])      # one sample per stamp (the first in file order)
+    ts, v = r.t_s[keep][first], v[keep][first]
+    gap = np.inf if col == "terrain" or col.startswith("gt_state") else gap_threshold_s(ts, rate_hz, tf.gap_periods)
+    return Signal(col, ts, v, method, gap)
+
+
+def file_signals(tf: TableFile, robot: RobotSpec, rate_hz: float, rep: IngestReport) -> FileSignals | None:
+    """The canonical columns of one table file as signals (None: the reason in ``rep.errors``).
+
+    Steps: open the file (:func:`_open_columns`), its rows in time order (:func:`_time_rows`), the
+    rows the table flags invalid (:func:`_flagged_rows`), every column's cells
+    (:func:`_column_cells`), the rows each group may not use (:func:`_unusable_rows`), then one
+    signal per column (:func:`_column_signal`).
+    """
+    cols = _open_columns(tf, robot, rep)
+    r = None if cols is None else _time_rows(tf, cols, rep)
+    if r is None:
+        return None
+    spec = column_map(robot.n_wheels)
+    names = [c for c in cols.names if c in spec and c not in ("t_s", "run_id", tf.time_column)
+             and spec[c].group != "validity"]
+    run_id = _single_run_id(cols, r)
+    flagged = _flagged_rows(tf, cols, r, rep)
+    try:
+        cells = _column_cells(tf, cols, names)
+    except TableError as exc:
+        rep.errors.append(str(exc))
+        return None
+    unusable = _unusable_rows(tf, cols, names, spec, cells, flagged, r, rep)
+    signals = [_column_signal(c, spec[c].group, tf, cols, cells, flagged, unusable, r, rate_hz, rep) for c in names]
+    return FileSignals(float(r.t_s[0]), float(r.t_s[-1]), signals, names, run_id)
 
 
 def tables_to_run(files: list[TableFile], robot: RobotSpec, rate_hz: float, rep: IngestReport, *,
