@@ -170,7 +170,7 @@ def _load_tables(data: Path, *, robot, fmt: str, quiet: bool):
         tables, rep = load_dataset("borealtc", data, robot=rb)
         if not quiet:
             console.print(f"BorealTC: {rep.runs} runs, classes {rep.classes}; runs without IMU: "
-                          f"{len(rep.runs_without("imu"))}; skipped: {len(rep.skipped)}", highlight=False)
+                          f"{len(rep.runs_without('imu'))}; skipped: {len(rep.skipped)}", highlight=False)
         return tables, rb
     if fmt != "auto":
         fail(f"unknown --format {fmt!r}; expected auto or borealtc")

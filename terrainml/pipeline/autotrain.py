@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from tempfile import TemporaryDirectory
 from typing import Any, Callable, Sequence
@@ -37,7 +37,7 @@ from terrainml.features.windows import window_spec
 from terrainml.models.artifacts import json_safe, save_artifact, write_manifest
 from terrainml.models.calibration import CalibratedModel, Temperature
 from terrainml.models.ensemble import ProbabilityAverage
-from terrainml.pipeline.dataset import Dataset, build_from_tables, dataset_channels
+from terrainml.pipeline.dataset import Dataset, build_from_tables
 from terrainml.pipeline.replay import (MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S, make_course, pooled_replay,
                                        replay_course, replay_refusal)
 from terrainml.pipeline import train as train_lib  # make_factory read at call time
@@ -77,9 +77,7 @@ def build_candidates(tables: Sequence[pd.DataFrame], robot: RobotSpec, specs: st
     for name in candidate_specs(specs):
         say(f"windows: cutting the runs with the {name!r} spec")
         try:
-            spec = window_spec(name)
-            if sensors is not None or spec.chunk_s is not None:
-                spec = replace(spec, channels=dataset_channels(robot, spec, sensors))
+            spec = window_spec(name).resolve(robot, sensors)
             ds = build_from_tables(tables, robot, preset, spec, n_jobs=n_jobs)
         except Exception as exc:  # noqa: BLE001 - a spec this robot cannot feed is a reported non-candidate
             failed[name] = f"{type(exc).__name__}: {exc}"

@@ -402,7 +402,7 @@ def _build_borealtc(source: Path, robot: RobotSpec, preset: str, spec: WindowSpe
     tables, rep = load_dataset("borealtc", source, robot=robot)
     if say is not None:
         say(f"BorealTC: {rep.runs} runs, classes {rep.classes}; runs without IMU (wheel channels "
-            f"invalid, their windows rejected): {len(rep.runs_without("imu"))}; skipped: {len(rep.skipped)}")
+            f"invalid, their windows rejected): {len(rep.runs_without('imu'))}; skipped: {len(rep.skipped)}")
     if not tables:
         raise DatasetError(f"{source}: no BorealTC runs read ({rep.skipped})")
     return _from_tables(tables, robot, preset, spec, n_jobs)
