@@ -366,7 +366,7 @@ def test_huge_current_never_reaches_the_features(model_dir):
     no numpy warning, every message finite, and classifications before and after."""
     import warnings
 
-    from terrainml.estimation.synthetic import kinematic_run, trapezoid_speed
+    from terrainml.testing import kinematic_run, trapezoid_speed
     from terrainml.robot import load_robot
     from terrainml.stream.predictor import Predictor
     from terrainml.stream.sources import iter_table_samples
