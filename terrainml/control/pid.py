@@ -206,6 +206,21 @@ class SlipPID:
             hi = np.minimum(hi, np.maximum(self._out_prev + step, lo))
         return lo, hi
 
+    def _derivative(self, enabled: np.ndarray, s_meas_safe: np.ndarray, dt: float, dt_ok: bool) -> np.ndarray:
+        """D term on the low-passed measured slip (no setpoint kick), shape (N,), rad/s."""
+        cfg = self.config
+        d_term = np.zeros(self.n_wheels)
+        first = enabled & ~self._has_filt
+        self._s_filt[first] = s_meas_safe[first]
+        self._has_filt[first] = True
+        cont = enabled & ~first
+        if dt_ok and np.any(cont):
+            a = 1.0 - math.exp(-dt / cfg.derivative_tau_s) if cfg.derivative_tau_s > 0 else 1.0
+            prev = self._s_filt[cont].copy()
+            self._s_filt[cont] = prev + a * (s_meas_safe[cont] - prev)
+            d_term[cont] = -cfg.kd * (self._s_filt[cont] - prev) / dt
+        return d_term
+
     def step(self, slip_desired, slip_measured, v_long_mps, body_speed_mps: float,
              omega_low_level_radps, dt_s: float) -> PIDStep:
         """Advance one control tick.
@@ -246,17 +261,7 @@ class SlipPID:
         s_meas_safe = np.where(enabled, s_meas, 0.0)
         s_des_safe = np.where(enabled, s_des, 0.0)
 
-        # derivative on the low-passed measurement (no setpoint kick)
-        d_term = np.zeros(self.n_wheels)
-        first = enabled & ~self._has_filt
-        self._s_filt[first] = s_meas_safe[first]
-        self._has_filt[first] = True
-        cont = enabled & ~first
-        if dt_ok and np.any(cont):
-            a = 1.0 - math.exp(-dt / cfg.derivative_tau_s) if cfg.derivative_tau_s > 0 else 1.0
-            prev = self._s_filt[cont].copy()
-            self._s_filt[cont] = prev + a * (s_meas_safe[cont] - prev)
-            d_term[cont] = -cfg.kd * (self._s_filt[cont] - prev) / dt
+        d_term = self._derivative(enabled, s_meas_safe, dt, dt_ok)
 
         ff = np.zeros(self.n_wheels)
         if cfg.wheel_radius_m is not None:

@@ -212,36 +212,13 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    entries = {}
-    for name, model in models.items():
-        kind, files = save_model_files(directory, name, model)
-        entry = {"kind": kind, "files": [p.relative_to(directory).as_posix() for p in files]}
-        if kind == "svm":
-            entry["feature_names"] = model.feature_names_
-            entry["feature_subset"] = getattr(model.features_, "subset", None)
-            entry["best_params"] = model.best_params_
-        if kind == "average":
-            members = name.split("+")
-            if len(members) < 2 or any(m not in models or models[m] is not mm
-                                       for m, mm in zip(members, model.members_)):
-                raise ArtifactError(f"{directory}: average {name!r} must be named A+B after its members, "
-                                    "each saved in the same folder")
-            entry["members"] = members
-        if calibration and name in calibration:
-            entry["calibration"] = Temperature.from_dict(dict(calibration[name])).to_dict()
-        entries[name] = entry
+    entries = {name: _model_entry(directory, name, model, models, calibration)
+               for name, model in models.items()}
     for fname, text in (attachments or {}).items():
         if Path(fname).name != fname or fname == MANIFEST_NAME:
             raise ArtifactError(f"{directory / fname}: an attachment is a plain file name, not {MANIFEST_NAME}")
         (directory / fname).write_text(text)
-    nov_entry = None
-    if novelty is not None:
-        nov_name, scorer, info = novelty
-        if nov_name not in models:
-            raise ArtifactError(f"{directory}: novelty scorer of {nov_name!r}, which is not among the models")
-        path = scorer.save(directory / "novelty")
-        nov_entry = {**scorer.config(), **dict(info), "model": nov_name,
-                     "file": path.relative_to(directory).as_posix()}
+    nov_entry = None if novelty is None else _novelty_entry(directory, novelty, models)
     doc = {
         "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "terrainml_version": __version__,
         "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
@@ -258,6 +235,36 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
     if nov_entry is not None:  # absent (not null) without a scorer: older folders read the same
         doc["novelty"] = nov_entry
     return write_manifest(directory, doc)
+
+
+def _model_entry(directory: Path, name: str, model: Any, models: dict[str, Any],
+                 calibration: Mapping[str, dict] | None) -> dict:
+    """Save one model's files; its manifest entry (kind, files, features, members, calibration)."""
+    kind, files = save_model_files(directory, name, model)
+    entry = {"kind": kind, "files": [p.relative_to(directory).as_posix() for p in files]}
+    if kind == "svm":
+        entry["feature_names"] = model.feature_names_
+        entry["feature_subset"] = getattr(model.features_, "subset", None)
+        entry["best_params"] = model.best_params_
+    if kind == "average":
+        members = name.split("+")
+        if len(members) < 2 or any(m not in models or models[m] is not mm
+                                   for m, mm in zip(members, model.members_)):
+            raise ArtifactError(f"{directory}: average {name!r} must be named A+B after its members, "
+                                "each saved in the same folder")
+        entry["members"] = members
+    if calibration and name in calibration:
+        entry["calibration"] = Temperature.from_dict(dict(calibration[name])).to_dict()
+    return entry
+
+
+def _novelty_entry(directory: Path, novelty: tuple[str, NoveltyScorer, dict], models: dict[str, Any]) -> dict:
+    """Save the novelty scorer; its manifest entry (settings, threshold, info, model, file)."""
+    nov_name, scorer, info = novelty
+    if nov_name not in models:
+        raise ArtifactError(f"{directory}: novelty scorer of {nov_name!r}, which is not among the models")
+    path = scorer.save(directory / "novelty")
+    return {**scorer.config(), **dict(info), "model": nov_name, "file": path.relative_to(directory).as_posix()}
 
 
 def write_manifest(directory: str | Path, doc: dict | None = None) -> dict:

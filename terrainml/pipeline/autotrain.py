@@ -183,13 +183,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     say = progress or (lambda msg: None)
     out = Path(out)
     t0 = time.perf_counter()
-    if datasets is not None:
-        data, failed = dict(datasets), {}
-    else:
-        data, failed = build_candidates(tables, robot, specs, preset, sensors, n_jobs, say)
-    if not data:
-        raise ValueError("no window spec can be cut from these runs: " +
-                         "; ".join(f"{s}: {r}" for s, r in failed.items()))
+    data, failed = _candidate_data(tables, robot, specs, preset, sensors, n_jobs, datasets, say)
     t_windows = time.perf_counter() - t0
     first = next(iter(data.values()))
     table = desired_slip_table_for(first, robot)
@@ -204,11 +198,10 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     refusal = replay_refusal(pooled, min_classified_share) if replay else ""
     t_replay = time.perf_counter() - t0 - t_windows - t_sel
     ds = data[sel.chosen.spec]
-    res_doc = {"selection": _selection_doc(sel), "replay": {"folds": folds_replay, "pooled": pooled,
-                                                             "refusal": refusal, "overridden": bool(refusal and
-                                                                                                    allow_unproven),
-                                                             "segment_s": segment_s,
-                                                             "min_classified_share": min_classified_share}}
+    res_doc = {"selection": _selection_doc(sel),
+               "replay": {"folds": folds_replay, "pooled": pooled, "refusal": refusal,
+                          "overridden": bool(refusal and allow_unproven), "segment_s": segment_s,
+                          "min_classified_share": min_classified_share}}
     if refusal and not allow_unproven:
         out.mkdir(parents=True, exist_ok=True)
         _write_docs(out, None, res_doc, sel)
@@ -235,6 +228,19 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     _write_docs(out, tr, res_doc, sel)
     tr.manifest = write_manifest(out)
     return AutoResult(sel, folds_replay, pooled, refusal, tr, timing)
+
+
+def _candidate_data(tables, robot: RobotSpec, specs, preset: str, sensors, n_jobs: int,
+                    datasets: dict | None, say) -> tuple[dict, dict]:
+    """({spec: Dataset}, {spec: why not}) of the candidates; ValueError when none can be cut."""
+    if datasets is not None:
+        data, failed = dict(datasets), {}
+    else:
+        data, failed = build_candidates(tables, robot, specs, preset, sensors, n_jobs, say)
+    if not data:
+        raise ValueError("no window spec can be cut from these runs: " +
+                         "; ".join(f"{s}: {r}" for s, r in failed.items()))
+    return data, failed
 
 
 def _summary(ds: Dataset, sel: Selection) -> dict:
