@@ -12,6 +12,8 @@ from terrainml.commands._common import ALLOW_OUTSIDE_HELP, open_dataset_spec, op
 _EXAMPLE = """
 Examples:
 
+  terrainml predict --model runs/svm --source ros2://0 --topics husky_ros2 --sink ros2://0
+
   terrainml predict --model runs/svm --source runs/demo/course.mcap --sink stdout
 
   terrainml predict --model runs/svm --source udp://127.0.0.1:9870 --sink udp://127.0.0.1:9871
@@ -40,10 +42,12 @@ def register(app: typer.Typer) -> None:
     def predict(
         model: Path = typer.Option(..., "--model", help="Trained model folder (runs/NAME)."),
         source: str = typer.Option(..., "--source",
-                                   help="RUN.mcap|.bag|.parquet|.csv, a ROS 2 bag folder, udp://HOST:PORT, "
+                                   help="RUN.mcap|.bag|.parquet|.csv, a ROS 2 bag folder, ros2://DOMAIN "
+                                        "(live ROS 2 topics over DDS, docs/ros2.md), udp://HOST:PORT, "
                                         "or - (stdin JSON lines)."),
         sink: List[str] = typer.Option(["stdout"], "--sink",
-                                       help="stdout, udp://HOST:PORT, can://IFACE/CHANNEL, "
+                                       help="ros2://DOMAIN (ROS 2 topics), stdout, udp://HOST:PORT, "
+                                            "can://IFACE/CHANNEL, "
                                             "mcap:OUT.mcap or foxglove://HOST:PORT (live view "
                                             "in Foxglove); repeat for several."),
         realtime: bool = typer.Option(False, "--realtime", help="Pace a log source at its own time stamps."),
@@ -51,7 +55,8 @@ def register(app: typer.Typer) -> None:
                                             help="Robot spec (name or YAML); default: the model's."),
         preset: Optional[str] = typer.Option(None, "--preset", help="EKF preset; default: the model's."),
         idle_timeout_s: Optional[float] = typer.Option(
-            None, "--idle-timeout-s", help="UDP source: stop after this many seconds without a datagram."),
+            None, "--idle-timeout-s",
+            help="UDP / ROS 2 source: stop after this many seconds without a datagram or message."),
         verbose: bool = typer.Option(False, "--verbose", "-v", help="More log output on stderr."),
         max_clock_gap_s: float = typer.Option(
             1.0, "--max-clock-gap-s", min=1e-3,
@@ -65,8 +70,9 @@ def register(app: typer.Typer) -> None:
                  "(`terrainml model sign`), else it is refused. Repeat for several."),
         topics: Optional[str] = typer.Option(
             None, "--topics",
-            help="Log source: topic map YAML (or built-in name: default, husky_robot_localization) "
-                 "saying which topics feed which columns, as for `terrainml ingest`."),
+            help="Log or ros2:// source: topic map YAML (or built-in name: default, "
+                 "husky_robot_localization, husky_ros2) saying which topics feed which columns, as for "
+                 "`terrainml ingest`."),
         fmt: Optional[str] = typer.Option(
             None, "--format", "--spec",
             help="CSV/Parquet source: dataset spec (built-in name: borealtc, or SPEC.yaml) giving its "

@@ -54,6 +54,7 @@ def serve(predictor: Predictor, samples: Iterable[dict], sinks: Sequence[Any],
             continue
         if msg is None:
             continue
+        msg.extra["sample"] = sample  # what a sink needs besides the message (ROS 2 odometry)
         for s in sinks:
             s.send(msg)
         if on_message is not None:
@@ -124,7 +125,8 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
     try:
         for spec in sinks:
             opened.append(open_sink(spec, n_wheels=predictor.n, n_classes=len(predictor.class_names),
-                                    class_names=predictor.class_names))
+                                    class_names=predictor.class_names, robot=predictor.robot,
+                                    sensors=predictor.sensors))
         samples = open_source(source, robot=predictor.robot, realtime=realtime, counters=counters,
                               idle_timeout_s=idle_timeout_s, ready=ready, topic_map=topics,
                               dataset=dataset)
@@ -145,7 +147,7 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
 
 
 def _is_log(source: str) -> bool:
-    return not (source.strip() == "-" or source.strip().startswith("udp"))
+    return not (source.strip() == "-" or source.strip().startswith(("udp", "ros2")))
 
 
 def _serve_until_done(predictor: Predictor, samples: Iterable[dict], opened: list[GuardedSink],

@@ -6,6 +6,8 @@ Sink specs (``terrainml predict --sink``; repeat the option for several sinks)::
     udp://HOST:PORT                 one JSON datagram per tick (default 127.0.0.1:9871)
     can://INTERFACE/CHANNEL         python-can, e.g. can://virtual/vcan0, can://socketcan/can0
     mcap:OUT.mcap                   MCAP recording, topic /terrainml/desired_slip, JSON schema
+    ros2://DOMAIN                   ROS 2 topics over DDS: desired slip, terrain, diagnostics,
+                                    slip-aware odometry (stream/ros2/sink.py, docs/ros2.md)
     foxglove://HOST:PORT            live view, Foxglove WebSocket server (default 127.0.0.1:8765;
                                     port 0 picks a free one); stream/foxglove_sink.py
 
@@ -53,6 +55,8 @@ from mcap.writer import Writer
 from terrainml.io.topics import WHEEL_STATE_CODES
 from terrainml.stream.foxglove_sink import DEFAULT_FOXGLOVE_SINK, FoxgloveSink, class_names_for
 from terrainml.stream.message import FALLBACK_REASONS, TOPIC, DesiredSlip, json_schema
+from terrainml.stream.ros2.names import Ros2NameError, is_ros2_spec
+from terrainml.stream.ros2.sink import Ros2Sink
 
 log = logging.getLogger("terrainml.stream")
 
@@ -248,11 +252,13 @@ def _scheme_rest(s: str, scheme: str) -> str | None:
 
 
 def open_sink(spec: str, *, n_wheels: int | None = None, n_classes: int | None = None,
-              class_names: list[str] | None = None, stdout: IO[str] | None = None) -> GuardedSink:
+              class_names: list[str] | None = None, stdout: IO[str] | None = None,
+              robot: Any = None, sensors: list[str] | None = None) -> GuardedSink:
     """Open one sink from its spec string (see the module docstring); raises SinkError.
 
     ``class_names`` names the class ids 0..K-1 where a sink shows names (Foxglove); default the
-    eight classes of design §6.1.
+    eight classes of design §6.1. ``robot`` (wheel names and geometry) and ``sensors`` (the model's
+    sensor groups) are what the ROS 2 sink states in its layout, odometry and diagnostics.
     """
     s = spec.strip()
     if s in ("stdout", "-"):
@@ -267,6 +273,11 @@ def open_sink(spec: str, *, n_wheels: int | None = None, n_classes: int | None =
         # a port that cannot be bound is not fatal: the sink retries and GuardedSink counts it
         sink = FoxgloveSink(host, port, n_wheels=n_wheels,
                             class_names=class_names_for(n_classes, class_names))
+    elif is_ros2_spec(s):
+        try:
+            sink = Ros2Sink(s, robot, sensors)
+        except Ros2NameError as exc:
+            raise SinkError(f"sink {spec!r}: {exc}") from None
     elif s.startswith("can://"):
         iface, _, channel = s[len("can://"):].partition("/")
         if not iface or not channel:
@@ -282,5 +293,5 @@ def open_sink(spec: str, *, n_wheels: int | None = None, n_classes: int | None =
             raise SinkError(f"sink {spec!r}: cannot write {path} ({exc})") from None
     else:
         raise SinkError(f"unknown sink {spec!r}; expected stdout, udp://HOST:PORT, "
-                        "can://INTERFACE/CHANNEL, mcap:OUT.mcap or foxglove://HOST:PORT")
+                        "can://INTERFACE/CHANNEL, mcap:OUT.mcap, foxglove://HOST:PORT or ros2://DOMAIN")
     return GuardedSink(sink)

@@ -10,6 +10,7 @@ Source specs (``terrainml predict --source``)::
     BAG_FOLDER/                                  a ROS 2 bag folder (.mcap or .db3 inside)
     udp://HOST:PORT                              one JSON object per datagram (default 127.0.0.1:9870)
     -                                            JSON lines on stdin
+    ros2://DOMAIN                                live ROS 2 topics over DDS (stream/ros2/source.py)
 
 Log files are read through the io owner's ingest (:func:`terrainml.io.ingest.load_run`), i.e. the
 very same topic decoding, frame mapping and resampling to the base rate as training used. A log
@@ -48,6 +49,8 @@ from typing import IO, Any, Iterator
 
 from terrainml.io.damage import DamageSummary, damage_summary
 from terrainml.io.ingest import load_run
+from terrainml.stream.ros2.names import is_ros2_spec
+from terrainml.stream.ros2.source import Ros2SourceError, iter_ros2_samples
 from terrainml.stream.sample import InvalidSample, check_sample
 
 log = logging.getLogger("terrainml.stream")
@@ -362,6 +365,12 @@ def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
         sock = bind_udp(host, port)
         return iter_udp_samples(host, port, counters=counters, idle_timeout_s=idle_timeout_s,
                                 sock=sock, ready=ready)
+    if is_ros2_spec(s):  # the topic map says which topics feed which columns, as for a log
+        try:
+            return iter_ros2_samples(s, robot, topic_map=topic_map, rate_hz=rate_hz, counters=counters,
+                                     idle_timeout_s=idle_timeout_s, ready=ready)
+        except (Ros2SourceError, ValueError) as exc:
+            raise SourceError(str(exc)) from None
     path = Path(s)
     if not path.exists():
         raise SourceError(f"source {spec!r}: no such file (expected RUN.mcap, udp://HOST:PORT or -)")

@@ -1,0 +1,328 @@
+"""Live messages -> base-rate samples, by the ingest engine's own rules (issue 29, design §5).
+
+A live transport (the ROS 2 source) hands decoded messages -- the parts of
+:mod:`terrainml.io.cdr`, made by :func:`terrainml.io.cdr.from_object`, the decoder ingest uses for
+deserialised messages -- to :class:`LiveAligner`, which turns them into base-rate samples with
+the engine of MCAP ingest (:mod:`terrainml.io.ingest_engine`): its scan and plan on a warm-up
+window, then its chunk :class:`~terrainml.io.ingest_engine.Producer` one tick at a time. Stamps,
+units, frames, IMU mount, T265 lever arm, resampling, gap rule and validity are therefore those of
+``terrainml ingest`` on a recording of the same messages, and so are the samples: a tick is emitted
+once every source is *settled* past it (its next message is known, or an unseen one could no
+longer bracket the tick within the gap rule).
+
+What a whole log tells ingest and a live stream cannot know, and how the aligner decides it
+(departures from ingest, exact for publishers at steady rates that are in order):
+
+* **time origin**: the earliest stamp of the warm-up (the first ``warmup_s`` of stamps, 0.5 s by
+  default, and at least one message of every required topic or ``warmup_wait_s`` of wall time);
+* **gap thresholds, IMU orientation, first T265 pose, joint names**: taken from the warm-up
+  (ingest: from the whole log); a topic that starts publishing after the warm-up is not used (a
+  warning names it);
+* **lateness**: ``reorder_s`` (default 0.05 s) is how far one topic may lag behind the others in
+  delivery before its ticks are decided without it. A topic that stops (a stale publisher) thus
+  becomes invalid ``reorder_s`` plus its gap threshold after its last message, and the served
+  messages say so within the predictor's sensor timeout. A message stamped before a tick already
+  emitted is *late*: counted per topic and, as on the UDP source, not served retroactively (it
+  still brackets the ticks after it);
+* **end**: :meth:`LiveAligner.finish` ends the grid at the last stamp, as ingest ends it at the
+  log's last message.
+
+Clock jumps: a message stamped more than ``max_gap_s`` (the clock policy's G, 1 s) away from the
+stream's latest stamp is off the timeline and held; ``reanchor_after`` (K, 5) consistent ones with
+no on-timeline message in between start a new timeline there: the old one is finished and the
+grid continues at the new stamps (same time origin), so the predictor sees the jump in ``t_s`` and
+applies its clock policy (:mod:`terrainml.stream.clock`). Off-timeline messages that an
+on-timeline one interrupts (one publisher with a wild clock) are dropped and counted.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from terrainml.io.ingest_engine import Buffer, IngestReport, Plan, Producer, Scan, plan
+from terrainml.io.topicmap import TopicMap
+from terrainml.robot import RobotSpec
+from terrainml.schema import DEFAULT_RATE_HZ
+from terrainml.stream.clock import MAX_GAP_S, REANCHOR_AFTER
+
+log = logging.getLogger("terrainml.stream")
+
+WARMUP_S = 0.5
+WARMUP_WAIT_S = 2.0
+REORDER_S = 0.05
+#: row count that never ends a live topic (the producer's "every row read" test)
+_UNBOUNDED = 2**62
+
+
+@dataclass
+class AlignCounters:
+    """Messages per topic: received, used late (after their tick was served), dropped off-timeline."""
+
+    received: dict[str, int] = field(default_factory=dict)
+    late: dict[str, int] = field(default_factory=dict)
+    off_timeline: dict[str, int] = field(default_factory=dict)
+    ignored: dict[str, int] = field(default_factory=dict)     # topics first seen after the warm-up
+    timelines: int = 0
+
+    def bump(self, which: dict[str, int], topic: str, n: int = 1) -> int:
+        which[topic] = which.get(topic, 0) + n
+        return which[topic]
+
+
+class _WarmupLog:
+    """The warm-up's messages as the engine's log interface (``read`` replays them)."""
+
+    kept = True
+
+    def __init__(self, name: str, parts: list[tuple[str, dict]]):
+        self.path = Path(name)
+        self.parts = parts
+
+    def read(self, on_part, topics: set[str] | None = None) -> None:
+        for topic, p in self.parts:
+            if topics is None or topic in topics:
+                on_part(topic, p)
+
+
+class _Collect:
+    """The producer's sink: each chunk of ticks becomes sample dicts."""
+
+    def __init__(self) -> None:
+        self.out: list[dict] = []
+
+    def write(self, chunk: pd.DataFrame) -> None:
+        # the values of iter_table_samples (python scalars), without pandas' per-row indexing
+        cols = [(str(c), col.to_numpy().tolist()) for c, col in chunk.items()]
+        for i in range(len(chunk)):
+            self.out.append({c: v[i] for c, v in cols})
+
+
+def _drain(prod: Producer, final: bool) -> None:
+    """``Producer.drain`` with the largest settled run of ticks as one chunk: a backlog (a burst,
+    a slow tick) costs one resampling pass, not one per tick. Chunking does not change the
+    table (the engine's contract), so the samples are the same."""
+    if final:
+        prod.chunk_ticks = max(prod.plan.n_ticks - prod.next_tick, 1)
+        prod.drain(final=True)
+        return
+    for buf in prod.plan.buffers:
+        buf.merge()
+    prod.pending_rows = 0
+    if prod.all_max is None:
+        return
+    fronts = {topic: prod._frontier_ns(topic, False) for topic in prod.scan.topics}
+    rate = prod.rate_hz
+
+    def settled(b: int) -> bool:
+        gb = (b - 1) / rate
+        return all(prod._settled(buf, gb, fronts[buf.topic]) for buf in prod.plan.buffers)
+
+    a = prod.next_tick
+    hi = min(int(math.floor((prod.all_max - prod.t0) * 1e-9 * rate + 1e-6)) + 1, prod.plan.n_ticks)
+    if hi <= a or not settled(a + 1):
+        return
+    lo = a + 1                      # settled(lo) holds; find the largest settled b <= hi
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if settled(mid):
+            lo = mid
+        else:
+            hi = mid - 1
+    prod._emit_chunk(a, lo)
+    prod.next_tick = lo
+
+
+def _fresh(p: Plan) -> Plan:
+    """The plan with empty buffers (same sources, templates and gap thresholds)."""
+    bufs = [Buffer(b.topic, b.joint, b.signals, b.need_gap_s, list(b.fields)) for b in p.buffers]
+    return Plan(p.t0_ns, _UNBOUNDED, bufs, p.facts, p.scan)
+
+
+class LiveAligner:
+    """Base-rate samples from live messages (rules in the module docstring).
+
+    Parameters
+    ----------
+    tmap : the topic map (which topics feed which columns).
+    robot : RobotSpec (wheel count, IMU mount, camera lever arm).
+    rate_hz : base rate, Hz.
+    name : what warnings call the stream (e.g. ``ros2://0``).
+    required : topics the warm-up waits for (default: the map's non-optional topics).
+    warmup_s, warmup_wait_s, reorder_s : s (module docstring).
+    max_gap_s, reanchor_after : the clock policy's G (s) and K.
+    """
+
+    def __init__(self, tmap: TopicMap, robot: RobotSpec, rate_hz: float = DEFAULT_RATE_HZ, *,
+                 name: str = "live", required: list[str] | None = None, warmup_s: float = WARMUP_S,
+                 warmup_wait_s: float = WARMUP_WAIT_S, reorder_s: float = REORDER_S,
+                 max_gap_s: float = MAX_GAP_S, reanchor_after: int = REANCHOR_AFTER):
+        self.tmap, self.robot, self.rate_hz, self.name = tmap, robot, float(rate_hz), name
+        self.required = set(required if required is not None else
+                            [s.topic for s in tmap.sources if not s.options.get("optional")])
+        self.warmup_ns, self.warmup_wait_s = int(warmup_s * 1e9), float(warmup_wait_s)
+        self.reorder_ns, self.max_gap_ns = int(reorder_s * 1e9), int(max_gap_s * 1e9)
+        self.reanchor_after = int(reanchor_after)
+        self.counters = AlignCounters()
+        self.report = IngestReport(source=name, format="ros2", rate_hz=self.rate_hz)
+        self._early: list[tuple[str, dict]] = []
+        self._first_wall: float | None = None
+        self._plan: Plan | None = None
+        self._prod: Producer | None = None
+        self._sink = _Collect()
+        self._cand: list[tuple[str, dict]] = []
+        self._latest_ns: int | None = None
+
+    # ------------------------------------------------------------------ public
+    @property
+    def t0_ns(self) -> int | None:
+        """Time origin (ns): ``t_s`` of a sample is seconds after it; None before the warm-up ends."""
+        return None if self._plan is None else self._plan.t0_ns
+
+    @property
+    def started(self) -> bool:
+        return self._prod is not None
+
+    def add(self, topic: str, part: dict) -> None:
+        """Take one decoded message (a one-row part of :mod:`terrainml.io.cdr`)."""
+        self.counters.bump(self.counters.received, topic)
+        if self._prod is None:
+            self._warmup(topic, part)
+            return
+        if topic not in self._prod.scan.topics:
+            if self.counters.bump(self.counters.ignored, topic) == 1:
+                log.warning("%s: topic %s started publishing after the warm-up: not used (restart to use it)",
+                            self.name, topic)
+            return
+        self._timeline(topic, part)
+
+    def poll(self) -> list[dict]:
+        """Samples of the ticks settled so far (in order); starts the stream after the warm-up."""
+        if self._prod is None:
+            if not self._warmup_done():
+                return []
+            self._start()
+        else:
+            _drain(self._prod, final=False)
+        out, self._sink.out = self._sink.out, []
+        return out
+
+    def finish(self) -> list[dict]:
+        """End of stream: the remaining ticks up to the last stamp."""
+        if self._prod is None and self._early:
+            self._start()
+        if self._prod is not None:
+            self._end_timeline()
+        out, self._sink.out = self._sink.out, []
+        return out
+
+    # ------------------------------------------------------------------ warm-up
+    def _warmup(self, topic: str, part: dict) -> None:
+        if self._first_wall is None:
+            self._first_wall = time.monotonic()
+        self._early.append((topic, part))
+
+    def _warmup_done(self) -> bool:
+        if not self._early:
+            return False
+        stamps = [int(p["t_ns"][0]) for _, p in self._early]
+        seen = {t for t, _ in self._early}
+        span_ok = max(stamps) - min(stamps) >= self.warmup_ns
+        waited = time.monotonic() - (self._first_wall or time.monotonic()) >= self.warmup_wait_s
+        return span_ok and (self.required <= seen or waited)
+
+    def _start(self) -> None:
+        """Scan and plan the warm-up with the ingest engine, then replay it into a producer."""
+        rep = self.report
+        scan = Scan(self.tmap, self.robot, self.rate_hz, None)
+        for topic, p in self._early:
+            scan.on_part(topic, p)
+        scan.drain()
+        for topic, ts in scan.topics.items():
+            rep.topics[topic] = {"type": ts.src.type, "mapped": True, "read": ts.rows, "decoded": ts.rows,
+                                 "corrupt": 0, "skipped": 0, "out_of_order": 0, "duplicates": 0,
+                                 "non_finite": 0}
+        for src in self.tmap.sources:
+            if src.topic not in scan.topics and not src.options.get("optional"):
+                log.warning("%s: mapped topic %s (%s) had no message in the warm-up: not used",
+                            self.name, src.topic, src.type or src.kind)
+        p = plan(scan, _WarmupLog(self.name, self._early), self.tmap, self.robot, self.rate_hz, rep)
+        if p is None:
+            raise ValueError("; ".join(rep.errors) or f"{self.name}: no usable message")
+        for w in rep.warnings:
+            log.warning("%s", w)
+        for ts in scan.topics.values():
+            ts.rows = _UNBOUNDED
+        scan.cross_late = max(scan.cross_late, self.reorder_ns)
+        self._plan = _fresh(p)
+        self._prod = Producer(self._plan, self.tmap, self.robot, self.rate_hz, 1, self._sink, None)
+        self.counters.timelines = 1
+        early, self._early = self._early, []
+        for topic, part in early:
+            self._feed(topic, part)
+        _drain(self._prod, final=False)
+
+    # ------------------------------------------------------------------ timeline
+    def _feed(self, topic: str, part: dict) -> None:
+        t = int(part["t_ns"][0])
+        if (t - self._plan.t0_ns) * 1e-9 < (self._prod.next_tick - 1) / self.rate_hz - 1e-9:
+            n = self.counters.bump(self.counters.late, topic)
+            if n <= 3 or n % 1000 == 0:
+                log.warning("%s: topic %s: message stamped %.3f s arrived after its tick was served "
+                            "(%d late so far)", self.name, topic, (t - self._plan.t0_ns) * 1e-9, n)
+        self._latest_ns = t if self._latest_ns is None else max(self._latest_ns, t)
+        self._prod.on_part(topic, part)
+
+    def _timeline(self, topic: str, part: dict) -> None:
+        """On the timeline: fed; off it: held as a candidate new timeline (clock policy)."""
+        t = int(part["t_ns"][0])
+        if self._latest_ns is None or abs(t - self._latest_ns) <= self.max_gap_ns:
+            if self._cand:
+                for c_topic, _ in self._cand:
+                    self.counters.bump(self.counters.off_timeline, c_topic)
+                log.warning("%s: %d message(s) off the timeline dropped (a publisher's clock jumped?)",
+                            self.name, len(self._cand))
+                self._cand = []
+            self._feed(topic, part)
+            return
+        if self._cand and abs(t - int(self._cand[-1][1]["t_ns"][0])) > self.max_gap_ns:
+            for c_topic, _ in self._cand:
+                self.counters.bump(self.counters.off_timeline, c_topic)
+            self._cand = []
+        self._cand.append((topic, part))
+        if len(self._cand) >= self.reanchor_after:
+            self._new_timeline()
+
+    def _end_timeline(self) -> None:
+        prod = self._prod
+        ends = [m for tp, m in prod.topic_max.items() if tp in prod.by_topic]
+        t_end = (max(ends) - self._plan.t0_ns) * 1e-9 if ends else (prod.next_tick - 1) / self.rate_hz
+        self._plan.n_ticks = max(int(math.floor(t_end * self.rate_hz + 1e-6)) + 1, prod.next_tick)
+        _drain(prod, final=True)
+
+    def _new_timeline(self) -> None:
+        """K consistent off-timeline messages: finish the old timeline, start one at their stamps."""
+        cand, self._cand = self._cand, []
+        self._end_timeline()
+        first = min(int(p["t_ns"][0]) for _, p in cand)
+        log.warning("%s: clock jump: stamps moved %.3f s; a new timeline starts there", self.name,
+                    (first - self._latest_ns) * 1e-9)
+        self._plan = _fresh(self._plan)
+        self._prod = Producer(self._plan, self.tmap, self.robot, self.rate_hz, 1, self._sink, None)
+        self._prod.next_tick = int(math.ceil((first - self._plan.t0_ns) * 1e-9 * self.rate_hz - 1e-6))
+        self._latest_ns = None
+        self.counters.timelines += 1
+        for topic, part in cand:
+            self._feed(topic, part)
+
+    def stats(self) -> dict[str, Any]:
+        c = self.counters
+        return {"received": dict(c.received), "late": dict(c.late), "off_timeline": dict(c.off_timeline),
+                "ignored": dict(c.ignored), "timelines": c.timelines}
+

@@ -1,0 +1,252 @@
+"""Source ``ros2://[DOMAIN]``: samples from a ROS 2 robot's own topics over DDS (issue 29).
+
+``terrainml predict --source ros2://0 [--topics MAP.yaml]`` joins DDS domain ``DOMAIN`` as a ROS 2
+participant (Cyclone DDS, the ``rmw_cyclonedds_cpp`` wire format; no ROS installation needed) and
+subscribes to every topic of the topic map -- the same YAML that MCAP ingest reads, the default
+map without ``--topics`` -- with the map's message types (:mod:`terrainml.stream.ros2.types`).
+Each received message is decoded by ingest's decoder (:func:`terrainml.io.cdr.from_object`:
+header stamp, or the DDS source timestamp for types without a header, as ingest takes the log
+time) and aligned into base-rate samples by :class:`~terrainml.stream.ros2.align.LiveAligner`,
+the ingest engine run live: the samples, and so the served decisions, are those of ``terrainml
+predict --source LOG`` on a recording of the same messages.
+
+Options (URL query, e.g. ``ros2://0?qos=reliable&reorder_s=0.1``):
+
+==============  =============  =====================================================================
+key             default        meaning
+==============  =============  =====================================================================
+qos             sensor_data    ``sensor_data`` (best effort, keep last 100) or ``reliable`` (keep
+                               last 1000); a topic map entry's own ``qos:`` key overrides it per topic
+discovery_s     2.0            how long to look for publishers at start (type check, warnings)
+warmup_s        0.5            stamps the aligner plans from (:mod:`.align`)
+reorder_s       0.05           delivery lag one topic may have behind the others
+==============  =============  =====================================================================
+
+Faults (documented behaviour, tested in ``tests/stream/test_ros2_interop.py``):
+
+* a publisher whose DDS type differs from the map's type: refused at start (:class:`SourceError`
+  naming the topic, the publisher's type and the map's type), also found later: logged as an error;
+* no publisher on a required topic: a warning naming it, repeated every 10 s while nothing
+  arrives; serving waits (no sample is produced from nothing);
+* a publisher that stops: its sensor group goes invalid after its gap threshold plus
+  ``reorder_s`` and the predictor serves ``estimator_unhealthy`` after its sensor timeout;
+* bursts: every message waiting is taken at once and the ticks they settle are served in order;
+  a message stamped before a tick already served is counted late (as the UDP source's late samples);
+* a clock jump: handled by the aligner and then the predictor's clock policy (:mod:`.align`).
+
+The stream ends after ``idle_timeout_s`` without a message (``predict --idle-timeout-s``) or on
+SIGINT/SIGTERM; at the end the remaining ticks up to the last stamp are served. Each sample
+carries ``stamp_origin_ns`` (int): its ROS time is ``stamp_origin_ns + t_s`` (what the ROS 2 sink
+stamps its messages with).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Iterator
+
+from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
+from cyclonedds.core import ReadCondition, SampleState, WaitSet
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+
+from terrainml.io import cdr
+from terrainml.io.topicmap import Source, TopicMap, load_topic_map
+from terrainml.robot import RobotSpec, load_robot
+from terrainml.schema import DEFAULT_RATE_HZ
+from terrainml.stream.ros2.align import REORDER_S, WARMUP_S, LiveAligner
+from terrainml.stream.ros2.names import (QOS_PROFILES, Ros2NameError, dds_topic_name, dds_type_name, parse_url,
+                                         qos_for, ros_topic_name, ros_type_name)
+from terrainml.stream.ros2.types import MESSAGE_TYPES
+
+log = logging.getLogger("terrainml.stream")
+
+SOURCE_OPTIONS = ("qos", "discovery_s", "warmup_s", "reorder_s")
+DISCOVERY_S = 2.0
+WAITING_WARN_S = 10.0
+TAKE_MAX = 256
+#: key of the sample's ROS time origin (ns): ROS time = stamp_origin_ns + t_s
+STAMP_ORIGIN_KEY = "stamp_origin_ns"
+
+
+class Ros2SourceError(ValueError):
+    """The ROS 2 source cannot start (the message names the topic and types)."""
+
+
+@dataclass
+class _Sub:
+    src: Source
+    reader: DataReader
+    dds_type: str
+
+
+def _float_opt(opts: dict[str, str], key: str, default: float, spec: str) -> float:
+    try:
+        v = float(opts.get(key, default))
+    except ValueError:
+        raise Ros2SourceError(f"{spec}: option {key} must be a number, got {opts[key]!r}") from None
+    if not v >= 0:
+        raise Ros2SourceError(f"{spec}: option {key} must be >= 0, got {v}")
+    return v
+
+
+def _subscribe(dp: DomainParticipant, tmap: TopicMap, default_qos: str, spec: str) -> list[_Sub]:
+    subs = []
+    for src in tmap.sources:
+        cls = MESSAGE_TYPES.get(src.type)
+        if cls is None or cdr.KIND_OF_TYPE.get(src.type) != src.decode_kind:
+            raise Ros2SourceError(f"{spec}: topic {src.topic}: type {src.type or '(none)'} of kind {src.kind} "
+                                  f"cannot be subscribed (types: {', '.join(sorted(cdr.KIND_OF_TYPE))})")
+        profile = str(src.options.get("qos", default_qos))
+        if profile not in QOS_PROFILES:
+            raise Ros2SourceError(f"{tmap.source_file}: topic {src.topic}: qos {profile!r} is not one of "
+                                  f"{', '.join(QOS_PROFILES)}")
+        topic = Topic(dp, dds_topic_name(src.topic), cls)
+        subs.append(_Sub(src, DataReader(dp, topic, qos=qos_for(profile)), dds_type_name(src.type)))
+    return subs
+
+
+class _Discovery:
+    """Publications seen on the domain (DDS built-in topic): who publishes which mapped topic, and
+    publishers whose type differs from the map's."""
+
+    def __init__(self, dp: DomainParticipant, subs: list[_Sub]):
+        self.reader = BuiltinDataReader(dp, BuiltinTopicDcpsPublication)
+        self.by_topic = {s.src.topic: s for s in subs}
+        self.publishers: dict[str, int] = {}
+        self.mismatched: dict[str, str] = {}
+
+    def poll(self) -> dict[str, str]:
+        """Take new publications; returns the mismatches found this time (topic -> DDS type)."""
+        new: dict[str, str] = {}
+        for pub in self.reader.take(TAKE_MAX):
+            name = getattr(pub, "topic_name", None)
+            topic = ros_topic_name(name) if name else None
+            sub = self.by_topic.get(topic) if topic else None
+            if sub is None:
+                continue
+            if pub.type_name != sub.dds_type:
+                if topic not in self.mismatched:
+                    new[topic] = pub.type_name
+                self.mismatched[topic] = pub.type_name
+            else:
+                self.publishers[topic] = self.publishers.get(topic, 0) + 1
+        return new
+
+
+def _mismatch_text(spec: str, by_topic: dict[str, _Sub], found: dict[str, str]) -> str:
+    return "; ".join(f"{spec}: topic {topic} is published with type {ros_type_name(t)}, the topic map "
+                     f"expects {by_topic[topic].src.type}" for topic, t in sorted(found.items()))
+
+
+def _discover(disc: _Discovery, subs: list[_Sub], spec: str, discovery_s: float) -> None:
+    """Look for publishers for ``discovery_s``: refuse mismatched types, warn about missing ones."""
+    t_end = time.monotonic() + discovery_s
+    required = [s.src.topic for s in subs if not s.src.options.get("optional")]
+    while True:
+        found = disc.poll()
+        if found:
+            raise Ros2SourceError(_mismatch_text(spec, disc.by_topic, found))
+        if time.monotonic() >= t_end or all(t in disc.publishers for t in required):
+            break
+        time.sleep(0.05)
+    for topic in required:
+        if topic not in disc.publishers:
+            log.warning("%s: no publisher on %s (%s) yet: waiting for it", spec, topic, disc.by_topic[topic].src.type)
+
+
+def _take(subs: list[_Sub], use_header: bool, aligner: LiveAligner, spec: str) -> int:
+    """Every waiting message of every reader into the aligner; returns how many."""
+    n = 0
+    for sub in subs:
+        for msg in sub.reader.take(TAKE_MAX):
+            info = getattr(msg, "sample_info", None)
+            if info is not None and not info.valid_data:
+                continue
+            log_ns = int(info.source_timestamp) if info is not None else time.time_ns()
+            try:
+                part = cdr.from_object(sub.src.decode_kind, msg, log_ns, use_header)
+            except cdr.LayoutError as exc:
+                log.warning("%s: topic %s: message skipped (%s)", spec, sub.src.topic, exc)
+                continue
+            aligner.add(sub.src.topic, part)
+            n += 1
+    return n
+
+
+def iter_ros2_samples(spec: str = "ros2://0", robot: RobotSpec | str | None = None, *,
+                      topic_map: Any = None, rate_hz: float = DEFAULT_RATE_HZ,
+                      idle_timeout_s: float | None = None, ready: Callable[[Any], None] | None = None,
+                      counters: Any = None) -> Iterator[dict]:
+    """Samples from the ROS 2 topics of ``topic_map`` on the domain of ``spec`` (module docstring).
+
+    Raises :class:`Ros2SourceError` before the first sample when the URL, the map or a publisher's
+    type is wrong. ``counters`` (a :class:`~terrainml.stream.sources.SourceCounters`) counts the
+    messages received.
+    """
+    try:
+        url = parse_url(spec, SOURCE_OPTIONS)
+    except Ros2NameError as exc:
+        raise Ros2SourceError(str(exc)) from None
+    robot = load_robot(robot) if not isinstance(robot, RobotSpec) else robot
+    tmap = load_topic_map(topic_map)
+    default_qos = url.options.get("qos", "sensor_data")
+    if default_qos not in QOS_PROFILES:
+        raise Ros2SourceError(f"{spec}: qos must be one of {', '.join(QOS_PROFILES)}, got {default_qos!r}")
+    discovery_s = _float_opt(url.options, "discovery_s", DISCOVERY_S, spec)
+    aligner = LiveAligner(tmap, robot, rate_hz, name=spec,
+                          warmup_s=_float_opt(url.options, "warmup_s", WARMUP_S, spec),
+                          reorder_s=_float_opt(url.options, "reorder_s", REORDER_S, spec))
+    dp = DomainParticipant(url.domain_id)
+    subs = _subscribe(dp, tmap, default_qos, spec)
+    disc = _Discovery(dp, subs)
+    _discover(disc, subs, spec, discovery_s)
+    if ready is not None:
+        ready(None)
+    return _serve(dp, subs, disc, aligner, tmap, spec, idle_timeout_s, counters)
+
+
+def _serve(dp: DomainParticipant, subs: list[_Sub], disc: _Discovery, aligner: LiveAligner, tmap: TopicMap,
+           spec: str, idle_timeout_s: float | None, counters: Any) -> Iterator[dict]:
+    ws = WaitSet(dp)
+    for sub in subs:
+        ws.attach(ReadCondition(sub.reader, SampleState.NotRead))
+    use_header = tmap.stamp == "header"
+    last_msg = time.monotonic()
+    last_warn = last_msg
+    try:
+        while True:
+            ws.wait(duration(milliseconds=100))
+            n = _take(subs, use_header, aligner, spec)
+            now = time.monotonic()
+            if counters is not None:
+                counters.received += n
+            if n:
+                last_msg = now
+            else:
+                found = disc.poll()
+                if found:
+                    log.error("%s", _mismatch_text(spec, disc.by_topic, found))
+                if idle_timeout_s and now - last_msg >= idle_timeout_s:
+                    log.info("%s idle for %.1f s: end of stream", spec, idle_timeout_s)
+                    break
+                if now - last_warn >= WAITING_WARN_S and now - last_msg >= WAITING_WARN_S:
+                    log.warning("%s: no message for %.0f s; waiting for publishers on %s", spec,
+                                now - last_msg, ", ".join(s.src.topic for s in subs))
+                    last_warn = now
+            for s in aligner.poll():
+                s[STAMP_ORIGIN_KEY] = aligner.t0_ns
+                yield s
+        for s in aligner.finish():
+            s[STAMP_ORIGIN_KEY] = aligner.t0_ns
+            yield s
+    finally:
+        st = aligner.stats()
+        if st["late"] or st["off_timeline"] or st["ignored"]:
+            log.warning("%s: late messages %s, off-timeline %s, unused topics %s", spec, st["late"] or 0,
+                        st["off_timeline"] or 0, st["ignored"] or 0)
+        del ws, disc, subs, dp

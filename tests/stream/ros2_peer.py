@@ -1,0 +1,354 @@
+"""An independent ROS 2 peer for the interop tests: replays an MCAP onto DDS, or records terrainml's output.
+
+Run as its own process (``python ros2_peer.py publish|listen ...``). It never imports terrainml:
+message types are defined here with cyclonedds' own IDL classes (the rmw_cyclonedds_cpp names,
+``pkg::msg::dds_::Type_``, topics ``rt/...``), the log is read with the ``mcap`` / ``mcap_ros2``
+libraries, and the recorder writes what it receives as JSON lines.
+
+publish: every message of the mapped topics, in log order, at ``--speed`` x real time (source
+timestamp = the log time), after every topic has a matched subscriber (or ``--match-timeout-s``).
+Fault injections: ``--stop-topic T --stop-at-s S`` (T goes silent S s into the log),
+``--wrong-type-topic T`` (T published as std_msgs/Float64 instead), ``--jump-at-s S --jump-s J``
+(every stamp after S s shifted by J s), ``--swap-every K`` (every K-th pair of IMU messages
+published in reverse order), ``--burst-every K`` (K ticks held, then sent at once).
+
+listen: subscribes to the four terrainml topics, writes one JSON line per message to ``--out``,
+exits after ``--idle-s`` without a message (or ``--max-s``).
+"""
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+
+import cyclonedds.idl.types as t
+from cyclonedds.core import Policy, Qos
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.idl import IdlStruct
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+
+
+@dataclass
+class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: t.int32 = 0
+    nanosec: t.uint32 = 0
+
+
+@dataclass
+class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time = field(default_factory=Time)
+    frame_id: str = ""
+
+
+@dataclass
+class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+    x: t.float64 = 0.0
+    y: t.float64 = 0.0
+    z: t.float64 = 0.0
+
+
+@dataclass
+class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    x: t.float64 = 0.0
+    y: t.float64 = 0.0
+    z: t.float64 = 0.0
+
+
+@dataclass
+class Quaternion(IdlStruct, typename="geometry_msgs::msg::dds_::Quaternion_"):
+    x: t.float64 = 0.0
+    y: t.float64 = 0.0
+    z: t.float64 = 0.0
+    w: t.float64 = 1.0
+
+
+@dataclass
+class Pose(IdlStruct, typename="geometry_msgs::msg::dds_::Pose_"):
+    position: Point = field(default_factory=Point)
+    orientation: Quaternion = field(default_factory=Quaternion)
+
+
+@dataclass
+class PoseWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::PoseWithCovariance_"):
+    pose: Pose = field(default_factory=Pose)
+    covariance: t.array[t.float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
+    linear: Vector3 = field(default_factory=Vector3)
+    angular: Vector3 = field(default_factory=Vector3)
+
+
+@dataclass
+class TwistWithCovariance(IdlStruct, typename="geometry_msgs::msg::dds_::TwistWithCovariance_"):
+    twist: Twist = field(default_factory=Twist)
+    covariance: t.array[t.float64, 36] = field(default_factory=lambda: [0.0] * 36)
+
+
+@dataclass
+class Imu(IdlStruct, typename="sensor_msgs::msg::dds_::Imu_"):
+    header: Header = field(default_factory=Header)
+    orientation: Quaternion = field(default_factory=Quaternion)
+    orientation_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+    angular_velocity: Vector3 = field(default_factory=Vector3)
+    angular_velocity_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+    linear_acceleration: Vector3 = field(default_factory=Vector3)
+    linear_acceleration_covariance: t.array[t.float64, 9] = field(default_factory=lambda: [0.0] * 9)
+
+
+@dataclass
+class JointState(IdlStruct, typename="sensor_msgs::msg::dds_::JointState_"):
+    header: Header = field(default_factory=Header)
+    name: t.sequence[str] = field(default_factory=list)
+    position: t.sequence[t.float64] = field(default_factory=list)
+    velocity: t.sequence[t.float64] = field(default_factory=list)
+    effort: t.sequence[t.float64] = field(default_factory=list)
+
+
+@dataclass
+class Odometry(IdlStruct, typename="nav_msgs::msg::dds_::Odometry_"):
+    header: Header = field(default_factory=Header)
+    child_frame_id: str = ""
+    pose: PoseWithCovariance = field(default_factory=PoseWithCovariance)
+    twist: TwistWithCovariance = field(default_factory=TwistWithCovariance)
+
+
+@dataclass
+class Float64(IdlStruct, typename="std_msgs::msg::dds_::Float64_"):
+    data: t.float64 = 0.0
+
+
+@dataclass
+class MultiArrayDimension(IdlStruct, typename="std_msgs::msg::dds_::MultiArrayDimension_"):
+    label: str = ""
+    size: t.uint32 = 0
+    stride: t.uint32 = 0
+
+
+@dataclass
+class MultiArrayLayout(IdlStruct, typename="std_msgs::msg::dds_::MultiArrayLayout_"):
+    dim: t.sequence[MultiArrayDimension] = field(default_factory=list)
+    data_offset: t.uint32 = 0
+
+
+@dataclass
+class Float64MultiArray(IdlStruct, typename="std_msgs::msg::dds_::Float64MultiArray_"):
+    layout: MultiArrayLayout = field(default_factory=MultiArrayLayout)
+    data: t.sequence[t.float64] = field(default_factory=list)
+
+
+@dataclass
+class ObjectHypothesis(IdlStruct, typename="vision_msgs::msg::dds_::ObjectHypothesis_"):
+    class_id: str = ""
+    score: t.float64 = 0.0
+
+
+@dataclass
+class Classification(IdlStruct, typename="vision_msgs::msg::dds_::Classification_"):
+    header: Header = field(default_factory=Header)
+    results: t.sequence[ObjectHypothesis] = field(default_factory=list)
+
+
+@dataclass
+class KeyValue(IdlStruct, typename="diagnostic_msgs::msg::dds_::KeyValue_"):
+    key: str = ""
+    value: str = ""
+
+
+@dataclass
+class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticStatus_"):
+    level: t.byte = 0
+    name: str = ""
+    message: str = ""
+    hardware_id: str = ""
+    values: t.sequence[KeyValue] = field(default_factory=list)
+
+
+@dataclass
+class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::DiagnosticArray_"):
+    header: Header = field(default_factory=Header)
+    status: t.sequence[DiagnosticStatus] = field(default_factory=list)
+
+
+# the default topic map's inputs (what the simulator's MCAP carries)
+INPUTS = {"/imu": Imu, "/camera/odom/sample": Odometry, "/wheels/joint_states": JointState,
+          "/wheels/motor_current": JointState, "/cmd_vel": Twist}
+OUTPUTS = {"/terrainml/desired_slip": Float64MultiArray, "/terrainml/terrain": Classification,
+           "/diagnostics": DiagnosticArray, "/terrainml/odometry": Odometry}
+
+
+def _qos(reliable: bool) -> Qos:
+    if reliable:
+        return Qos(Policy.Reliability.Reliable(duration(milliseconds=200)), Policy.History.KeepLast(1000))
+    return Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(5))
+
+
+def _header(h, shift_ns: int) -> Header:
+    ns = h.stamp.sec * 1_000_000_000 + h.stamp.nanosec + shift_ns
+    return Header(Time(ns // 1_000_000_000, ns % 1_000_000_000), h.frame_id)
+
+
+def _vec(cls, v):
+    return cls(v.x, v.y, v.z)
+
+
+def _convert(topic: str, m, shift_ns: int):
+    """A decoded mcap_ros2 message -> this file's IDL object."""
+    if topic == "/imu":
+        return Imu(_header(m.header, shift_ns), Quaternion(m.orientation.x, m.orientation.y, m.orientation.z,
+                                                           m.orientation.w), list(m.orientation_covariance),
+                   _vec(Vector3, m.angular_velocity), list(m.angular_velocity_covariance),
+                   _vec(Vector3, m.linear_acceleration), list(m.linear_acceleration_covariance))
+    if topic == "/camera/odom/sample":
+        p, tw = m.pose.pose, m.twist.twist
+        q = p.orientation
+        return Odometry(_header(m.header, shift_ns), m.child_frame_id,
+                        PoseWithCovariance(Pose(_vec(Point, p.position), Quaternion(q.x, q.y, q.z, q.w)),
+                                           list(m.pose.covariance)),
+                        TwistWithCovariance(Twist(_vec(Vector3, tw.linear), _vec(Vector3, tw.angular)),
+                                            list(m.twist.covariance)))
+    if topic in ("/wheels/joint_states", "/wheels/motor_current"):
+        return JointState(_header(m.header, shift_ns), list(m.name), list(m.position), list(m.velocity),
+                          list(m.effort))
+    return Twist(_vec(Vector3, m.linear), _vec(Vector3, m.angular))
+
+
+def _wait_matched(writers: dict, timeout_s: float) -> None:
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        if all(w.get_matched_subscriptions() for w in writers.values()):
+            return
+        time.sleep(0.05)
+    print("peer: not every topic has a subscriber; publishing anyway", file=sys.stderr, flush=True)
+
+
+def publish(a) -> None:
+    from mcap_ros2.reader import read_ros2_messages
+
+    dp = DomainParticipant(a.domain)
+    types = dict(INPUTS)
+    if a.wrong_type_topic:
+        types[a.wrong_type_topic] = Float64
+    writers = {tp: DataWriter(dp, Topic(dp, "rt" + tp, cls), qos=_qos(a.reliable)) for tp, cls in types.items()}
+    print("peer: writers up", file=sys.stderr, flush=True)
+    _wait_matched(writers, a.match_timeout_s)
+    time.sleep(a.settle_s)
+    t0_log = None
+    t0_wall = time.monotonic()
+    held: list = []
+    imu_prev = None
+    n = 0
+    for rec in read_ros2_messages(a.mcap, topics=list(INPUTS)):
+        topic = rec.channel.topic
+        if t0_log is None:
+            t0_log = rec.log_time_ns
+        rel_s = (rec.log_time_ns - t0_log) * 1e-9
+        if a.stop_topic == topic and rel_s >= a.stop_at_s:
+            continue
+        shift = int(a.jump_s * 1e9) if a.jump_at_s is not None and rel_s >= a.jump_at_s else 0
+        if a.wrong_type_topic == topic:
+            msg = Float64(1.0)
+        else:
+            msg = _convert(topic, rec.ros_msg, shift)
+        item = (writers[topic], msg, rec.log_time_ns + shift)
+        if a.swap_every and topic == "/imu":
+            n_imu = getattr(publish, "_n_imu", 0) + 1
+            publish._n_imu = n_imu
+            if imu_prev is None and n_imu % a.swap_every == 0:
+                imu_prev = item
+                continue
+            if imu_prev is not None:
+                held += [item, imu_prev]
+                imu_prev = None
+                item = None
+        if item is not None:
+            held.append(item)
+        burst = a.burst_every and (n % (a.burst_every * 6) != 0)
+        if burst:
+            n += 1
+            continue
+        if a.speed > 0:
+            delay = rel_s / a.speed - (time.monotonic() - t0_wall)
+            if delay > 0:
+                time.sleep(delay)
+        for w, m, ts in held:
+            w.write(m, timestamp=ts)
+        held = []
+        n += 1
+    for w, m, ts in held:
+        w.write(m, timestamp=ts)
+    time.sleep(a.linger_s)
+    print(f"peer: published {n} messages", file=sys.stderr, flush=True)
+
+
+def _out_row(topic: str, m) -> dict:
+    if topic == "/terrainml/desired_slip":
+        return {"data": list(m.data), "dims": [(d.label, d.size, d.stride) for d in m.layout.dim]}
+    if topic == "/terrainml/terrain":
+        return {"stamp_ns": m.header.stamp.sec * 10**9 + m.header.stamp.nanosec,
+                "results": [(r.class_id, r.score) for r in m.results]}
+    if topic == "/diagnostics":
+        st = m.status[0]
+        return {"stamp_ns": m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, "level": st.level,
+                "name": st.name, "message": st.message, "values": {kv.key: kv.value for kv in st.values}}
+    tw = m.twist.twist
+    return {"stamp_ns": m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, "frame": m.header.frame_id,
+            "child": m.child_frame_id, "vx": tw.linear.x, "vy": tw.linear.y, "wz": tw.angular.z,
+            "cov": list(m.twist.covariance)}
+
+
+def listen(a) -> None:
+    dp = DomainParticipant(a.domain)
+    readers = {tp: DataReader(dp, Topic(dp, "rt" + tp, cls), qos=_qos(True)) for tp, cls in OUTPUTS.items()}
+    t_start = last = time.monotonic()
+    got = False
+    with open(a.out, "w") as fh:
+        print("listener: up", file=sys.stderr, flush=True)
+        while True:
+            n = 0
+            for tp, r in readers.items():
+                for m in r.take(500):
+                    if not getattr(getattr(m, "sample_info", None), "valid_data", True):
+                        continue   # a writer going away (dispose / unregister)
+                    fh.write(json.dumps({"topic": tp, **_out_row(tp, m)}) + "\n")
+                    n += 1
+            now = time.monotonic()
+            if n:
+                last, got = now, True
+                fh.flush()
+            if (got and now - last > a.idle_s) or now - t_start > a.max_s:
+                break
+            time.sleep(0.005)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("mode", choices=["publish", "listen"])
+    ap.add_argument("--domain", type=int, required=True)
+    ap.add_argument("--mcap")
+    ap.add_argument("--out")
+    ap.add_argument("--reliable", action="store_true")
+    ap.add_argument("--speed", type=float, default=1.0)
+    ap.add_argument("--match-timeout-s", type=float, default=60.0)
+    ap.add_argument("--settle-s", type=float, default=0.5)
+    ap.add_argument("--linger-s", type=float, default=1.0)
+    ap.add_argument("--stop-topic")
+    ap.add_argument("--stop-at-s", type=float, default=0.0)
+    ap.add_argument("--wrong-type-topic")
+    ap.add_argument("--jump-at-s", type=float)
+    ap.add_argument("--jump-s", type=float, default=0.0)
+    ap.add_argument("--swap-every", type=int, default=0)
+    ap.add_argument("--burst-every", type=int, default=0)
+    ap.add_argument("--idle-s", type=float, default=5.0)
+    ap.add_argument("--max-s", type=float, default=300.0)
+    a = ap.parse_args()
+    publish(a) if a.mode == "publish" else listen(a)
+
+
+if __name__ == "__main__":
+    main()
