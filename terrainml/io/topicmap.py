@@ -21,7 +21,10 @@ Format (see ``terrainml/io/topicmaps/default.yaml`` and docs/io.md)::
 Kinds: ``imu`` (IMU group, mount-rotated), ``t265_odometry`` (cam group, :mod:`terrainml.io.t265`),
 ``joint_state`` (any columns from named joints' position/velocity/effort), ``twist`` (cmd group),
 ``label`` (terrain), ``ground_truth`` (gt_* pose/twist), ``diff_drive_odometry`` (wheel speeds of a
-skid/differential robot from its body twist). For CSV/Parquet inputs a map may instead give
+skid/differential robot from its body twist), ``body_odometry`` (a REP 105 odometry -- twist in the
+body frame, e.g. robot_localization's ``/odometry/filtered`` -- as the body-velocity reference: the
+camera group's ``cam_*`` columns, read through the robot spec's ``camera`` mount, which for a body
+frame odometry sits at the origin; a spec without ``camera`` does not use it). For CSV/Parquet inputs a map may instead give
 ``time_column``, ``time_scale`` (to seconds) and ``columns: {file_column: canonical_column}``.
 """
 
@@ -39,13 +42,14 @@ KINDS = {
     "t265_odometry": ("odometry",),
     "ground_truth": ("odometry",),
     "diff_drive_odometry": ("odometry",),
+    "body_odometry": ("odometry",),
     "joint_state": ("joint_state",),
     "twist": ("twist",),
     "label": ("scalar",),
 }
 FIELDS = ("position", "velocity", "effort")
 TWIST_FIELDS = ("linear.x", "linear.y", "linear.z", "angular.x", "angular.y", "angular.z")
-BUILTIN_MAPS = ("default", "husky_robot_localization")
+BUILTIN_MAPS = ("default", "husky_robot_localization", "husky_ros2")
 
 
 class TopicMapError(ValueError):

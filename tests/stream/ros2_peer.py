@@ -228,7 +228,8 @@ def _wait_matched(writers: dict, timeout_s: float) -> None:
 
 
 def publish(a) -> None:
-    from mcap_ros2.reader import read_ros2_messages
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
 
     dp = DomainParticipant(a.domain)
     types = dict(INPUTS)
@@ -243,19 +244,21 @@ def publish(a) -> None:
     held: list = []
     imu_prev = None
     n = 0
-    for rec in read_ros2_messages(a.mcap, topics=list(INPUTS)):
-        topic = rec.channel.topic
+    fh = open(a.mcap, "rb")
+    reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+    for _, channel, rec, ros_msg in reader.iter_decoded_messages(topics=list(INPUTS), log_time_order=True):
+        topic = channel.topic
         if t0_log is None:
-            t0_log = rec.log_time_ns
-        rel_s = (rec.log_time_ns - t0_log) * 1e-9
+            t0_log = rec.log_time
+        rel_s = (rec.log_time - t0_log) * 1e-9
         if a.stop_topic == topic and rel_s >= a.stop_at_s:
             continue
         shift = int(a.jump_s * 1e9) if a.jump_at_s is not None and rel_s >= a.jump_at_s else 0
         if a.wrong_type_topic == topic:
             msg = Float64(1.0)
         else:
-            msg = _convert(topic, rec.ros_msg, shift)
-        item = (writers[topic], msg, rec.log_time_ns + shift)
+            msg = _convert(topic, ros_msg, shift)
+        item = (writers[topic], msg, rec.log_time + shift)
         if a.swap_every and topic == "/imu":
             n_imu = getattr(publish, "_n_imu", 0) + 1
             publish._n_imu = n_imu

@@ -125,6 +125,11 @@ def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap
         add("gt_vx_mps", part["linear"][:, 0])
         add("gt_vy_mps", part["linear"][:, 1])
         add("gt_yaw_rate_radps", part["angular"][:, 2])
+    elif kind == "body_odometry":   # REP 105: twist in the child (body) frame; yaw of the odom pose
+        add("cam_vx_mps", part["linear"][:, 0])
+        add("cam_vy_mps", part["linear"][:, 1])
+        add("cam_yaw_rate_radps", part["angular"][:, 2])
+        add("cam_yaw_rad", _yaw_of(part["orientation"], 1e-9), "angle")
     elif kind == "diff_drive_odometry":
         v, w = part["linear"][:, 0], part["angular"][:, 2]
         track = 2.0 * float(np.mean([abs(wh.y_m) for wh in robot.wheels]))

@@ -27,12 +27,14 @@ What a whole log tells ingest and a live stream cannot know, and how the aligner
 * **end**: :meth:`LiveAligner.finish` ends the grid at the last stamp, as ingest ends it at the
   log's last message.
 
-Clock jumps: a message stamped more than ``max_gap_s`` (the clock policy's G, 1 s) away from the
-stream's latest stamp is off the timeline and held; ``reanchor_after`` (K, 5) consistent ones with
-no on-timeline message in between start a new timeline there: the old one is finished and the
-grid continues at the new stamps (same time origin), so the predictor sees the jump in ``t_s`` and
-applies its clock policy (:mod:`terrainml.stream.clock`). Off-timeline messages that an
-on-timeline one interrupts (one publisher with a wild clock) are dropped and counted.
+Clock jumps: a message stamped more than ``max_gap_s`` (the clock policy's G, 1 s) away from its
+own topic's last stamp (a topic new to the timeline: from the stream's latest stamp) is off the
+timeline and held -- per topic, so one topic's backlog delivered after another's is never taken
+for a jump. ``reanchor_after`` (K, 5) consistent held messages from two topics or more start a new
+timeline there: the old one is finished and the grid continues at the new stamps (same time
+origin), so the predictor sees the jump in ``t_s`` and applies its clock policy
+(:mod:`terrainml.stream.clock`). Held messages are dropped and counted when their topic comes back
+on its timeline (one publisher with a wild clock), and so are the old timeline's stragglers.
 """
 
 from __future__ import annotations
@@ -176,8 +178,10 @@ class LiveAligner:
         self._plan: Plan | None = None
         self._prod: Producer | None = None
         self._sink = _Collect()
-        self._cand: list[tuple[str, dict]] = []
+        self._cand: dict[str, list[tuple[str, dict]]] = {}
         self._latest_ns: int | None = None
+        self._last: dict[str, int] = {}      # per topic: last stamp on the current timeline
+        self._old: dict[str, int] = {}       # ... on the previous one (its stragglers are dropped)
 
     # ------------------------------------------------------------------ public
     @property
@@ -277,26 +281,41 @@ class LiveAligner:
                 log.warning("%s: topic %s: message stamped %.3f s arrived after its tick was served "
                             "(%d late so far)", self.name, topic, (t - self._plan.t0_ns) * 1e-9, n)
         self._latest_ns = t if self._latest_ns is None else max(self._latest_ns, t)
+        self._last[topic] = max(self._last.get(topic, t), t)
         self._prod.on_part(topic, part)
 
+    def _drop(self, cand: list[tuple[str, dict]], why: str) -> None:
+        for c_topic, _ in cand:
+            self.counters.bump(self.counters.off_timeline, c_topic)
+        if cand:
+            log.warning("%s: %d message(s) off the timeline dropped (%s)", self.name, len(cand), why)
+
     def _timeline(self, topic: str, part: dict) -> None:
-        """On the timeline: fed; off it: held as a candidate new timeline (clock policy)."""
+        """On the timeline: fed; off it: held as a candidate new timeline (clock policy).
+
+        A message is on the timeline when it is within G of its own topic's last stamp (a topic
+        new to the timeline: of the latest stamp), so one topic's backlog delivered after another's
+        is never a jump. A candidate timeline is confirmed by K consistent messages from two topics
+        or more (one publisher with a wild clock is dropped, counted), and ended by a message of
+        one of its topics back on the old timeline."""
         t = int(part["t_ns"][0])
-        if self._latest_ns is None or abs(t - self._latest_ns) <= self.max_gap_ns:
-            if self._cand:
-                for c_topic, _ in self._cand:
-                    self.counters.bump(self.counters.off_timeline, c_topic)
-                log.warning("%s: %d message(s) off the timeline dropped (a publisher's clock jumped?)",
-                            self.name, len(self._cand))
-                self._cand = []
+        g = self.max_gap_ns
+        last = self._last.get(topic)
+        ref = last if last is not None else self._latest_ns
+        if ref is None or abs(t - ref) <= g:
+            self._drop(self._cand.pop(topic, []), f"topic {topic} back on its timeline")
             self._feed(topic, part)
             return
-        if self._cand and abs(t - int(self._cand[-1][1]["t_ns"][0])) > self.max_gap_ns:
-            for c_topic, _ in self._cand:
-                self.counters.bump(self.counters.off_timeline, c_topic)
-            self._cand = []
-        self._cand.append((topic, part))
-        if len(self._cand) >= self.reanchor_after:
+        if last is None and topic in self._old and abs(t - self._old[topic]) <= g:
+            self.counters.bump(self.counters.late, topic)    # a straggler of the previous timeline
+            return
+        held = [p for ps in self._cand.values() for _, p in ps]
+        if held and abs(t - max(int(p["t_ns"][0]) for p in held)) > g:
+            self._drop([c for ps in self._cand.values() for c in ps], "inconsistent stamps")
+            self._cand = {}
+        self._cand.setdefault(topic, []).append((topic, part))
+        n = sum(len(ps) for ps in self._cand.values())
+        if n >= self.reanchor_after and len(self._cand) >= min(2, max(len(self._last), 1)):
             self._new_timeline()
 
     def _end_timeline(self) -> None:
@@ -308,15 +327,17 @@ class LiveAligner:
 
     def _new_timeline(self) -> None:
         """K consistent off-timeline messages: finish the old timeline, start one at their stamps."""
-        cand, self._cand = self._cand, []
+        cand = sorted((c for ps in self._cand.values() for c in ps), key=lambda c: int(c[1]["t_ns"][0]))
+        self._cand = {}
         self._end_timeline()
-        first = min(int(p["t_ns"][0]) for _, p in cand)
+        first = int(cand[0][1]["t_ns"][0])
         log.warning("%s: clock jump: stamps moved %.3f s; a new timeline starts there", self.name,
                     (first - self._latest_ns) * 1e-9)
         self._plan = _fresh(self._plan)
         self._prod = Producer(self._plan, self.tmap, self.robot, self.rate_hz, 1, self._sink, None)
         self._prod.next_tick = int(math.ceil((first - self._plan.t0_ns) * 1e-9 * self.rate_hz - 1e-6))
         self._latest_ns = None
+        self._old, self._last = self._last, {}
         self.counters.timelines += 1
         for topic, part in cand:
             self._feed(topic, part)
