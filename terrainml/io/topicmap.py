@@ -24,7 +24,8 @@ Kinds: ``imu`` (IMU group, mount-rotated), ``t265_odometry`` (cam group, :mod:`t
 skid/differential robot from its body twist), ``body_odometry`` (a REP 105 odometry -- twist in the
 body frame, e.g. robot_localization's ``/odometry/filtered`` -- as the body-velocity reference: the
 camera group's ``cam_*`` columns, read through the robot spec's ``camera`` mount, which for a body
-frame odometry sits at the origin; a spec without ``camera`` does not use it). For CSV/Parquet inputs a map may instead give
+frame odometry sits at the origin; a spec without ``camera`` does not use it). For CSV/Parquet inputs
+a map may instead give
 ``time_column``, ``time_scale`` (to seconds) and ``columns: {file_column: canonical_column}``.
 """
 
