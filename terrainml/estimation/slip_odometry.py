@@ -21,9 +21,10 @@ SAE sign, ``s = (v_ang - v_long) / max(|v_ang|, |v_long|)``):
 Covariance grows with slip and its uncertainty: the longitudinal sigma of a wheel is
 ``sqrt(SIGMA_ENC_MPS^2 + (|v_ang_i| sigma_s_i)^2)`` with the slip's own uncertainty
 ``sigma_s_i^2 = SIGMA_SLIP0^2 + (KAPPA_SLIP s_i)^2 + var_i``, ``var_i`` the slip's variance over
-the last ``SLIP_TAU_S`` (exponential). The constants were set on the simulator's dry-sand and
-short-grass runs of seeds 11 and 12 (not the test's evaluation seeds): 2-sigma covers the body-speed
-error on >= 90% of moving ticks. With no slip estimate (``slip=None``) this is raw wheel odometry
+the last ``SLIP_TAU_S`` (exponential). The constants were set on the simulator's dry-sand runs
+of seeds 11 and 12 (straight, omni, mixed, stop and go; not the test's evaluation seeds 5 and 6):
+2-sigma covers the body-speed error on >= 90% of moving ticks. With no slip estimate (``slip=None``)
+this is raw wheel odometry
 with the slip terms as uncertainty only. The pose is the twist integrated (midpoint yaw); its
 covariance grows by the twist covariance times dt^2 per tick (never shrinks: wheels do not
 observe the pose).
