@@ -43,14 +43,14 @@ INPUT_TYPES = {"/imu": "Imu", "/camera/odom/sample": "Odometry", "/wheels/joint_
 
 
 def _model(tmp: str) -> str:
-    """A small SVM from the `make demo` chain (1 simulated run per class, 30 s)."""
+    """A small SVM from the `make demo` chain (2 simulated runs per class, 20 s)."""
     from terrainml.pipeline.dataset import build_dataset
     from terrainml.pipeline.train import train
     from terrainml.robot import load_robot
     from terrainml.sim.generate import generate_dataset
 
     logs = os.path.join(tmp, "logs")
-    generate_dataset(logs, 1, seed=2024, n_jobs=1, duration_s=30.0, fmt="parquet")
+    generate_dataset(logs, 2, seed=2024, n_jobs=1, duration_s=20.0, fmt="parquet")
     ds = build_dataset(logs, load_robot(), n_jobs=1)
     out = os.path.join(tmp, "model")
     train(ds, out, models=("svm",), folds=2, seed=0, n_jobs=1, ablation=False)
@@ -265,8 +265,8 @@ def run(quick: bool = False) -> str:
         f"Machine: {machine_description()} (2 cores shared with other jobs while this ran: wall-clock "
         "latencies, the p99 most, are pessimistic). A "
         f"{duration_s:.0f} s simulated 100 Hz drive (dry sand, straight; IMU, wheel joints, motor currents "
-        "and cmd_vel at 100 Hz, T265 odometry at 200 Hz), paced at its log times; SVM trained here on 1 "
-        f"simulated run per class ({t_model:.0f} s). Method: `benchmarks/bench_ros2.py` docstring (ROS 2 "
+        "and cmd_vel at 100 Hz, T265 odometry at 200 Hz), paced at its log times; SVM trained here on 2 "
+        f"simulated runs of 20 s per class ({t_model:.0f} s). Method: `benchmarks/bench_ros2.py` docstring (ROS 2 "
         "latency from the publication of the last message a tick needed; UDP from sending the tick's sample).",
         "",
         *rows,

@@ -175,15 +175,18 @@ def test_bursts_are_served_whole_and_equal(model_dir, sand_log, offline, tmp_pat
 
 def test_type_mismatch_is_refused_at_start_naming_topic_and_types(model_dir, sand_log, tmp_path):
     domain = _domain()
-    peer = _publish(domain, sand_log, tmp_path, "--wrong-type-topic", "/imu", "--match-timeout-s", "20",
-                    "--speed", "0")
-    peer.wait_for("writers up")
-    pred = _predict(model_dir, domain, tmp_path, "discovery_s=10")
-    assert pred.finish() == 2
+    # the peer waits for subscribers on every topic (its /imu never matches) until killed
+    peer = _publish(domain, sand_log, tmp_path, "--wrong-type-topic", "/imu", "--match-timeout-s", "600")
+    try:
+        peer.wait_for("writers up")
+        pred = _predict(model_dir, domain, tmp_path, "discovery_s=10")
+        assert pred.finish() == 2
+    finally:
+        peer.p.kill()
+        peer.finish()
     err = pred.err.read_text()
     assert "/imu" in err and "std_msgs/msg/Float64" in err and "sensor_msgs/msg/Imu" in err
     assert pred.lines() == []
-    peer.finish()
 
 
 def test_no_publisher_warns_and_serves_nothing(model_dir, tmp_path):

@@ -163,18 +163,22 @@ def _take(subs: list[_Sub], use_header: bool, aligner: LiveAligner, spec: str) -
     """Every waiting message of every reader into the aligner; returns how many."""
     n = 0
     for sub in subs:
-        for msg in sub.reader.take(TAKE_MAX):
-            info = getattr(msg, "sample_info", None)
-            if info is not None and not info.valid_data:
-                continue
-            log_ns = int(info.source_timestamp) if info is not None else time.time_ns()
-            try:
-                part = cdr.from_object(sub.src.decode_kind, msg, log_ns, use_header)
-            except cdr.LayoutError as exc:
-                log.warning("%s: topic %s: message skipped (%s)", spec, sub.src.topic, exc)
-                continue
-            aligner.add(sub.src.topic, part)
-            n += 1
+        while True:   # every reader emptied before the aligner decides a tick (a stall is not a lag)
+            batch = sub.reader.take(TAKE_MAX)
+            for msg in batch:
+                info = getattr(msg, "sample_info", None)
+                if info is not None and not info.valid_data:
+                    continue
+                log_ns = int(info.source_timestamp) if info is not None else time.time_ns()
+                try:
+                    part = cdr.from_object(sub.src.decode_kind, msg, log_ns, use_header)
+                except cdr.LayoutError as exc:
+                    log.warning("%s: topic %s: message skipped (%s)", spec, sub.src.topic, exc)
+                    continue
+                aligner.add(sub.src.topic, part)
+                n += 1
+            if len(batch) < TAKE_MAX:
+                break
     return n
 
 
