@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from terrainml.io.ingest_signals import SourceFacts, signals_for
+from terrainml.io.ingest.signals import SourceFacts, signals_for
 from terrainml.io.topicmap import load_topic_map
 from terrainml.robot import load_robot
 

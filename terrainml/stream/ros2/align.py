@@ -3,8 +3,8 @@
 A live transport (the ROS 2 source) hands decoded messages -- the parts of
 :mod:`terrainml.io.cdr`, made by :func:`terrainml.io.cdr.from_object`, the decoder ingest uses for
 deserialised messages -- to :class:`LiveAligner`, which turns them into base-rate samples with
-the engine of MCAP ingest (:mod:`terrainml.io.ingest_engine`): its scan and plan on a warm-up
-window, then its chunk :class:`~terrainml.io.ingest_engine.Producer` one tick at a time. Stamps,
+the engine of MCAP ingest (:mod:`terrainml.io.ingest.logs`): its scan and plan on a warm-up
+window, then its chunk :class:`~terrainml.io.ingest.logs.Producer` one tick at a time. Stamps,
 units, frames, IMU mount, T265 lever arm, resampling, gap rule and validity are therefore those of
 ``terrainml ingest`` on a recording of the same messages, and so are the samples: a tick is emitted
 once every source is *settled* past it (its next message is known, or an unseen one could no
@@ -48,7 +48,8 @@ from typing import Any
 
 import pandas as pd
 
-from terrainml.io.ingest_engine import Buffer, IngestReport, Plan, Producer, Scan, plan
+from terrainml.io.ingest.logs import Buffer, Plan, Producer, Scan, plan
+from terrainml.io.ingest.report import IngestReport
 from terrainml.io.topicmap import TopicMap
 from terrainml.robot import RobotSpec
 from terrainml.schema import DEFAULT_RATE_HZ
