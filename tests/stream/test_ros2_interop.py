@@ -206,11 +206,19 @@ def test_stale_publisher_is_flagged_within_the_sensor_timeout(model_dir, sand_lo
     assert all(m["fallback_reason"] != "estimator_unhealthy" for m in served if 1.0 <= m["t_s"] < 3.9)
 
 
-def test_out_of_order_stamps_are_counted_late_like_the_udp_source(model_dir, sand_log, offline, tmp_path):
+def test_out_of_order_stamps_are_reordered_or_counted_late(model_dir, sand_log, offline, tmp_path):
+    """Every 50th pair of IMU messages published in reverse order (10 ms apart, inside the
+    aligner's 50 ms reorder window): the two usually arrive together and are put back in stamp
+    order, so the slip served equals the offline replay's; a pair split across a decided tick is
+    counted late on /imu (as the UDP source counts late samples) and never served retroactively."""
     pred = _serve(model_dir, sand_log, tmp_path, "--swap-every", "50")
     served = pred.lines()
     assert [m["t_s"] for m in served] == [m["t_s"] for m in offline]   # every tick still served once
-    assert "late messages {'/imu':" in pred.err.read_text()
+    err = pred.err.read_text()
+    late = err.split("late messages ", 1)[1].split(",", 1)[0] if "late messages " in err else "{}"
+    assert late in ("{}", "0") or late.startswith("{'/imu':")              # only the swapped topic is ever late
+    same = sum(a["slip_desired"] == b["slip_desired"] for a, b in zip(offline, served))
+    assert same >= 0.98 * len(offline)
 
 
 def test_clock_jump_goes_through_the_clock_policy(model_dir, sand_log, tmp_path):
