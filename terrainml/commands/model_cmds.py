@@ -67,6 +67,9 @@ def train(
     robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec when building from logs."),
     fmt: str = typer.Option("auto", "--format", help="auto or borealtc (when --data is a folder)."),
     ablation: bool = typer.Option(True, "--ablation/--no-ablation", help="SVM feature-set ablation."),
+    members: bool = typer.Option(True, "--members/--no-members", help="Also train, the same way, members "
+                                 "for the sensor subsets without IMU and without currents (members/NAME in "
+                                 "the folder); serving uses the best one whose sensors are healthy."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
     """Cross-validate (grouped by run), train, report and save a terrain classifier.
@@ -115,6 +118,10 @@ def train(
 
             res = do_train(ds, out, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=ablation,
                            progress=say)
+            names = []
+            if members and sensors is None:
+                names = _train_members(out, ds, data, kinds, folds=folds, seed=seed, n_jobs=n_jobs,
+                                       robot=robot, preset=preset, fmt=fmt, spec=spec, say=say)
     except typer.Exit:
         raise
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
@@ -133,6 +140,34 @@ def train(
                       "n/a" if not dse else f"{dse['mean']:.4f}", f"{r['latency']['p50_ms']:.2f}")
         console.print(t)
         console.print(f"[green]wrote[/] {out} (served model: {res.default_model}; report {out / 'report.md'})",
+                      highlight=False)
+        _print_members(out, names)
+
+
+def _train_members(out: Path, ds, data: Path, kinds, *, folds: int, seed: int, n_jobs: int, robot, preset: str,
+                   fmt: str, spec, say) -> list[str]:
+    """The folder's sensor members, each trained like its model (windows rebuilt from logs per subset)."""
+    from terrainml.pipeline.members import subset_dataset, train_members
+    from terrainml.pipeline.train import train as do_train
+
+    def fit(subset, folder):
+        sub = (subset_dataset(ds, subset) if is_windows_file(data) else
+               _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=None, fmt=fmt,
+                          quiet=True, spec=spec, sensors=subset))
+        do_train(sub, folder, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=False, progress=say)
+
+    return train_members(out, ds.sensors, fit, progress=say)
+
+
+def _print_members(out: Path, names) -> None:
+    if not names:
+        return
+    doc = json.loads((out / "manifest.json").read_text())
+    for m in doc.get("sensor_members", []):
+        bacc = m.get("balanced_accuracy")
+        console.print(f"member {m['name']}: sensors {','.join(m['sensors'] or [])}, served model "
+                      f"{m['default_model']}, grouped CV balanced accuracy "
+                      f"{'n/a' if bacc is None else f'{bacc:.3f}'} ({out / m['path'] / 'report.md'})",
                       highlight=False)
 
 

@@ -44,12 +44,13 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.features.windows import WindowSpec
 from terrainml.lookup.policy import TargetTable
 from terrainml.robot import RobotSpec
-from terrainml.stream.classify import load_serving_model
+from terrainml.stream.classify import ServingMember, load_serving_model
 from terrainml.stream.clock import ACCEPT, JUMP, REANCHOR, ClockGate
 from terrainml.stream.config import ServingConfig
 from terrainml.stream.estimate import WheelRow, warm_up
 from terrainml.stream.fusion import TerrainFilter, confirm_windows_for
 from terrainml.stream.health import HealthMonitor, InputCounters
+from terrainml.stream.members import Candidate, MemberSwitch, candidate
 from terrainml.stream.message import DesiredSlip
 from terrainml.stream.odometer import Odometer
 from terrainml.stream.policy import PolicyDecision, ServingPolicy
@@ -89,13 +90,16 @@ class Predictor:
     sensors : sensor groups the model needs (health is checked on these; None: all the robot's).
     config : :class:`~terrainml.stream.config.ServingConfig` (fallback rules, fusion, clock
         policy, classification thread, EKF preset); default ``ServingConfig()``.
+    members : the model's sensor members (:class:`~terrainml.stream.classify.ServingMember`, best
+        first): when a group the model needs is silent, the best member whose groups are all
+        fresh classifies (:mod:`terrainml.stream.members`); the message's ``sensors`` says which.
     """
 
     def __init__(self, robot: RobotSpec, table: TargetTable,
                  classifier: WindowClassifierLike | None = None,
                  estimator: Estimator | None = None, *, window_spec: WindowSpec | None = None,
                  class_names: Sequence[str] = TERRAIN_CLASSES, sensors: Sequence[str] | None = None,
-                 config: ServingConfig | None = None):
+                 config: ServingConfig | None = None, members: Sequence[ServingMember] = ()):
         cfg = config or ServingConfig()
         preset = cfg.preset or "robust"
         self.robot, self.table, self.classifier, self.config = robot, table, classifier, cfg
@@ -118,9 +122,18 @@ class Predictor:
         self.health = HealthMonitor(robot, silent_s=cfg.silent_s, sensors=sensors)
         self.health.counters = self.counters
         self.sensors = None if sensors is None else list(sensors)
-        self._estimator_flag = "imu" in self.health.monitored
+        mon = self.health.monitored
+        self.switch = MemberSwitch([candidate("model", classifier, self.window_spec, sensors, mon),
+                                    *(candidate(m.name, m.classifier, m.window_spec, m.sensors, mon)
+                                      for m in members)])
+        self._estimator_flag = "imu" in self.switch.active.groups
+        #: sensor groups of the model (or member) serving the ticks (the message's ``sensors``)
+        self.served_sensors = list(self.switch.active.sensors)
+        # (rule, odometer m) of the last windows_rejected warning of this stretch without a class
+        self._warned: tuple[str, float] | None = None
         self.odometer = Odometer(robot.has_steering or self._estimator_flag)
-        self.wheels = WheelRow(robot.n_wheels, getattr(classifier, "raw_columns", ()) or ())
+        self.wheels = WheelRow(robot.n_wheels, tuple(dict.fromkeys(
+            c for m in self.switch.candidates for c in getattr(m.classifier, "raw_columns", ()) or ())))
         self.n = robot.n_wheels
         self.seq = 0
         self.n_estimator_errors = 0
@@ -134,9 +147,12 @@ class Predictor:
         self.filter = TerrainFilter(len(ids), stale_m=cfg.stale_m, **fusion)
         self.policy = ServingPolicy(table, ids, self.class_names, serve_p=cfg.serve_p,
                                     max_age_s=cfg.max_age_s)
-        self.ring = RingBuffer(self.window_spec.n_samples)
+        _check_members(ids, members)
+        # one ring for the model and its members: the longest window; each cuts its own newest rows
+        self.ring = RingBuffer(max(c.window_spec.n_samples for c in self.switch.candidates))
         self.scheduler = ClassificationScheduler(classifier, self.ring, self.filter, hop_s,
                                                  cfg.classify_lag_ticks, len(ids))
+        self.scheduler.n_samples = self.window_spec.n_samples
         if warm:
             warm_up(robot, preset)
 
@@ -155,7 +171,8 @@ class Predictor:
         cfg = config or ServingConfig()
         return cls(served.robot, served.table, served.classifier,
                    window_spec=served.window_spec, class_names=served.class_names,
-                   sensors=served.sensors, config=replace(cfg, preset=cfg.preset or served.preset))
+                   sensors=served.sensors, config=replace(cfg, preset=cfg.preset or served.preset),
+                   members=served.members)
 
     @property
     def odometer_m(self) -> float:
@@ -207,7 +224,13 @@ class Predictor:
         elif verdict != ACCEPT:
             return None
         clean, fresh = self.health.sanitise(sample)  # type: ignore[arg-type]
-        healthy, _silent = self.health.update(t, fresh)
+        healthy, silent = self.health.update(t, fresh)
+        if self.switch.has_members:  # the best of the model and its members whose groups are fresh
+            chosen = self.switch.choose(silent)
+            if chosen is not None:
+                self._serve_with(chosen, silent, t)
+            healthy = self.switch.healthy(silent)
+            self.switch.ticks[self.switch.active.name] += 1
 
         row = self._estimate(clean)
         est_ok = healthy and row is not None and (bool(row.get("estimator_ok", True)) or not self._estimator_flag)
@@ -222,6 +245,10 @@ class Predictor:
                 log.warning("estimator row unreadable at t=%.3f s: %s", t, exc)
                 slips, states, v_long = self.wheels.idle()
                 est_ok = False
+            if not self._estimator_flag:
+                # the EKF's own flag needs a fresh IMU; a model without it reads the body channels
+                # of its windows as valid on the ticks that are healthy on its own groups
+                row["estimator_ok"] = est_ok
             self.ring.append(row)
         self._last_states, self._last_v_long = states, v_long
         d_m = self.odometer.advance(t, row if est_ok else None)
@@ -231,8 +258,38 @@ class Predictor:
         self.scheduler.tick(t, self.odometer.distance_m)
 
         age = None if self.scheduler.class_t is None else t - self.scheduler.class_t
-        return self._message(t, self._decide(age, est_ok, states, v_long, t), slips, states, age,
-                             est_ok, t_start)
+        rejected = self._rejected_by(t) if est_ok else None
+        return self._message(t, self._decide(age, est_ok, states, v_long, t, rejected_by=rejected),
+                             slips, states, age, est_ok, t_start)
+
+    def _serve_with(self, c: Candidate, silent: Sequence[str], t: float) -> None:
+        """Classify with the model or member ``c`` from this tick on (its groups are fresh)."""
+        self.scheduler.use(c.classifier, c.window_spec.online_hop_s, c.window_spec.n_samples)
+        self._estimator_flag = "imu" in c.groups
+        self.odometer.lateral_observed = self.robot.has_steering or self._estimator_flag
+        self.served_sensors = list(c.sensors)
+        n = self.switch.switches
+        if n <= 5 or n % 100 == 0:
+            log.warning("t=%.2f s: serving %s on sensors %s%s (switch %d)", t,
+                        "the model" if c.name == "model" else f"member {c.name!r}", ",".join(c.sensors),
+                        f"; silent: {','.join(silent)}" if silent else "", n)
+
+    def _rejected_by(self, t: float) -> str | None:
+        """The rule rejecting every window past ``warn_after_m`` without a class; warns once per stretch."""
+        d = self.odometer.distance_m
+        why = self.scheduler.silence(d, self.config.warn_after_m)
+        if why is None:
+            self._warned = None
+        elif self._warned is None or (why != self._warned[0]
+                                      and d - self._warned[1] > self.config.warn_after_m):
+            self._warned = (why, d)  # once per stretch; again only for another rule, further on
+            sch = self.scheduler
+            moved = self.odometer.distance_m - (sch.odo_at_class or 0.0)
+            counts = ", ".join(f"{r} {n}" for r, n in sch.rules_since.most_common())
+            log.warning("no classification over %.1f m travelled (t=%.1f s, healthy): every window "
+                        "is rejected, most by the window rule %r; rejections since the last "
+                        "classification: %s", moved, t, why, counts)
+        return why
 
     def _clock_jump_tick(self, t: float, t_start: float) -> DesiredSlip:
         """A stamp off the timeline: the fallback row for the last estimated wheel states.
@@ -248,10 +305,11 @@ class Predictor:
         return self.policy.safe_cap_traction()
 
     def _decide(self, age: float | None, est_ok: bool, states: list[str], v_long: list[float],
-                t: float, clock_jump: bool = False) -> PolicyDecision:
+                t: float, clock_jump: bool = False, rejected_by: str | None = None) -> PolicyDecision:
         return self.policy.decide(self.filter, estimator_ok=est_ok,
                                   classifier_error=self.scheduler.error, age_s=age, states=states,
-                                  v_long=v_long, clock_jump=clock_jump, t_s=t)
+                                  v_long=v_long, clock_jump=clock_jump, t_s=t,
+                                  rejected_by=rejected_by)
 
     def _message(self, t: float, dec: PolicyDecision, slips: list[float], states: list[str],
                  age: float | None, est_ok: bool, t_start: float) -> DesiredSlip:
@@ -262,6 +320,7 @@ class Predictor:
             class_probabilities=self._full_probs(len(self.class_names)),
             classification_age_s=-1.0 if age is None else float(age),
             fallback=dec.fallback, fallback_reason=dec.reason, estimator_ok=est_ok,
+            fallback_detail=dec.detail, sensors=list(self.served_sensors),
         )
         self.seq += 1
         msg.processing_ms = (time.perf_counter() - t_start) * 1e3
@@ -309,7 +368,17 @@ class Predictor:
         return {**self.counters.as_dict(), "emitted": self.seq,
                 "classifications": sch.n_classifications, "classifier_errors": sch.n_errors,
                 "unsteady_windows": sch.n_unsteady, "estimator_errors": self.n_estimator_errors,
+                "rejections": dict(sch.rejections), "rejected_channels": dict(sch.rejected_channels),
+                "member_ticks": dict(self.switch.ticks), "member_switches": self.switch.switches,
                 "distance_m": self.odometer.distance_m, "terrain_changes": self.filter.n_changes}
+
+
+def _check_members(ids: Sequence[int], members: Sequence[ServingMember]) -> None:
+    """Members classify the model's classes (the fusion and the policy read one set of ids)."""
+    for m in members:
+        own = [int(c) for c in m.classifier.class_ids]
+        if own != list(ids):
+            raise ValueError(f"member {m.name!r} classifies class ids {own}, the model {list(ids)}")
 
 
 def _one_spec(window_spec: WindowSpec | None, classifier: Any) -> WindowSpec:
