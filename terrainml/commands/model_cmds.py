@@ -84,9 +84,6 @@ def train(
 
     Example (from logs, both models): ``terrainml train --data data/sim --model all --out runs/all``
     """
-    from terrainml.commands.dataset_cmds import parse_sensors
-    from terrainml.pipeline.train import train as do_train
-
     auto, kinds, spec = _train_mode(data, model, windows)
     if folds < 2:
         fail("--folds must be >= 2")
@@ -99,8 +96,19 @@ def train(
     if auto:
         _train_auto(data, out, model=model, windows=windows, sensors=sensors, folds=folds, seed=seed,
                     n_jobs=n_jobs, preset=preset, robot=robot, fmt=fmt, budget_min=budget_min,
-                    allow_unproven=allow_unproven, replay_s=replay_s, quiet=quiet)
+                    allow_unproven=allow_unproven, replay_s=replay_s, members=members, quiet=quiet)
         return
+    _train_fixed(data, out, kinds, spec, sensors=sensors, folds=folds, seed=seed, n_jobs=n_jobs,
+                 dask_address=dask_address, preset=preset, robot=robot, fmt=fmt, ablation=ablation,
+                 members=members, quiet=quiet)
+
+
+def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, seed: int, n_jobs: int,
+                 dask_address, preset: str, robot, fmt: str, ablation: bool, members: bool, quiet: bool) -> None:
+    """``train`` with the model kinds and window spec given (no selection)."""
+    from terrainml.commands.dataset_cmds import parse_sensors
+    from terrainml.pipeline.train import train as do_train
+
     try:
         ds = _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=dask_address,
                         fmt=fmt, quiet=quiet, spec=spec, sensors=parse_sensors(sensors))
@@ -228,7 +236,7 @@ def _load_tables(data: Path, *, robot, fmt: str, quiet: bool):
 
 def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, folds: int, seed: int, n_jobs: int,
                 preset: str, robot, fmt: str, budget_min: float, allow_unproven: bool, replay_s: float,
-                quiet: bool) -> None:
+                members: bool, quiet: bool) -> None:
     """``train`` selecting the window spec and the model (``--windows auto`` / ``--model auto``)."""
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
@@ -257,6 +265,10 @@ def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, fol
                              budget_min=budget_min, preset=preset, sensors=parse_sensors(sensors),
                              allow_unproven=allow_unproven, segment_s=replay_s, datasets=datasets,
                              progress=say)
+            names = []
+            if members and sensors is None and tables is not None:
+                names = _auto_members(out, res, tables, rb, folds=folds, seed=seed, n_jobs=n_jobs,
+                                      preset=preset, replay_s=replay_s, say=say)
     except typer.Exit:
         raise
     except ReplayRefused as exc:
@@ -265,6 +277,28 @@ def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, fol
         fail(f"{data}: {type(exc).__name__}: {exc}")
     if not quiet:
         _print_selection(res, out)
+        _print_members(out, names)
+
+
+def _auto_members(out: Path, res, tables, rb, *, folds: int, seed: int, n_jobs: int, preset: str,
+                  replay_s: float, say) -> list[str]:
+    """The sensor members of a selected model: the chosen window spec and model trained again on
+    each subset of its sensor groups, under the same nested CV and served replay; a member whose
+    replay refuses it is not saved (the folder then serves without it)."""
+    from terrainml.pipeline.autotrain import ReplayRefused, train_auto
+    from terrainml.pipeline.members import train_members
+
+    chosen = res.selection.chosen
+
+    def fit(subset, folder):
+        try:
+            train_auto(tables, rb, folder, specs=[chosen.spec], models=[chosen.model], folds=folds, seed=seed,
+                       n_jobs=n_jobs, budget_min=None, preset=preset, sensors=subset, segment_s=replay_s,
+                       progress=say)
+        except ReplayRefused as exc:
+            raise ValueError(f"its served replay refuses it: {exc}") from None
+
+    return train_members(out, res.train.dataset_summary["sensors"], fit, progress=say)
 
 
 def _print_selection(res, out: Path) -> None:

@@ -268,3 +268,14 @@ def _members(art: Any, robot: RobotSpec, class_ids: Sequence[int]) -> list[Servi
                     ServingMember(str(entry["name"]), clf, m.window_spec,
                                   None if m.sensors is None else list(m.sensors))))
     return [m for *_, m in sorted(out, key=lambda e: e[:2])]
+
+
+def one_window_spec(window_spec: WindowSpec | None, classifier: Any) -> WindowSpec:
+    """The one window spec of serving: the given one, else the classifier's, else the default."""
+    own = getattr(classifier, "window_spec", None)
+    if window_spec is None:
+        return own if own is not None else WindowSpec()
+    if own is not None and own != window_spec:
+        raise ValueError(f"the classifier cuts windows of {own!r} but the predictor was given "
+                         f"{window_spec!r}: serving takes one window spec")
+    return window_spec

@@ -15,6 +15,7 @@ filter: they classify the same classes, so a switch keeps the fused probabilitie
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from dataclasses import dataclass
 from typing import Any, Sequence
@@ -22,7 +23,9 @@ from typing import Any, Sequence
 from terrainml.features.windows import WindowSpec
 from terrainml.stream.health import SENSOR_TO_GROUP
 
-__all__ = ["Candidate", "MemberSwitch", "candidate"]
+log = logging.getLogger("terrainml.stream")
+
+__all__ = ["Candidate", "MemberSwitch", "candidate", "check_members"]
 
 
 @dataclass(frozen=True)
@@ -92,3 +95,19 @@ class MemberSwitch:
     def healthy(self, silent: Sequence[str]) -> bool:
         """Whether every group the active candidate needs is fresh."""
         return not self.active.groups & set(silent)
+
+    def announce(self, c: Candidate, silent: Sequence[str], t: float) -> None:
+        """Warn that ``c`` serves from ``t`` on (the first 5 switches, then every 100th)."""
+        n = self.switches
+        if n <= 5 or n % 100 == 0:
+            log.warning("t=%.2f s: serving %s on sensors %s%s (switch %d)", t,
+                        "the model" if c.name == "model" else f"member {c.name!r}", ",".join(c.sensors),
+                        f"; silent: {','.join(silent)}" if silent else "", n)
+
+
+def check_members(ids: Sequence[int], names: Sequence[str], member_ids: Sequence[Sequence[int]]) -> None:
+    """Members classify the model's classes (the fusion and the policy read one set of ids)."""
+    for name, own in zip(names, member_ids):
+        own = [int(c) for c in own]
+        if own != list(ids):
+            raise ValueError(f"member {name!r} classifies class ids {own}, the model {list(ids)}")

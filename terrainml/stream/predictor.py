@@ -44,19 +44,19 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.features.windows import WindowSpec
 from terrainml.lookup.policy import TargetTable
 from terrainml.robot import RobotSpec
-from terrainml.stream.classify import ServingMember, load_serving_model
+from terrainml.stream.classify import ServingMember, load_serving_model, one_window_spec
 from terrainml.stream.clock import ACCEPT, JUMP, REANCHOR, ClockGate
 from terrainml.stream.config import ServingConfig
 from terrainml.stream.estimate import WheelRow, warm_up
 from terrainml.stream.fusion import TerrainFilter, confirm_windows_for
 from terrainml.stream.health import HealthMonitor, InputCounters
-from terrainml.stream.members import Candidate, MemberSwitch, candidate
+from terrainml.stream.members import Candidate, MemberSwitch, candidate, check_members
 from terrainml.stream.message import DesiredSlip
 from terrainml.stream.odometer import Odometer
 from terrainml.stream.policy import PolicyDecision, ServingPolicy
 from terrainml.stream.ring import RingBuffer
 from terrainml.stream.sample import InvalidSample, check_sample
-from terrainml.stream.scheduler import ClassificationScheduler, WindowClassifierLike
+from terrainml.stream.scheduler import ClassificationScheduler, SilenceWatch, WindowClassifierLike
 
 __all__ = ["InvalidSample", "Predictor"]
 
@@ -103,7 +103,7 @@ class Predictor:
         cfg = config or ServingConfig()
         preset = cfg.preset or "robust"
         self.robot, self.table, self.classifier, self.config = robot, table, classifier, cfg
-        self.window_spec = _one_spec(window_spec, classifier)
+        self.window_spec = one_window_spec(window_spec, classifier)
         warm = estimator is None
         # a re-anchored stream needs a fresh estimator: build one the same way
         self._estimator_factory: Callable[[], Estimator] | None = None
@@ -115,10 +115,8 @@ class Predictor:
         self.counters = InputCounters()
         self.clock = ClockGate(self.counters, max_gap_s=cfg.max_clock_gap_s,
                                reanchor_after=cfg.reanchor_after)
-        # health only on the model's sensor groups (design §9, issue #17): a robot without IMU
-        # is served by a model that does not use it; the EKF's own freshness rule requires the
-        # IMU, so without it the estimator's flag is not read (a silent group, or a state that
-        # is not finite, still makes the tick unhealthy)
+        # health only on the model's sensor groups (design §9): a model without IMU does not read the
+        # EKF's flag, whose freshness rule needs the IMU (a silent group still makes a tick unhealthy)
         self.health = HealthMonitor(robot, silent_s=cfg.silent_s, sensors=sensors)
         self.health.counters = self.counters
         self.sensors = None if sensors is None else list(sensors)
@@ -129,8 +127,6 @@ class Predictor:
         self._estimator_flag = "imu" in self.switch.active.groups
         #: sensor groups of the model (or member) serving the ticks (the message's ``sensors``)
         self.served_sensors = list(self.switch.active.sensors)
-        # (rule, odometer m) of the last windows_rejected warning of this stretch without a class
-        self._warned: tuple[str, float] | None = None
         self.odometer = Odometer(robot.has_steering or self._estimator_flag)
         self.wheels = WheelRow(robot.n_wheels, tuple(dict.fromkeys(
             c for m in self.switch.candidates for c in getattr(m.classifier, "raw_columns", ()) or ())))
@@ -147,12 +143,13 @@ class Predictor:
         self.filter = TerrainFilter(len(ids), stale_m=cfg.stale_m, **fusion)
         self.policy = ServingPolicy(table, ids, self.class_names, serve_p=cfg.serve_p,
                                     max_age_s=cfg.max_age_s)
-        _check_members(ids, members)
+        check_members(ids, [m.name for m in members], [m.classifier.class_ids for m in members])
         # one ring for the model and its members: the longest window; each cuts its own newest rows
         self.ring = RingBuffer(max(c.window_spec.n_samples for c in self.switch.candidates))
         self.scheduler = ClassificationScheduler(classifier, self.ring, self.filter, hop_s,
                                                  cfg.classify_lag_ticks, len(ids))
         self.scheduler.n_samples = self.window_spec.n_samples
+        self.silence = SilenceWatch(self.scheduler, cfg.warn_after_m)
         if warm:
             warm_up(robot, preset)
 
@@ -258,7 +255,7 @@ class Predictor:
         self.scheduler.tick(t, self.odometer.distance_m)
 
         age = None if self.scheduler.class_t is None else t - self.scheduler.class_t
-        rejected = self._rejected_by(t) if est_ok else None
+        rejected = self.silence.check(t, self.odometer.distance_m) if est_ok else None
         return self._message(t, self._decide(age, est_ok, states, v_long, t, rejected_by=rejected),
                              slips, states, age, est_ok, t_start)
 
@@ -268,28 +265,7 @@ class Predictor:
         self._estimator_flag = "imu" in c.groups
         self.odometer.lateral_observed = self.robot.has_steering or self._estimator_flag
         self.served_sensors = list(c.sensors)
-        n = self.switch.switches
-        if n <= 5 or n % 100 == 0:
-            log.warning("t=%.2f s: serving %s on sensors %s%s (switch %d)", t,
-                        "the model" if c.name == "model" else f"member {c.name!r}", ",".join(c.sensors),
-                        f"; silent: {','.join(silent)}" if silent else "", n)
-
-    def _rejected_by(self, t: float) -> str | None:
-        """The rule rejecting every window past ``warn_after_m`` without a class; warns once per stretch."""
-        d = self.odometer.distance_m
-        why = self.scheduler.silence(d, self.config.warn_after_m)
-        if why is None:
-            self._warned = None
-        elif self._warned is None or (why != self._warned[0]
-                                      and d - self._warned[1] > self.config.warn_after_m):
-            self._warned = (why, d)  # once per stretch; again only for another rule, further on
-            sch = self.scheduler
-            moved = self.odometer.distance_m - (sch.odo_at_class or 0.0)
-            counts = ", ".join(f"{r} {n}" for r, n in sch.rules_since.most_common())
-            log.warning("no classification over %.1f m travelled (t=%.1f s, healthy): every window "
-                        "is rejected, most by the window rule %r; rejections since the last "
-                        "classification: %s", moved, t, why, counts)
-        return why
+        self.switch.announce(c, silent, t)
 
     def _clock_jump_tick(self, t: float, t_start: float) -> DesiredSlip:
         """A stamp off the timeline: the fallback row for the last estimated wheel states.
@@ -371,22 +347,3 @@ class Predictor:
                 "rejections": dict(sch.rejections), "rejected_channels": dict(sch.rejected_channels),
                 "member_ticks": dict(self.switch.ticks), "member_switches": self.switch.switches,
                 "distance_m": self.odometer.distance_m, "terrain_changes": self.filter.n_changes}
-
-
-def _check_members(ids: Sequence[int], members: Sequence[ServingMember]) -> None:
-    """Members classify the model's classes (the fusion and the policy read one set of ids)."""
-    for m in members:
-        own = [int(c) for c in m.classifier.class_ids]
-        if own != list(ids):
-            raise ValueError(f"member {m.name!r} classifies class ids {own}, the model {list(ids)}")
-
-
-def _one_spec(window_spec: WindowSpec | None, classifier: Any) -> WindowSpec:
-    """The one window spec of serving: the given one, else the classifier's, else the default."""
-    own = getattr(classifier, "window_spec", None)
-    if window_spec is None:
-        return own if own is not None else WindowSpec()
-    if own is not None and own != window_spec:
-        raise ValueError(f"the classifier cuts windows of {own!r} but the predictor was given "
-                         f"{window_spec!r}: serving takes one window spec")
-    return window_spec

@@ -31,7 +31,7 @@ import pandas as pd
 from terrainml.stream.fusion import TerrainFilter
 from terrainml.stream.ring import RingBuffer, is_label
 
-__all__ = ["MIN_MOVE_M", "ClassificationScheduler", "WindowClassifierLike"]
+__all__ = ["MIN_MOVE_M", "ClassificationScheduler", "SilenceWatch", "WindowClassifierLike"]
 
 log = logging.getLogger("terrainml.stream")
 
@@ -233,3 +233,31 @@ class ClassificationScheduler:
         self.class_t = None
         self.error = True
         self.fused.reset()
+
+
+class SilenceWatch:
+    """The live warning of ``predict`` that no window is classified (issue #28 §4).
+
+    :meth:`check` returns the rule rejecting every window once the robot has moved more than
+    ``warn_after_m`` (m, healthy ticks) without a classification
+    (:meth:`ClassificationScheduler.silence`) and warns once per such stretch, again only for
+    another rule and further on.
+    """
+
+    def __init__(self, scheduler: ClassificationScheduler, warn_after_m: float):
+        self.scheduler, self.warn_after_m = scheduler, float(warn_after_m)
+        self._warned: tuple[str, float] | None = None  # (rule, odometer m) of the last warning
+
+    def check(self, t: float, odometer_m: float) -> str | None:
+        """The rejecting rule (the served message's ``fallback_detail``) at ``t`` (s), or None."""
+        sch, d = self.scheduler, odometer_m
+        why = sch.silence(d, self.warn_after_m)
+        if why is None:
+            self._warned = None
+        elif self._warned is None or (why != self._warned[0] and d - self._warned[1] > self.warn_after_m):
+            self._warned = (why, d)
+            counts = ", ".join(f"{r} {n}" for r, n in sch.rules_since.most_common())
+            log.warning("no classification over %.1f m travelled (t=%.1f s, healthy): every window "
+                        "is rejected, most by the window rule %r; rejections since the last "
+                        "classification: %s", d - (sch.odo_at_class or 0.0), t, why, counts)
+        return why
