@@ -67,6 +67,9 @@ def train(
     robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec when building from logs."),
     fmt: str = typer.Option("auto", "--format", help="auto or borealtc (when --data is a folder)."),
     ablation: bool = typer.Option(True, "--ablation/--no-ablation", help="SVM feature-set ablation."),
+    members: bool = typer.Option(True, "--members/--no-members", help="Also train, the same way, members "
+                                 "for the sensor subsets without IMU and without currents (members/NAME in "
+                                 "the folder); serving uses the best one whose sensors are healthy."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
     """Cross-validate (grouped by run), train, report and save a terrain classifier.
@@ -81,9 +84,6 @@ def train(
 
     Example (from logs, both models): ``terrainml train --data data/sim --model all --out runs/all``
     """
-    from terrainml.commands.dataset_cmds import parse_sensors
-    from terrainml.pipeline.train import train as do_train
-
     auto, kinds, spec = _train_mode(data, model, windows)
     if folds < 2:
         fail("--folds must be >= 2")
@@ -96,8 +96,19 @@ def train(
     if auto:
         _train_auto(data, out, model=model, windows=windows, sensors=sensors, folds=folds, seed=seed,
                     n_jobs=n_jobs, preset=preset, robot=robot, fmt=fmt, budget_min=budget_min,
-                    allow_unproven=allow_unproven, replay_s=replay_s, quiet=quiet)
+                    allow_unproven=allow_unproven, replay_s=replay_s, members=members, quiet=quiet)
         return
+    _train_fixed(data, out, kinds, spec, sensors=sensors, folds=folds, seed=seed, n_jobs=n_jobs,
+                 dask_address=dask_address, preset=preset, robot=robot, fmt=fmt, ablation=ablation,
+                 members=members, quiet=quiet)
+
+
+def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, seed: int, n_jobs: int,
+                 dask_address, preset: str, robot, fmt: str, ablation: bool, members: bool, quiet: bool) -> None:
+    """``train`` with the model kinds and window spec given (no selection)."""
+    from terrainml.commands.dataset_cmds import parse_sensors
+    from terrainml.pipeline.train import train as do_train
+
     try:
         ds = _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=dask_address,
                         fmt=fmt, quiet=quiet, spec=spec, sensors=parse_sensors(sensors))
@@ -115,6 +126,10 @@ def train(
 
             res = do_train(ds, out, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=ablation,
                            progress=say)
+            names = []
+            if members and sensors is None:
+                names = _train_members(out, ds, data, kinds, folds=folds, seed=seed, n_jobs=n_jobs,
+                                       robot=robot, preset=preset, fmt=fmt, spec=spec, say=say)
     except typer.Exit:
         raise
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
@@ -133,6 +148,34 @@ def train(
                       "n/a" if not dse else f"{dse['mean']:.4f}", f"{r['latency']['p50_ms']:.2f}")
         console.print(t)
         console.print(f"[green]wrote[/] {out} (served model: {res.default_model}; report {out / 'report.md'})",
+                      highlight=False)
+        _print_members(out, names)
+
+
+def _train_members(out: Path, ds, data: Path, kinds, *, folds: int, seed: int, n_jobs: int, robot, preset: str,
+                   fmt: str, spec, say) -> list[str]:
+    """The folder's sensor members, each trained like its model (windows rebuilt from logs per subset)."""
+    from terrainml.pipeline.members import subset_dataset, train_members
+    from terrainml.pipeline.train import train as do_train
+
+    def fit(subset, folder):
+        sub = (subset_dataset(ds, subset) if is_windows_file(data) else
+               _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=None, fmt=fmt,
+                          quiet=True, spec=spec, sensors=subset))
+        do_train(sub, folder, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=False, progress=say)
+
+    return train_members(out, ds.sensors, fit, progress=say)
+
+
+def _print_members(out: Path, names) -> None:
+    if not names:
+        return
+    doc = json.loads((out / "manifest.json").read_text())
+    for m in doc.get("sensor_members", []):
+        bacc = m.get("balanced_accuracy")
+        console.print(f"member {m['name']}: sensors {','.join(m['sensors'] or [])}, served model "
+                      f"{m['default_model']}, grouped CV balanced accuracy "
+                      f"{'n/a' if bacc is None else f'{bacc:.3f}'} ({out / m['path'] / 'report.md'})",
                       highlight=False)
 
 
@@ -193,7 +236,7 @@ def _load_tables(data: Path, *, robot, fmt: str, quiet: bool):
 
 def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, folds: int, seed: int, n_jobs: int,
                 preset: str, robot, fmt: str, budget_min: float, allow_unproven: bool, replay_s: float,
-                quiet: bool) -> None:
+                members: bool, quiet: bool) -> None:
     """``train`` selecting the window spec and the model (``--windows auto`` / ``--model auto``)."""
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
@@ -222,6 +265,10 @@ def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, fol
                              budget_min=budget_min, preset=preset, sensors=parse_sensors(sensors),
                              allow_unproven=allow_unproven, segment_s=replay_s, datasets=datasets,
                              progress=say)
+            names = []
+            if members and sensors is None and tables is not None:
+                names = _auto_members(out, res, tables, rb, folds=folds, seed=seed, n_jobs=n_jobs,
+                                      preset=preset, replay_s=replay_s, say=say)
     except typer.Exit:
         raise
     except ReplayRefused as exc:
@@ -230,6 +277,28 @@ def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, fol
         fail(f"{data}: {type(exc).__name__}: {exc}")
     if not quiet:
         _print_selection(res, out)
+        _print_members(out, names)
+
+
+def _auto_members(out: Path, res, tables, rb, *, folds: int, seed: int, n_jobs: int, preset: str,
+                  replay_s: float, say) -> list[str]:
+    """The sensor members of a selected model: the chosen window spec and model trained again on
+    each subset of its sensor groups, under the same nested CV and served replay; a member whose
+    replay refuses it is not saved (the folder then serves without it)."""
+    from terrainml.pipeline.autotrain import ReplayRefused, train_auto
+    from terrainml.pipeline.members import train_members
+
+    chosen = res.selection.chosen
+
+    def fit(subset, folder):
+        try:
+            train_auto(tables, rb, folder, specs=[chosen.spec], models=[chosen.model], folds=folds, seed=seed,
+                       n_jobs=n_jobs, budget_min=None, preset=preset, sensors=subset, segment_s=replay_s,
+                       progress=say)
+        except ReplayRefused as exc:
+            raise ValueError(f"its served replay refuses it: {exc}") from None
+
+    return train_members(out, res.train.dataset_summary["sensors"], fit, progress=say)
 
 
 def _print_selection(res, out: Path) -> None:

@@ -631,7 +631,9 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec,
     -------
     windows : Windows, the kept windows (X shape (n_kept, C, T)).
     counts : dict, ``n_windows`` (candidates), ``n_kept``, ``n_rejected`` and per rule of
-        :data:`RULES` the number of candidate windows that rule rejected.
+        :data:`RULES` the number of candidate windows that rule rejected; ``invalid_channels``:
+        {channel: windows rejected by ``channel_valid`` because that channel was valid on too
+        few ticks} (the serving warning names them).
     """
     spec = spec or WindowSpec()
     channels = spec.channels_for(robot)
@@ -639,13 +641,15 @@ def cut_windows(est: pd.DataFrame | Mapping[str, np.ndarray], robot: RobotSpec,
     n = cols.n
     T = spec.n_samples
     starts = _window_starts(n, T, spec.hop_samples(online), online)
-    counts = {"n_windows": int(len(starts)), "n_kept": 0, "n_rejected": 0}
+    counts: dict[str, Any] = {"n_windows": int(len(starts)), "n_kept": 0, "n_rejected": 0}
     counts.update({r: 0 for r in RULES})
+    counts["invalid_channels"] = {}
     C = len(channels)
     if len(starts) == 0:
         return Windows(np.zeros((0, C, T)), channels, _empty_meta() if with_meta else None,
                        spec.rate_hz), counts
     rows = _RowArrays(cols, robot, spec, channels)
+    counts["invalid_channels"] = rows.bad
     X_kept, meta_rows = [], []
     for s in starts:
         fails, labels = rows.fails(int(s), T)
@@ -698,6 +702,8 @@ class _RowArrays:
         self.ax, self.ay = ax, ay
         self.speed = np.hypot(vx, vy)
         self.active = spec.active_rules
+        self.channels = channels
+        self.bad: dict[str, int] = {}  # channel -> candidate windows it made fail channel_valid
         # a share of ticks is never below 0: with min_steady_fraction <= 0 (``short``) the wheel-state
         # rule cannot reject a window, so the state columns are not read at all
         self.check_states = "wheel_state" in self.active and spec.min_steady_fraction > 0
@@ -776,8 +782,13 @@ class _RowArrays:
                     fails.append("terrain_label")
         vw = self.valid[:, s:e]
         self._all_valid = bool(vw.all())
-        if self.C and not self._all_valid and np.any(vw.mean(axis=1) < spec.min_valid_fraction):
-            fails.append("channel_valid")
+        if self.C and not self._all_valid:
+            low = vw.mean(axis=1) < spec.min_valid_fraction
+            if low.any():
+                fails.append("channel_valid")
+                if "channel_valid" in self.active:  # which channels: the one rule that can name them
+                    for k in np.flatnonzero(low):
+                        self.bad[self.channels[k]] = self.bad.get(self.channels[k], 0) + 1
         if spec.rules is not None:
             fails = [f for f in fails if f in self.active]
         return fails, labels

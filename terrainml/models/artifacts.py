@@ -25,6 +25,12 @@ sha256. Then the SVM is loaded with ``skops.io.load`` after checking
 unknown type refuses), the CNN through safetensors + JSON. Nothing is unpickled. Every refusal
 raises :class:`ArtifactError` with a message naming the file.
 
+Sensor members (issue #28): a folder may hold, under ``members/NAME/``, complete model folders
+of its own trained on subsets of its sensor groups (without IMU, without currents); the
+manifest lists them under ``sensor_members`` (:func:`attach_members`) with their sensors, window
+spec and manifest hash, and hashes their files like any other. Serving switches to the best
+member whose groups are healthy (:mod:`terrainml.stream.predictor`).
+
 The hashes prove integrity, not origin. With ``trusted_keys``, :func:`load_artifact` first checks
 the ed25519 signature ``manifest.sig`` (:mod:`terrainml.models.signing`; not listed in the
 manifest, which it signs) and raises :class:`SignatureError` naming the folder.
@@ -57,6 +63,7 @@ from terrainml.models.signing import (MANIFEST_NAME, SIGNATURE_NAME, PublicKeyLi
 from terrainml.robot import RobotSpec
 
 __all__ = ["ArtifactError", "Artifact", "save_artifact", "load_artifact", "verify_artifact",
+           "attach_members", "load_members", "MEMBERS_DIR",
            "read_manifest", "write_manifest", "ALLOWED_SKOPS_TYPES", "MANIFEST_NAME", "SCHEMA",
            "SCHEMA_VERSION", "SIGNATURE_NAME", "SignatureError", "json_safe"]
 
@@ -280,8 +287,10 @@ def write_manifest(directory: str | Path, doc: dict | None = None) -> dict:
     doc = {k: v for k, v in doc.items() if k not in ("files", "manifest_sha256")}
     files = {}
     for p in sorted(directory.rglob("*")):
-        if p.is_file() and p.name not in (MANIFEST_NAME, SIGNATURE_NAME):
-            rel = p.relative_to(directory).as_posix()
+        rel = p.relative_to(directory).as_posix()
+        # the folder's own manifest and signature only: a sensor member's manifest is a file
+        # of this folder like any other (hashed, so signing this manifest covers the members)
+        if p.is_file() and rel not in (MANIFEST_NAME, SIGNATURE_NAME):
             files[rel] = {"sha256": sha256_file(p), "bytes": p.stat().st_size}
     doc["files"] = files
     doc = json_safe(doc)
@@ -384,6 +393,66 @@ def verify_artifact(directory: str | Path) -> dict:
     return doc
 
 
+# ---------------------------------------------------------------------------- sensor members
+#: sub-folder of a model folder that holds its sensor members, one model folder each
+MEMBERS_DIR = "members"
+
+
+def attach_members(directory: str | Path, names: Sequence[str]) -> dict:
+    """List the sensor members ``directory/members/NAME`` in the folder's manifest; rewrite it.
+
+    A sensor member (design §9, issue #28) is a complete model folder of its own (written by
+    the same training as the folder's model, on a subset of its sensor groups) inside
+    ``members/``. The manifest's ``sensor_members`` gets one entry per member, in the order
+    given: ``name``, ``path``, ``sensors``, ``window_spec``, ``channels``, ``feature_family``,
+    ``default_model``, its CV ``balanced_accuracy`` and its manifest's ``manifest_sha256``; its
+    files are hashed into this manifest like every other file, so one signature covers all.
+
+    Raises ArtifactError (naming the member's manifest) when a member does not verify, or has
+    other classes or another robot than the folder's model.
+    """
+    directory = Path(directory)
+    doc = read_manifest(directory)
+    entries = []
+    for name in names:
+        rel = f"{MEMBERS_DIR}/{name}"
+        mdoc = verify_artifact(directory / rel)
+        where = directory / rel / MANIFEST_NAME
+        for key in ("classes", "class_names"):
+            if mdoc.get(key) != doc.get(key):
+                raise ArtifactError(f"{where}: member {key} {mdoc.get(key)} differ from the model's {doc.get(key)}")
+        if mdoc["robot"].get("sha256") != doc["robot"].get("sha256"):
+            raise ArtifactError(f"{where}: member trained for another robot spec than the model's")
+        default = mdoc["default_model"]
+        bacc = (mdoc.get("metrics_summary", {}).get(default, {}).get("balanced_accuracy") or {}).get("mean")
+        entries.append({"name": str(name), "path": rel, "sensors": mdoc.get("sensors"),
+                        "window_spec": mdoc["window_spec"], "channels": mdoc.get("channels"),
+                        "feature_family": mdoc.get("feature_family"), "default_model": default,
+                        "balanced_accuracy": bacc, "manifest_sha256": mdoc["manifest_sha256"]})
+    doc["sensor_members"] = entries
+    return write_manifest(directory, doc)
+
+
+def load_members(directory: str | Path, doc: dict) -> list["Artifact"]:
+    """The sensor members listed in a verified manifest ``doc``, each verified and loaded.
+
+    Their files were checked against ``doc`` already (:func:`verify_artifact`); a member's own
+    manifest must also be the one ``doc`` lists (``manifest_sha256``), else ArtifactError.
+    """
+    directory = Path(directory)
+    out = []
+    for entry in doc.get("sensor_members") or []:
+        sub = directory / str(entry.get("path", ""))
+        if Path(str(entry.get("path", ""))).parts[:1] != (MEMBERS_DIR,) or ".." in Path(str(entry["path"])).parts:
+            raise ArtifactError(f"{directory / MANIFEST_NAME}: member path {entry.get('path')!r} is not under "
+                                f"{MEMBERS_DIR}/")
+        art = load_artifact(sub)
+        if art.manifest.get("manifest_sha256") != entry.get("manifest_sha256"):
+            raise ArtifactError(f"{sub / MANIFEST_NAME}: not the member manifest the model folder lists")
+        out.append(art)
+    return out
+
+
 def _load_skops(path: Path) -> Any:
     try:
         untrusted = sio.get_untrusted_types(file=path)
@@ -432,6 +501,8 @@ class Artifact:
     sensors: list | None = None
     feature_family: str | None = None
     novelty: NoveltyScorer | None = None
+    #: sensor members (:func:`load_members`), loaded by ``load_artifact(..., members=True)``
+    members: list = field(default_factory=list)
 
 
 def _load_novelty(directory: Path, doc: dict, name: str, model: Any) -> NoveltyScorer | None:
@@ -494,8 +565,11 @@ def _calibrated(mpath: Path, name: str, entry: dict, model: Any) -> Any:
 
 
 def load_artifact(directory: str | Path, model: str | None = None, *,
-                  trusted_keys: Sequence[PublicKeyLike] | None = None) -> Artifact:
+                  trusted_keys: Sequence[PublicKeyLike] | None = None, members: bool = False) -> Artifact:
     """Verify a model folder and load one model (default: the manifest's ``default_model``).
+
+    ``members``: also load its sensor members (:func:`load_members`, each its own default model)
+    into :attr:`Artifact.members`.
 
     ``trusted_keys`` (public keys: ``KEY.pub`` paths or loaded keys): the manifest must also be
     signed by one of them (:mod:`terrainml.models.signing`), checked first. None: not checked.
@@ -536,4 +610,5 @@ def load_artifact(directory: str | Path, model: str | None = None, *,
                     list(doc.get("class_names", [])), list(doc.get("channels", [])),
                     doc.get("preset", "robust"), sensors=doc.get("sensors"),
                     feature_family=doc.get("feature_family"),
-                    novelty=_load_novelty(directory, doc, name, clf))
+                    novelty=_load_novelty(directory, doc, name, clf),
+                    members=load_members(directory, doc) if members else [])

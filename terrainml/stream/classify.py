@@ -5,7 +5,9 @@ out like the offline EST table), cuts it with :func:`terrainml.features.windows.
 (``online=True``: same steady rules and channels as training), computes the artifact's feature
 set with :class:`terrainml.features.sets.FeatureSet` and calls the model's ``predict_proba``.
 A window the steady rules reject yields ``None`` (the predictor keeps the previous
-classification, which ages towards the stale fallback).
+classification, which ages towards the stale fallback) and leaves the rules it failed, and the
+channels that were invalid, in ``last_rejection`` (a :class:`Rejection`): serving counts them per
+rule and names them when the robot moves without a classification (:mod:`terrainml.stream.scheduler`).
 
 :func:`load_serving_model` opens a verified model folder (``runs/NAME``) through
 :mod:`terrainml.models.artifacts` (hashes checked on load) and returns what the predictor needs.
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -23,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from terrainml.classes import TERRAIN_CLASSES
-from terrainml.features.windows import Windows, WindowSpec, channel_column, cut_windows
+from terrainml.features.windows import RULES, Windows, WindowSpec, channel_column, cut_windows
 from terrainml.lookup.catalogue import BUILTIN_CATALOGUES
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import load_artifact
@@ -34,6 +36,20 @@ log = logging.getLogger("terrainml.stream")
 
 class ModelLoadError(ValueError):
     """The model folder cannot be used for serving (the message names the file)."""
+
+
+@dataclass
+class ServingMember:
+    """A sensor member of a model folder (issue #28): its classifier and the groups it needs.
+
+    ``window_spec`` is the member's own (its classifier cuts it; the predictor's ring holds the
+    longest window of the model and its members).
+    """
+
+    name: str
+    classifier: "WindowClassifier"
+    window_spec: WindowSpec
+    sensors: list[str] | None
 
 
 @dataclass
@@ -52,6 +68,9 @@ class ServingModel:
     window_spec: WindowSpec
     #: sensor groups the model needs (None: every group the robot has; design §9)
     sensors: list[str] | None = None
+    #: sensor members, best first (their grouped CV balanced accuracy): served when a group
+    #: of the model is missing or unhealthy (:mod:`terrainml.stream.predictor`)
+    members: list[ServingMember] = field(default_factory=list)
 
 
 def _raw_columns(channel: str, robot: RobotSpec) -> tuple[str, ...]:
@@ -71,6 +90,27 @@ def _table_for(art: Any, robot: RobotSpec, names: Sequence[str]) -> Any:
             continue
     raise ModelLoadError(f"{art.path}: no desired-slip table for the model's classes {list(names)}; "
                          "store one with the model (build it from a terrain catalogue)")
+
+
+@dataclass(frozen=True)
+class Rejection:
+    """Why the latest online window was not classified: the window rules it failed.
+
+    Attributes
+    ----------
+    rules : names of :data:`~terrainml.features.windows.RULES` the window failed (none: the
+        buffer held no candidate window).
+    channels : channels valid on too few of its ticks (``channel_valid``), by name.
+    """
+
+    rules: tuple[str, ...]
+    channels: tuple[str, ...] = ()
+
+
+def rejection_of(counts: Mapping[str, Any]) -> Rejection:
+    """The :class:`Rejection` of one :func:`~terrainml.features.windows.cut_windows` call's counts."""
+    rules = tuple(r for r in RULES if counts.get(r, 0))
+    return Rejection(rules, tuple(sorted(counts.get("invalid_channels") or {})))
 
 
 class WindowClassifier:
@@ -100,6 +140,8 @@ class WindowClassifier:
         # gyro roll and pitch rates of the side channels): the predictor copies them into its rows
         chans = window_spec.channels or ()
         self.raw_columns = tuple(dict.fromkeys(c for ch in chans for c in _raw_columns(ch, robot)))
+        #: why the latest window was not classified (None after a classified one)
+        self.last_rejection: Rejection | None = None
 
     def classify(self, window: pd.DataFrame) -> np.ndarray | None:
         """Probabilities (K,) for the latest window of an EST DataFrame, or None."""
@@ -114,10 +156,12 @@ class WindowClassifier:
         arrays directly (no DataFrame) and the model computes only the features it uses (the
         SVM's selected columns), which keeps one update well under a millisecond.
         """
-        wins, _ = cut_windows(columns, self.robot, spec=self.window_spec, online=True,
-                              with_meta=False)
+        wins, counts = cut_windows(columns, self.robot, spec=self.window_spec, online=True,
+                                   with_meta=False)
         if len(wins) == 0:
+            self.last_rejection = rejection_of(counts)
             return None
+        self.last_rejection = None
         if len(wins) > 1:  # the latest window only
             wins = Windows(wins.X[-1:], wins.channels, None, wins.rate_hz)  # type: ignore[arg-type]
         x = self.features.transform(wins) if self.features is not None else wins
@@ -174,7 +218,7 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | None = None,
     if not model_dir.is_dir():
         raise ModelLoadError(f"{model_dir}: no such model folder (train one with `terrainml train`)")
     try:
-        art = load_artifact(model_dir, model_name, trusted_keys=trusted_keys)
+        art = load_artifact(model_dir, model_name, trusted_keys=trusted_keys, members=True)
     except Exception as exc:  # noqa: BLE001 - Artifact/SignatureError name the file; keep the message
         raise ModelLoadError(str(exc)) from None
     rb = robot if robot is not None else art.robot
@@ -207,4 +251,31 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | None = None,
     clf = WindowClassifier(art.model, rb, art.features, art.window_spec,
                            class_ids=[int(c) for c in art.model.classes_])
     return ServingModel(rb, table, clf, art.preset or "robust", names, art.window_spec,
-                        sensors=None if art.sensors is None else list(art.sensors))
+                        sensors=None if art.sensors is None else list(art.sensors),
+                        members=_members(art, rb, clf.class_ids))
+
+
+def _members(art: Any, robot: RobotSpec, class_ids: Sequence[int]) -> list[ServingMember]:
+    """The folder's sensor members for serving, best first (ModelLoadError: other class ids)."""
+    entries = art.manifest.get("sensor_members") or []
+    out = []
+    for entry, m in zip(entries, art.members):
+        clf = WindowClassifier(m.model, robot, m.features, m.window_spec,
+                               class_ids=[int(c) for c in m.model.classes_])
+        if clf.class_ids != list(class_ids):
+            raise ModelLoadError(f"{m.path}: member classes {clf.class_ids} differ from the model's {list(class_ids)}")
+        out.append((-(entry.get("balanced_accuracy") or 0.0), len(out),
+                    ServingMember(str(entry["name"]), clf, m.window_spec,
+                                  None if m.sensors is None else list(m.sensors))))
+    return [m for *_, m in sorted(out, key=lambda e: e[:2])]
+
+
+def one_window_spec(window_spec: WindowSpec | None, classifier: Any) -> WindowSpec:
+    """The one window spec of serving: the given one, else the classifier's, else the default."""
+    own = getattr(classifier, "window_spec", None)
+    if window_spec is None:
+        return own if own is not None else WindowSpec()
+    if own is not None and own != window_spec:
+        raise ValueError(f"the classifier cuts windows of {own!r} but the predictor was given "
+                         f"{window_spec!r}: serving takes one window spec")
+    return window_spec

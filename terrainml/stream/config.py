@@ -41,6 +41,10 @@ class ServingConfig:
     reanchor_after : int >= 1 (5). Consecutive consistent off-timeline samples (K) that
         re-anchor the stream on a new timeline (estimator, health, window buffer and
         classification restart).
+    warn_after_m : m (5.0). Once the robot has travelled more than this on healthy ticks with
+        no classification while the window rules reject its windows, the ticks fall back with
+        ``windows_rejected`` (the message's ``fallback_detail`` names the rule, and for
+        ``channel_valid`` the channels) and a warning on stderr says the same (issue #28).
     """
 
     preset: str | None = None
@@ -52,3 +56,4 @@ class ServingConfig:
     classify_lag_ticks: int = 0
     max_clock_gap_s: float = MAX_GAP_S
     reanchor_after: int = REANCHOR_AFTER
+    warn_after_m: float = 5.0

@@ -19,6 +19,15 @@ fallback_reason      str             "" or one of :data:`FALLBACK_REASONS`
 estimator_ok         bool            estimator healthy (no silent sensor group, finite state);
                                      false on a ``clock_jump`` tick (the estimator did not run)
 processing_ms        float, ms       wall time spent on this tick inside the predictor
+fallback_detail      str             for ``windows_rejected``: the window rule that rejected the
+                                     most windows since the last classification, with the channels
+                                     it found invalid (``"channel_valid: imu_wx"``); else ""
+sensors              str[]           sensor groups (``wheels``, ``currents``, ``imu``, ``cam``) of the
+                                     model member serving the tick: the artifact's model, or the
+                                     best member whose groups are healthy (design §11, issue #28)
+
+The last two are additions to design §11's field list (issue #28: say which sensors served and
+why the windows are rejected); a message without them (an older log) still reads.
 
 JSON never contains NaN or infinity. :meth:`DesiredSlip.to_dict` replaces any non-finite
 number by its documented safe value (:data:`SAFE_VALUES`): slips 0.0, confidence 0.0,
@@ -44,6 +53,7 @@ FALLBACK_REASONS: tuple[str, ...] = (
     "stale_classification",  # more than stale_m (default 3 m) travelled since the last classification
     "clock_jump",            # t_s off the stream's timeline, re-anchoring (stream/clock.py)
     "uncertain_classification",  # the fused posterior's maximum is below serve_p (default 0.6)
+    "windows_rejected",      # moved > warn_after_m (default 5 m) healthy, every window rejected
 )
 
 #: value substituted for a non-finite number, per field
@@ -86,6 +96,8 @@ class DesiredSlip:
     fallback_reason: str
     estimator_ok: bool
     processing_ms: float = 0.0
+    fallback_detail: str = ""
+    sensors: list[str] = field(default_factory=list)
     extra: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     # ------------------------------------------------------------------ json
@@ -108,6 +120,8 @@ class DesiredSlip:
             "fallback_reason": str(self.fallback_reason),
             "estimator_ok": bool(self.estimator_ok),
             "processing_ms": _finite(self.processing_ms, SAFE_VALUES["processing_ms"]),
+            "fallback_detail": str(self.fallback_detail),
+            "sensors": [str(g) for g in self.sensors],
         }
 
     def to_json(self) -> str:
@@ -117,7 +131,9 @@ class DesiredSlip:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "DesiredSlip":
         keys = [f for f in cls.__dataclass_fields__ if f != "extra"]
-        missing = [k for k in keys if k not in d]
+        # the fields added after design §11's list (they have defaults) may be absent
+        missing = [k for k in keys if k not in d and k not in ADDED_FIELDS]
+        keys = [k for k in keys if k in d]
         if missing:
             raise ValueError(f"DesiredSlip: missing field(s) {', '.join(missing)}")
         return cls(**{k: d[k] for k in keys})
@@ -128,6 +144,8 @@ class DesiredSlip:
 
 
 FIELD_NAMES: tuple[str, ...] = tuple(f for f in DesiredSlip.__dataclass_fields__ if f != "extra")
+#: fields added to design §11's list (issue #28): a message written before them still reads
+ADDED_FIELDS: tuple[str, ...] = ("fallback_detail", "sensors")
 
 
 def json_schema(n_wheels: int | None = None, n_classes: int | None = None) -> dict[str, Any]:
@@ -163,6 +181,9 @@ def json_schema(n_wheels: int | None = None, n_classes: int | None = None) -> di
             "fallback_reason": {"type": "string", "enum": ["", *FALLBACK_REASONS]},
             "estimator_ok": {"type": "boolean"},
             "processing_ms": {"type": "number", "description": "predictor time for this tick, ms"},
+            "fallback_detail": {"type": "string", "description": "what the fallback reason names: for "
+                                "windows_rejected the window rule (and invalid channels); else empty"},
+            "sensors": arr({"type": "string"}, None, "sensor groups of the model member serving this tick"),
         },
         "required": list(FIELD_NAMES),
     }

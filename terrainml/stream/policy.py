@@ -17,7 +17,9 @@ turns the fused posterior into what a tick serves:
 
 Reasons, by priority (:data:`FALLBACK_REASONS`): ``clock_jump`` (the tick's stamp is off the
 timeline, the chain did not run) > ``estimator_unhealthy`` > ``classifier_error`` (the last
-attempt raised, no fused class) > ``no_classification`` (none yet) > ``stale_classification``
+attempt raised, no fused class) > ``windows_rejected`` (no class, or a stale one, and every
+window rejected while the robot moved more than ``warn_after_m`` healthy: the message's
+``fallback_detail`` names the rule and channels) > ``no_classification`` (none yet) > ``stale_classification``
 (more than ``stale_m`` travelled since the last classification, or, when ``max_age_s`` is set,
 an older one) > ``uncertain_classification`` (posterior max below ``serve_p``). A table or
 policy that raises serves zero slip with the tick's reason (``classifier_error`` when none):
@@ -44,8 +46,8 @@ NO_CLASS_ID = -1        # no class served (CAN: 255)
 NO_CLASS_NAME = "none"
 SERVE_P = 0.6           # design §10: serve the fused argmax at or above this posterior
 #: the fallback reasons, highest priority first
-FALLBACK_REASONS = ("clock_jump", "estimator_unhealthy", "classifier_error", "no_classification",
-                    "stale_classification", "uncertain_classification")
+FALLBACK_REASONS = ("clock_jump", "estimator_unhealthy", "classifier_error", "windows_rejected",
+                    "no_classification", "stale_classification", "uncertain_classification")
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,7 @@ class PolicyDecision:
     slip_desired : tuple of N floats, signed per-wheel desired slip.
     fallback : True when the safe cap is served.
     reason : "" or one of :data:`FALLBACK_REASONS`.
+    detail : for ``windows_rejected``, the rule (and channels) that rejects the windows; else "".
     """
 
     class_id: int
@@ -68,6 +71,7 @@ class PolicyDecision:
     slip_desired: tuple[float, ...]
     fallback: bool
     reason: str
+    detail: str = ""
 
 
 class FusedClass(Protocol):
@@ -142,8 +146,14 @@ class ServingPolicy:
         return float(self.cap_table.safe_cap(self.cap_classes).target("traction"))
 
     def reason(self, fused: FusedClass, *, estimator_ok: bool, classifier_error: bool,
-               age_s: float | None, clock_jump: bool = False) -> str:
-        """The reason this tick cannot serve a class ("" when it can), by priority (design §11)."""
+               age_s: float | None, clock_jump: bool = False, rejected_by: str | None = None) -> str:
+        """The reason this tick cannot serve a class ("" when it can), by priority (design §11).
+
+        ``rejected_by``: the window rule that rejected every window while the robot moved more
+        than the set distance healthy (:meth:`ClassificationScheduler.silence`); with no class
+        to serve, or a stale one, the tick says so (``windows_rejected``) instead of
+        ``no_classification`` / ``stale_classification``.
+        """
         if clock_jump:
             return "clock_jump"
         if not estimator_ok:
@@ -151,35 +161,38 @@ class ServingPolicy:
         if classifier_error and fused.posterior is None:
             return "classifier_error"
         if fused.posterior is None:
-            return "no_classification"
+            return "windows_rejected" if rejected_by else "no_classification"
         if fused.stale or (self.max_age_s is not None and age_s is not None
                            and age_s > self.max_age_s):
-            return "stale_classification"
+            return "windows_rejected" if rejected_by else "stale_classification"
         if fused.best()[1] < self.serve_p:
             return "uncertain_classification"
         return ""
 
     def decide(self, fused: FusedClass, *, estimator_ok: bool, classifier_error: bool,
                age_s: float | None, states: Sequence[str], v_long: Sequence[float],
-               clock_jump: bool = False, t_s: float = math.nan) -> PolicyDecision:
+               clock_jump: bool = False, t_s: float = math.nan,
+               rejected_by: str | None = None) -> PolicyDecision:
         """What the tick serves: the fused class's targets, or the safe cap with its reason.
 
         Parameters
         ----------
         fused : the fusion filter (posterior, staleness, argmax).
-        estimator_ok, classifier_error, age_s, clock_jump : facts of the tick (:meth:`reason`).
+        estimator_ok, classifier_error, age_s, clock_jump, rejected_by : facts of the tick
+            (:meth:`reason`).
         states, v_long : N wheel states and longitudinal speeds (m/s).
         t_s : s, the tick's time (for the log line when the table fails).
         """
         reason = self.reason(fused, estimator_ok=estimator_ok, classifier_error=classifier_error,
-                             age_s=age_s, clock_jump=clock_jump)
+                             age_s=age_s, clock_jump=clock_jump, rejected_by=rejected_by)
+        detail = str(rejected_by) if reason == "windows_rejected" else ""
         try:
             k, post = fused.best()
             if reason or k < 0:
                 slip = safe_cap_per_wheel(states, v_long, self.cap_table, self.cap_classes)
                 return PolicyDecision(class_id=NO_CLASS_ID, class_name=NO_CLASS_NAME,
                                       confidence=0.0, slip_desired=tuple(slip), fallback=True,
-                                      reason=reason or "no_classification")
+                                      reason=reason or "no_classification", detail=detail)
             cid = self.class_ids[k]
             slip = desired_slip_per_wheel(cid, states, v_long, self.table)
             return PolicyDecision(class_id=cid, class_name=self.name(cid), confidence=float(post),
@@ -188,4 +201,4 @@ class ServingPolicy:
             log.warning("policy failed at t=%.3f s (serving zero slip): %s", t_s, exc)
             return PolicyDecision(class_id=NO_CLASS_ID, class_name=NO_CLASS_NAME, confidence=0.0,
                                   slip_desired=(0.0,) * len(states), fallback=True,
-                                  reason=reason or "classifier_error")
+                                  reason=reason or "classifier_error", detail=detail)

@@ -44,18 +44,19 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.features.windows import WindowSpec
 from terrainml.lookup.policy import TargetTable
 from terrainml.robot import RobotSpec
-from terrainml.stream.classify import load_serving_model
+from terrainml.stream.classify import ServingMember, load_serving_model, one_window_spec
 from terrainml.stream.clock import ACCEPT, JUMP, REANCHOR, ClockGate
 from terrainml.stream.config import ServingConfig
 from terrainml.stream.estimate import WheelRow, warm_up
 from terrainml.stream.fusion import TerrainFilter, confirm_windows_for
 from terrainml.stream.health import HealthMonitor, InputCounters
+from terrainml.stream.members import Candidate, MemberSwitch, candidate, check_members
 from terrainml.stream.message import DesiredSlip
 from terrainml.stream.odometer import Odometer
 from terrainml.stream.policy import PolicyDecision, ServingPolicy
 from terrainml.stream.ring import RingBuffer
 from terrainml.stream.sample import InvalidSample, check_sample
-from terrainml.stream.scheduler import ClassificationScheduler, WindowClassifierLike
+from terrainml.stream.scheduler import ClassificationScheduler, SilenceWatch, WindowClassifierLike
 
 __all__ = ["InvalidSample", "Predictor"]
 
@@ -89,17 +90,20 @@ class Predictor:
     sensors : sensor groups the model needs (health is checked on these; None: all the robot's).
     config : :class:`~terrainml.stream.config.ServingConfig` (fallback rules, fusion, clock
         policy, classification thread, EKF preset); default ``ServingConfig()``.
+    members : the model's sensor members (:class:`~terrainml.stream.classify.ServingMember`, best
+        first): when a group the model needs is silent, the best member whose groups are all
+        fresh classifies (:mod:`terrainml.stream.members`); the message's ``sensors`` says which.
     """
 
     def __init__(self, robot: RobotSpec, table: TargetTable,
                  classifier: WindowClassifierLike | None = None,
                  estimator: Estimator | None = None, *, window_spec: WindowSpec | None = None,
                  class_names: Sequence[str] = TERRAIN_CLASSES, sensors: Sequence[str] | None = None,
-                 config: ServingConfig | None = None):
+                 config: ServingConfig | None = None, members: Sequence[ServingMember] = ()):
         cfg = config or ServingConfig()
         preset = cfg.preset or "robust"
         self.robot, self.table, self.classifier, self.config = robot, table, classifier, cfg
-        self.window_spec = _one_spec(window_spec, classifier)
+        self.window_spec = one_window_spec(window_spec, classifier)
         warm = estimator is None
         # a re-anchored stream needs a fresh estimator: build one the same way
         self._estimator_factory: Callable[[], Estimator] | None = None
@@ -111,16 +115,21 @@ class Predictor:
         self.counters = InputCounters()
         self.clock = ClockGate(self.counters, max_gap_s=cfg.max_clock_gap_s,
                                reanchor_after=cfg.reanchor_after)
-        # health only on the model's sensor groups (design §9, issue #17): a robot without IMU
-        # is served by a model that does not use it; the EKF's own freshness rule requires the
-        # IMU, so without it the estimator's flag is not read (a silent group, or a state that
-        # is not finite, still makes the tick unhealthy)
+        # health only on the model's sensor groups (design §9): a model without IMU does not read the
+        # EKF's flag, whose freshness rule needs the IMU (a silent group still makes a tick unhealthy)
         self.health = HealthMonitor(robot, silent_s=cfg.silent_s, sensors=sensors)
         self.health.counters = self.counters
         self.sensors = None if sensors is None else list(sensors)
-        self._estimator_flag = "imu" in self.health.monitored
+        mon = self.health.monitored
+        self.switch = MemberSwitch([candidate("model", classifier, self.window_spec, sensors, mon),
+                                    *(candidate(m.name, m.classifier, m.window_spec, m.sensors, mon)
+                                      for m in members)])
+        self._estimator_flag = "imu" in self.switch.active.groups
+        #: sensor groups of the model (or member) serving the ticks (the message's ``sensors``)
+        self.served_sensors = list(self.switch.active.sensors)
         self.odometer = Odometer(robot.has_steering or self._estimator_flag)
-        self.wheels = WheelRow(robot.n_wheels, getattr(classifier, "raw_columns", ()) or ())
+        self.wheels = WheelRow(robot.n_wheels, tuple(dict.fromkeys(
+            c for m in self.switch.candidates for c in getattr(m.classifier, "raw_columns", ()) or ())))
         self.n = robot.n_wheels
         self.seq = 0
         self.n_estimator_errors = 0
@@ -134,9 +143,13 @@ class Predictor:
         self.filter = TerrainFilter(len(ids), stale_m=cfg.stale_m, **fusion)
         self.policy = ServingPolicy(table, ids, self.class_names, serve_p=cfg.serve_p,
                                     max_age_s=cfg.max_age_s)
-        self.ring = RingBuffer(self.window_spec.n_samples)
+        check_members(ids, [m.name for m in members], [m.classifier.class_ids for m in members])
+        # one ring for the model and its members: the longest window; each cuts its own newest rows
+        self.ring = RingBuffer(max(c.window_spec.n_samples for c in self.switch.candidates))
         self.scheduler = ClassificationScheduler(classifier, self.ring, self.filter, hop_s,
                                                  cfg.classify_lag_ticks, len(ids))
+        self.scheduler.n_samples = self.window_spec.n_samples
+        self.silence = SilenceWatch(self.scheduler, cfg.warn_after_m)
         if warm:
             warm_up(robot, preset)
 
@@ -155,7 +168,8 @@ class Predictor:
         cfg = config or ServingConfig()
         return cls(served.robot, served.table, served.classifier,
                    window_spec=served.window_spec, class_names=served.class_names,
-                   sensors=served.sensors, config=replace(cfg, preset=cfg.preset or served.preset))
+                   sensors=served.sensors, config=replace(cfg, preset=cfg.preset or served.preset),
+                   members=served.members)
 
     @property
     def odometer_m(self) -> float:
@@ -207,7 +221,13 @@ class Predictor:
         elif verdict != ACCEPT:
             return None
         clean, fresh = self.health.sanitise(sample)  # type: ignore[arg-type]
-        healthy, _silent = self.health.update(t, fresh)
+        healthy, silent = self.health.update(t, fresh)
+        if self.switch.has_members:  # the best of the model and its members whose groups are fresh
+            chosen = self.switch.choose(silent)
+            if chosen is not None:
+                self._serve_with(chosen, silent, t)
+            healthy = self.switch.healthy(silent)
+            self.switch.ticks[self.switch.active.name] += 1
 
         row = self._estimate(clean)
         est_ok = healthy and row is not None and (bool(row.get("estimator_ok", True)) or not self._estimator_flag)
@@ -222,6 +242,10 @@ class Predictor:
                 log.warning("estimator row unreadable at t=%.3f s: %s", t, exc)
                 slips, states, v_long = self.wheels.idle()
                 est_ok = False
+            if not self._estimator_flag:
+                # the EKF's own flag needs a fresh IMU; a model without it reads the body channels
+                # of its windows as valid on the ticks that are healthy on its own groups
+                row["estimator_ok"] = est_ok
             self.ring.append(row)
         self._last_states, self._last_v_long = states, v_long
         d_m = self.odometer.advance(t, row if est_ok else None)
@@ -231,8 +255,17 @@ class Predictor:
         self.scheduler.tick(t, self.odometer.distance_m)
 
         age = None if self.scheduler.class_t is None else t - self.scheduler.class_t
-        return self._message(t, self._decide(age, est_ok, states, v_long, t), slips, states, age,
-                             est_ok, t_start)
+        rejected = self.silence.check(t, self.odometer.distance_m) if est_ok else None
+        return self._message(t, self._decide(age, est_ok, states, v_long, t, rejected_by=rejected),
+                             slips, states, age, est_ok, t_start)
+
+    def _serve_with(self, c: Candidate, silent: Sequence[str], t: float) -> None:
+        """Classify with the model or member ``c`` from this tick on (its groups are fresh)."""
+        self.scheduler.use(c.classifier, c.window_spec.online_hop_s, c.window_spec.n_samples)
+        self._estimator_flag = "imu" in c.groups
+        self.odometer.lateral_observed = self.robot.has_steering or self._estimator_flag
+        self.served_sensors = list(c.sensors)
+        self.switch.announce(c, silent, t)
 
     def _clock_jump_tick(self, t: float, t_start: float) -> DesiredSlip:
         """A stamp off the timeline: the fallback row for the last estimated wheel states.
@@ -248,10 +281,11 @@ class Predictor:
         return self.policy.safe_cap_traction()
 
     def _decide(self, age: float | None, est_ok: bool, states: list[str], v_long: list[float],
-                t: float, clock_jump: bool = False) -> PolicyDecision:
+                t: float, clock_jump: bool = False, rejected_by: str | None = None) -> PolicyDecision:
         return self.policy.decide(self.filter, estimator_ok=est_ok,
                                   classifier_error=self.scheduler.error, age_s=age, states=states,
-                                  v_long=v_long, clock_jump=clock_jump, t_s=t)
+                                  v_long=v_long, clock_jump=clock_jump, t_s=t,
+                                  rejected_by=rejected_by)
 
     def _message(self, t: float, dec: PolicyDecision, slips: list[float], states: list[str],
                  age: float | None, est_ok: bool, t_start: float) -> DesiredSlip:
@@ -262,6 +296,7 @@ class Predictor:
             class_probabilities=self._full_probs(len(self.class_names)),
             classification_age_s=-1.0 if age is None else float(age),
             fallback=dec.fallback, fallback_reason=dec.reason, estimator_ok=est_ok,
+            fallback_detail=dec.detail, sensors=list(self.served_sensors),
         )
         self.seq += 1
         msg.processing_ms = (time.perf_counter() - t_start) * 1e3
@@ -309,15 +344,6 @@ class Predictor:
         return {**self.counters.as_dict(), "emitted": self.seq,
                 "classifications": sch.n_classifications, "classifier_errors": sch.n_errors,
                 "unsteady_windows": sch.n_unsteady, "estimator_errors": self.n_estimator_errors,
+                "rejections": dict(sch.rejections), "rejected_channels": dict(sch.rejected_channels),
+                "member_ticks": dict(self.switch.ticks), "member_switches": self.switch.switches,
                 "distance_m": self.odometer.distance_m, "terrain_changes": self.filter.n_changes}
-
-
-def _one_spec(window_spec: WindowSpec | None, classifier: Any) -> WindowSpec:
-    """The one window spec of serving: the given one, else the classifier's, else the default."""
-    own = getattr(classifier, "window_spec", None)
-    if window_spec is None:
-        return own if own is not None else WindowSpec()
-    if own is not None and own != window_spec:
-        raise ValueError(f"the classifier cuts windows of {own!r} but the predictor was given "
-                         f"{window_spec!r}: serving takes one window spec")
-    return window_spec

@@ -83,8 +83,11 @@ class RingBuffer:
     def full(self) -> bool:
         return self.count == self.capacity
 
-    def snapshot(self) -> tuple[np.ndarray, np.ndarray] | None:
+    def snapshot(self, last: int | None = None) -> tuple[np.ndarray, np.ndarray] | None:
         """Copy of the rows in time order (two arrays; tens of microseconds), or None if empty.
+
+        ``last``: only the newest ``last`` rows (a window shorter than the buffer: a sensor
+        member's, when the members' windows differ in length).
 
         Taken on the tick path; :meth:`to_frame` turns it into a DataFrame later, on the
         classification thread, so the tick never pays for building a DataFrame (the field
@@ -96,6 +99,8 @@ class RingBuffer:
             order = np.r_[self._i:self.capacity, 0:self._i]
         else:
             order = np.arange(self.count)
+        if last is not None and last < len(order):
+            order = order[len(order) - last:]
         return self._num[order], self._obj[order]  # type: ignore[index]
 
     def to_frame(self, snap: tuple[np.ndarray, np.ndarray] | None) -> pd.DataFrame:

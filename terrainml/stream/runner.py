@@ -198,8 +198,20 @@ def _print_summary(console: Console, predictor: Predictor, opened: list[GuardedS
         f"{f' ({reasons})' if reasons else ''}; classifications: {st['classifications']} "
         f"({st['classifier_errors']} errors); sink errors: {sink_err or 0}",
         highlight=False)
+    if st["unsteady_windows"]:
+        console.print(f"terrainml predict: {rejection_text(st)}", highlight=False)
     if counters.damage is not None and counters.damage.any:
         console.print(f"terrainml predict: source {source}: {counters.damage.text}", highlight=False)
+
+
+def rejection_text(stats: dict[str, Any]) -> str:
+    """The summary's line of rejected windows: per window rule, and the invalid channels."""
+    rules = ", ".join(f"{r} {n}" for r, n in sorted(stats["rejections"].items(), key=lambda kv: -kv[1]))
+    chans = stats.get("rejected_channels") or {}
+    where = (f"; invalid channels: {', '.join(f'{c} {n}' for c, n in sorted(chans.items(), key=lambda kv: -kv[1]))}"
+             if chans else "")
+    return (f"windows rejected: {stats['unsteady_windows']} (by rule, a window may fail several: "
+            f"{rules or 'none named'}){where}")
 
 
 def replay_summary(model: str | Path, log_path: str | Path, *, console: Console | None = None,

@@ -22,7 +22,7 @@ Summary frame, id ``BASE``::
     byte  2    uint8   terrain_class (255 = none)
     byte  3    uint8   confidence x 250 (0..250)
     bytes 4-5  uint16  classification_age in ms (65535 = none or >= 65.5 s)
-    byte  6    uint8   flags: bit0 fallback, bit1 estimator_ok, bits 2-4 fallback reason code
+    byte  6    uint8   flags: bit0 fallback, bit1 estimator_ok, bits 2-7 fallback reason code
     byte  7    uint8   number of wheels N
 
 Wheel frame i (1..N), id ``BASE + i``::
@@ -35,7 +35,8 @@ Wheel frame i (1..N), id ``BASE + i``::
     byte  7    uint8   seq & 0xFF (pairs the wheel frames of one tick)
 
 Fallback reason codes: 0 none, 1 estimator_unhealthy, 2 classifier_error, 3 no_classification,
-4 stale_classification, 5 clock_jump, 6 uncertain_classification (7: unknown). In fallback no
+4 stale_classification, 5 clock_jump, 6 uncertain_classification, 7 windows_rejected (63:
+unknown; codes 1-6 keep the bits they had when the field was bits 2-4). In fallback no
 class is served: ``terrain_class`` -1 is sent as 255.
 """
 
@@ -65,6 +66,8 @@ CAN_BASE_ID = 0x300
 REASON_CODES = {"": 0, **{r: i + 1 for i, r in enumerate(FALLBACK_REASONS)}}
 _STATE_BY_CODE = {v: k for k, v in WHEEL_STATE_CODES.items()}
 _REASON_BY_CODE = {v: k for k, v in REASON_CODES.items()}
+#: code of a reason this table does not know (the 6 bits of the flags' reason field all set)
+UNKNOWN_REASON_CODE = 63
 
 
 class SinkError(ValueError):
@@ -119,7 +122,7 @@ def encode_can_frames(msg: DesiredSlip | dict, base_id: int = CAN_BASE_ID) -> li
     n = len(d["slip_desired"])
     cls = d["terrain_class"] if 0 <= d["terrain_class"] < 255 else 255
     flags = (1 if d["fallback"] else 0) | (2 if d["estimator_ok"] else 0) \
-        | (REASON_CODES.get(d["fallback_reason"], 7) << 2)
+        | (REASON_CODES.get(d["fallback_reason"], UNKNOWN_REASON_CODE) << 2)
     age = d["classification_age_s"]
     age_ms = 65535 if age < 0 else min(65535, int(round(age * 1e3)))
     conf = max(0, min(250, int(round(d["confidence"] * 250))))

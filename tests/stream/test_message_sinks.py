@@ -15,6 +15,8 @@ from terrainml.stream.sinks import (decode_can_frames, encode_can_frames, open_s
 DESIGN_11_FIELDS = ["t_s", "seq", "slip_desired", "slip_measured", "wheel_state", "terrain_class",
                     "terrain_name", "confidence", "class_probabilities", "classification_age_s",
                     "fallback", "fallback_reason", "estimator_ok", "processing_ms"]
+#: added by issue #28 (design §11 amendment: say which sensors served, and why windows are rejected)
+ADDED = ["fallback_detail", "sensors"]
 
 
 def _msg(**kw):
@@ -27,10 +29,23 @@ def _msg(**kw):
     return DesiredSlip(**d)
 
 
-def test_fields_are_those_of_system_11():
-    assert list(FIELD_NAMES) == DESIGN_11_FIELDS
-    assert list(json.loads(_msg().to_json())) == DESIGN_11_FIELDS
-    assert json_schema(3, 8)["required"] == DESIGN_11_FIELDS
+def test_fields_are_those_of_system_11_and_the_two_added():
+    assert list(FIELD_NAMES) == DESIGN_11_FIELDS + ADDED
+    assert list(json.loads(_msg().to_json())) == DESIGN_11_FIELDS + ADDED
+    assert json_schema(3, 8)["required"] == DESIGN_11_FIELDS + ADDED
+    # a message written before the two were added still reads, with their defaults
+    old = {k: v for k, v in json.loads(_msg().to_json()).items() if k not in ADDED}
+    back = DesiredSlip.from_dict(old)
+    assert back.fallback_detail == "" and back.sensors == []
+
+
+def test_windows_rejected_has_its_own_can_code_and_an_unknown_reason_is_63():
+    for reason, code in (("windows_rejected", 7), ("uncertain_classification", 6), ("bogus", 63)):
+        d = _msg(fallback=True, fallback_reason=reason).to_dict()
+        flags = encode_can_frames(d)[0][1][6]
+        assert flags >> 2 == code and flags & 1
+    frames = encode_can_frames(_msg(fallback=True, fallback_reason="windows_rejected"))
+    assert decode_can_frames(frames)["fallback_reason"] == "windows_rejected"
 
 
 def test_non_finite_values_replaced_by_documented_safe_values():

@@ -75,7 +75,8 @@ def test_at_serve_p_a_class_is_served_below_it_the_safe_cap():
 @pytest.mark.parametrize("facts,fused,reason", [
     ({"clock_jump": True, "estimator_ok": False, "classifier_error": True}, Fused(), "clock_jump"),
     ({"estimator_ok": False, "classifier_error": True}, Fused(one_hot(3)), "estimator_unhealthy"),
-    ({"classifier_error": True}, Fused(), "classifier_error"),
+    ({"classifier_error": True, "rejected_by": "speed"}, Fused(), "classifier_error"),
+    ({"rejected_by": "speed"}, Fused(), "windows_rejected"),
     ({}, Fused(), "no_classification"),
     ({}, Fused(one_hot(3, 0.3), stale=True), "stale_classification"),
     ({}, Fused(one_hot(3, 0.3)), "uncertain_classification"),
@@ -83,6 +84,14 @@ def test_at_serve_p_a_class_is_served_below_it_the_safe_cap():
 def test_fallback_reasons_by_priority(facts, fused, reason):
     d = decide(fused, **facts)
     assert d.fallback and d.reason == reason and d.class_id == NO_CLASS_ID
+
+
+def test_rejected_windows_replace_a_stale_class_and_name_the_rule_but_never_a_fresh_one():
+    stale = decide(Fused(one_hot(3), stale=True), rejected_by="channel_valid: imu_wx")
+    assert (stale.reason, stale.detail) == ("windows_rejected", "channel_valid: imu_wx")
+    fresh = decide(Fused(one_hot(3)), rejected_by="speed")  # a fresh class is still served
+    assert not fresh.fallback and fresh.detail == ""
+    assert decide(Fused(), estimator_ok=False, rejected_by="speed").detail == ""
 
 
 def test_a_classifier_error_with_a_fused_class_left_still_serves_it():

@@ -1,0 +1,98 @@
+"""Sensor members of a model folder: the same training on the useful subsets of its sensor groups.
+
+A model trained on every sensor group a robot has serves nothing when one group is missing at
+serving (a robot without its IMU, a log without the currents): its windows need that group's
+channels. So ``terrainml train`` (design §9, issue #28) also trains, for each useful subset of
+the model's groups (:func:`member_subsets`: without the IMU, without the currents), a member:
+a complete model folder of its own in ``members/NAME/``, made by the very training function
+that made the folder's model (the caller's ``fit``, on data built for that subset), and listed in
+the folder's manifest (:func:`terrainml.models.artifacts.attach_members`). The predictor serves
+the best member whose groups are healthy (:mod:`terrainml.stream.predictor`).
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from terrainml.features.windows import channel_sensor_group
+from terrainml.models.artifacts import MEMBERS_DIR, attach_members, write_manifest
+from terrainml.pipeline.dataset import Dataset
+
+__all__ = ["MEMBER_DROPS", "member_subsets", "subset_dataset", "train_members"]
+
+#: member name -> the sensor group it does without
+MEMBER_DROPS = {"no_imu": "imu", "no_currents": "currents"}
+
+
+def member_subsets(sensors: Sequence[str]) -> dict[str, list[str]]:
+    """{member name: its sensor groups} for a model on ``sensors`` (order kept).
+
+    A member drops one group of :data:`MEMBER_DROPS` that the model uses; it must keep another
+    group besides the wheels (wheel speeds alone are the estimator's input, not a terrain
+    signature worth a member). A model on two groups or fewer has no member.
+    """
+    out = {}
+    for name, group in MEMBER_DROPS.items():
+        if group not in sensors:
+            continue
+        rest = [g for g in sensors if g != group]
+        if any(g != "wheels" for g in rest):
+            out[name] = rest
+    return out
+
+
+def train_members(out: str | Path, sensors: Sequence[str], fit: Callable[[list[str], Path], Any],
+                  progress: Callable[[str], None] | None = None) -> list[str]:
+    """Train the members of the model folder ``out`` and list them in its manifest.
+
+    Parameters
+    ----------
+    out : the model folder (its model already saved, on ``sensors``).
+    sensors : the model's sensor groups.
+    fit : ``fit(subset, folder)`` trains and saves one model folder on the groups ``subset``
+        with the caller's training (the same function and options that made the model).
+        A ValueError (e.g. the subset's data gives no windows) skips that member, with a warning
+        through ``progress``.
+    progress : callback with a short message per member.
+
+    Returns
+    -------
+    The names of the members saved (in :data:`MEMBER_DROPS` order).
+    """
+    say = progress or (lambda msg: None)
+    out = Path(out)
+    names = []
+    for name, subset in member_subsets(sensors).items():
+        say(f"member {name}: training on {','.join(subset)}")
+        folder = out / MEMBERS_DIR / name
+        try:
+            fit(subset, folder)
+        except ValueError as exc:
+            shutil.rmtree(folder, ignore_errors=True)  # nothing half-written stays in the folder
+            say(f"warning: member {name} ({','.join(subset)}) not trained: {exc}")
+            continue
+        names.append(name)
+    if names:
+        attach_members(out, names)
+    else:
+        write_manifest(out)  # nothing listed; the folder's file list stays exact
+    return names
+
+
+def subset_dataset(ds: Dataset, sensors: Sequence[str]) -> Dataset:
+    """The windows of ``ds`` restricted to the channels of the groups ``sensors`` (a windows file).
+
+    Built from the logs, a member gets its own windows (a run without IMU then gives windows
+    to the member without IMU); from a windows file only its channels can be narrowed, so the
+    windows kept are those every group of the model allowed.
+    """
+    keep = set(sensors) | {"wheels", "estimator"}
+    chans = [c for c in ds.windows.channels if channel_sensor_group(c) in keep]
+    if not chans:
+        raise ValueError(f"no window channel left for sensors {list(sensors)}")
+    W = ds.windows.select_channels(chans)
+    return Dataset(W, ds.runs, ds.counts, ds.robot, replace(ds.spec, channels=tuple(chans)), ds.preset,
+                   list(ds.class_ids), list(ds.class_names), ds.class_report)
