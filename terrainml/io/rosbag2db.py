@@ -10,9 +10,10 @@ rowid order instead lets the intact pages through:
 * the connection turns ``writable_schema`` on (read-only still), so SQLite takes the file's size
   over the header's page count and a truncated file opens;
 * rows are read with one cursor in rowid order; when a row does not read (its page is damaged or
-  past the end of the file), the reader seeks past it by rowid -- a B-tree seek touches only the
-  pages on the path to one row -- one id at a time first, then in doubling steps (a damaged
-  interior page hides a whole range of ids), and goes on from the next row that reads;
+  past the end of the file), the reader reads on one row at a time and seeks past it by rowid --
+  a B-tree seek touches only the pages on the path to one row -- one id at a time first, then in
+  doubling steps (a damaged interior page hides a whole range of ids), and goes on from the next
+  row that reads;
 * what was lost is counted: rows whose key was found but whose content did not read, and the
   number of unreadable rowid ranges. Per-topic losses are the caller's (the bag's
   ``metadata.yaml`` says how many messages each topic had).
@@ -32,6 +33,7 @@ __all__ = ["Db3Error", "Db3File", "open_db3"]
 
 _MAX_ID = 2**63 - 1
 _LINEAR_PROBES = 64        # ids tried one by one past a damaged row before the steps double
+_SINGLE = 64               # rows read one at a time past damage before the cursor resumes
 _ROWS = "SELECT id, topic_id, timestamp, data FROM messages"
 
 
@@ -72,40 +74,46 @@ class Db3File:
 
     def rows(self) -> Iterator[tuple[int, int, int, bytes]]:
         """Every readable row ``(id, topic_id, timestamp_ns, data)`` in rowid order; rows that do not
-        read are skipped and counted (``lost_rows``, ``bad_ranges``)."""
-        last, resumed = 0, -1
-        while last < _MAX_ID:
+        read are skipped and counted (``lost_rows``, ``bad_ranges``).
+
+        One cursor while the pages read; where it hits damage (Python's cursor steps one row
+        ahead, so the error can come with the last good row), one row at a time until
+        ``_SINGLE`` rows in a row have read, then the cursor again."""
+        last = 0
+        while True:
             try:
                 for row in self.conn.execute(_ROWS + " WHERE id > ? ORDER BY id", (last,)):
                     last = row[0]
                     yield row
                 return
             except sqlite3.DatabaseError:
-                again = last == resumed      # the row that read alone fails in the scan: lost
-                if again:
-                    self.lost_rows += 1
-                    last += 1
-                nxt = self._next_readable(last, new_range=not again)
-                if nxt is None:
-                    return
-                last = resumed = nxt - 1
-
-    def _next_readable(self, after: int, new_range: bool = True) -> int | None:
-        """The id of the next row after ``after`` whose content reads (None: none); the skipped
-        range is counted once (``new_range``), rows found by id but unreadable one by one."""
-        self.bad_ranges += int(new_range)
-        p = after + 1
-        while True:
-            key = self._next_key(p)
-            if key is None:
-                return None
-            try:
-                if self.conn.execute(_ROWS + " WHERE id = ?", (key,)).fetchone() is not None:
-                    return key
-            except sqlite3.DatabaseError:
                 pass
+            good = 0
+            while good < _SINGLE:
+                row, skipped = self._next_row(last)
+                self.bad_ranges += int(skipped)
+                if row is None:
+                    return
+                last, good = row[0], 0 if skipped else good + 1
+                yield row
+
+    def _next_row(self, after: int) -> tuple[tuple | None, bool]:
+        """The next row after ``after`` that reads, read alone (None: none), and whether rows or
+        ids were skipped on the way; rows found by id but unreadable are counted one by one."""
+        p, skipped = after + 1, False
+        while True:
+            key, failed = self._next_key(p)
+            skipped |= failed
+            if key is None:
+                return None, skipped
+            try:
+                row = self.conn.execute(_ROWS + " WHERE id = ?", (key,)).fetchone()
+            except sqlite3.DatabaseError:
+                row = None
+            if row is not None:
+                return row, skipped
             self.lost_rows += 1
-            p = key + 1
+            skipped, p = True, key + 1
 
     def _seek(self, p: int) -> tuple[bool, int | None]:
         """(readable, first id >= p) by a key-only B-tree seek; (False, None) where it hits damage."""
@@ -115,9 +123,11 @@ class Db3File:
             return False, None
         return True, None if row is None else int(row[0])
 
-    def _next_key(self, p: int) -> int | None:
-        """The first id >= ``p`` a seek reaches: ids one by one, then doubling steps past the
-        damage, then a bisection back to the first id that seeks (None: no id after ``p``)."""
+    def _next_key(self, p: int) -> tuple[int | None, bool]:
+        """The first id >= ``p`` a seek reaches (None: no id after ``p``) and whether seeks failed
+        on the way: ids one by one, then doubling steps past the damage, then a bisection back to
+        the first id that seeks."""
+        start = p
         bad, step, probes = p - 1, 1, 0
         while p <= _MAX_ID:
             ok, key = self._seek(p)
@@ -127,7 +137,7 @@ class Db3File:
             step = step * 2 if probes > _LINEAR_PROBES else 1
             p = min(p + step, _MAX_ID) if p < _MAX_ID else _MAX_ID + 1
         else:
-            return None
+            return None, True
         lo, hi = bad, p                     # lo does not seek, hi does
         while hi - lo > 1:
             mid = (lo + hi) // 2
@@ -135,7 +145,7 @@ class Db3File:
                 hi = mid
             else:
                 lo = mid
-        return self._seek(hi)[1] if hi != p else key
+        return (self._seek(hi)[1] if hi != p else key), bad >= start
 
 
 def _header_sizes(path: Path) -> tuple[int, int]:
