@@ -28,6 +28,7 @@ from typing import Callable
 
 import lz4.frame
 import numpy as np
+import yaml
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
@@ -40,6 +41,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.msg import normalize_msgtype
 
 from terrainml.io import cdr, ros1bag
+from terrainml.io.rosbag2db import Db3Error, Db3File, open_db3
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 BAG_MAGIC = b"#ROSBAG V2.0"
@@ -544,7 +546,10 @@ def read_bag(path: Path, wanted: Callable[[str, str], str | None], *, use_header
              on_part: Callable[[str, dict], None] | None = None) -> ReadResult:
     """Read a ROS 1 bag, or a ROS 2 bag folder (``.db3`` or MCAP storage), message by message.
 
-    A ROS 2 bag folder is read with ``rosbags.rosbag2.Reader``; an indexed ROS 1 bag with rosbags'
+    A ROS 2 bag folder of uncompressed SQLite storage (``.db3``) is read row by row by
+    :func:`_read_db3`, damaged or not (the intact rows of a truncated or damaged file are kept and
+    the lost ones counted per topic); another ROS 2 bag folder is read with
+    ``rosbags.rosbag2.Reader``; an indexed ROS 1 bag with rosbags'
     AnyReader (time order). A bag rosbags cannot open -- cut
     short, so its index is missing -- is read front to back by :func:`terrainml.io.ros1bag.scan_bag`
     (file order): every complete message before the cut is kept and what was lost is in
@@ -553,6 +558,9 @@ def read_bag(path: Path, wanted: Callable[[str, str], str | None], *, use_header
     ``on_part``/``on_times``: optional streaming consumers; see :func:`read_mcap`.
     """
     path = Path(path)
+    storage = _db3_storage(path) if path.is_dir() else None
+    if storage is not None:
+        return _read_db3(path, *storage, _BagArgs(wanted, use_header_stamp, on_times, progress, on_part))
     if path.is_dir():
         res = ReadResult(path=path, format="rosbag2")
         reader, deserialize = _open_rosbag2(path)
@@ -664,3 +672,128 @@ def _read_bag_without_index(path: Path, wanted, use_header_stamp: bool, on_times
     if res.truncated:
         res.warnings.append(_truncation_warning(path, res))
     return res
+
+
+# ----------------------------------------------------------------------------- ROS 2 .db3 storage
+@dataclass
+class _BagArgs:
+    """What :func:`read_bag` was asked for, handed on to the ``.db3`` reader."""
+
+    wanted: Callable[[str, str], str | None]
+    use_header_stamp: bool
+    on_times: OnTimes | None
+    progress: Callable[[int, int], None] | None
+    on_part: Callable[[str, dict], None] | None
+
+
+def _db3_storage(path: Path) -> tuple[list[Path], dict[str, int]] | None:
+    """The ``.db3`` files of an uncompressed SQLite bag folder and its per-topic message counts
+    from ``metadata.yaml`` (None: another storage, compressed, or metadata unreadable -- rosbags
+    then reads the folder, or says why not)."""
+    try:
+        info = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        if info.get("storage_identifier") != "sqlite3" or str(info.get("compression_mode") or "none").lower() != "none":
+            return None
+        files = [path / Path(str(p)).name for p in info["relative_file_paths"]]
+        counts: dict[str, int] = {}
+        for t in info.get("topics_with_message_count") or []:
+            name = t["topic_metadata"]["name"]
+            counts[name] = counts.get(name, 0) + int(t["message_count"])
+    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError, AttributeError):
+        return None
+    if not files or not all(f.is_file() for f in files):
+        return None
+    return files, counts
+
+
+def _read_db3(path: Path, files: list[Path], expected: dict[str, int], args: _BagArgs) -> ReadResult:
+    """A ROS 2 bag folder of ``.db3`` files, read row by row (:mod:`terrainml.io.rosbag2db`).
+
+    SQLite's own API (and rosbags on it) refuses a damaged database whole; reading rows one cursor
+    step at a time and seeking past those that do not read keeps every intact row. What was lost
+    goes into the same fields as MCAP damage: per-topic ``corrupt`` (the ``metadata.yaml`` count
+    less the rows read), ``corrupt_chunks`` (unreadable row ranges), ``truncated`` and its bytes.
+    Only a bag none of whose files can be read (not even the topics table) is refused
+    (:class:`LogReadError` naming the file).
+    """
+    res = ReadResult(path=path, format="rosbag2")
+    typestore = get_typestore(Stores.LATEST)
+    topics = _BagTopics(res, args.wanted, args.use_header_stamp, args.on_times, args.on_part,
+                        typestore.deserialize_cdr)
+    total, done, opened, damaged, lost, garbled = max(sum(expected.values()), 1), 0, [], [], 0, 0
+    for f in files:
+        try:
+            db = open_db3(f)
+        except Db3Error as exc:
+            res.warnings.append(str(exc))
+            continue
+        opened.append(f)
+        try:
+            _register_db3_types(db, typestore, topics)
+            for _id, tid, log_ns, raw in db.rows():
+                tp = db.topics.get(tid)
+                if tp is None or not isinstance(log_ns, int) or not isinstance(raw, bytes):
+                    garbled += 1         # a damaged page read as a row (no such topic, no data)
+                    continue
+                topics.message(tp[0], tp[1], log_ns, raw)
+                done += 1
+                if args.progress is not None and done % 2000 == 0:
+                    args.progress(done, total)
+        finally:
+            db.close()
+        lost += db.lost_rows
+        if db.bad_ranges or db.truncated:
+            damaged.append(f.name)
+        _db3_file_damage(res, db)
+    if not opened:
+        raise LogReadError(f"{path}: not a readable ROS 2 bag folder ({'; '.join(res.warnings)})")
+    topics.flush_stamps()
+    res.parts = topics.parts
+    _db3_losses(res, path, damaged, expected, lost + garbled)
+    return res
+
+
+def _register_db3_types(db: Db3File, typestore, topics: _BagTopics) -> None:
+    """The file's topics registered for counting; types the store lacks from the file's own
+    definitions (an unreadable definition: its messages count as corrupt)."""
+    for name, msgtype in db.topics.values():
+        topics.connection(name, msgtype)
+        if msgtype not in typestore.fielddefs and db.msgdefs.get(msgtype):
+            try:
+                typestore.register(get_types_from_msg(db.msgdefs[msgtype], msgtype))
+            except Exception:  # noqa: BLE001 - a bad definition: its messages count as corrupt
+                pass
+
+
+def _db3_file_damage(res: ReadResult, db: Db3File) -> None:
+    """One storage file's unreadable ranges and truncation into the result (with a warning)."""
+    res.corrupt_chunks += db.bad_ranges
+    if db.truncated:
+        res.truncated = True
+        missing, partial = db.declared_bytes - db.file_bytes, db.file_bytes % db.page_size if db.page_size else 0
+        res.missing_bytes += missing
+        res.unread_bytes += partial
+        res.incomplete_records += 1 if partial else 0
+        res.warnings.append(f"{db.path}: file is truncated ({missing:,} of the {db.declared_bytes:,} byte(s) its "
+                            f"header declares are missing); every row before the cut that reads was kept")
+
+
+def _db3_losses(res: ReadResult, path: Path, damaged: list[str], expected: dict[str, int], lost_rows: int) -> None:
+    """Per-topic lost rows (``metadata.yaml`` count less rows read) counted corrupt; lost rows
+    beyond those (a topic the metadata does not count) unattributed; one warning naming the bag
+    and the counts when anything was lost."""
+    per_topic = {}
+    for topic, n in expected.items():
+        st = res.stats.get(topic)
+        gone = n - (st.read if st is not None else 0)
+        if gone > 0:
+            res.stat(topic).corrupt += gone
+            per_topic[topic] = gone
+    res.unattributed_corrupt += max(lost_rows - sum(per_topic.values()), 0)
+    if per_topic or res.corrupt_chunks or res.unattributed_corrupt:
+        listed = ", ".join(f"{t} {n:,}" for t, n in sorted(per_topic.items()))
+        n_lost = sum(per_topic.values()) + res.unattributed_corrupt
+        res.warnings.append(
+            f"{path}: damaged .db3 storage ({', '.join(damaged) or 'rows of unknown topics'}): {n_lost:,} "
+            f"message(s) lost" + (f" ({listed})" if listed else "") + f" in {res.corrupt_chunks} unreadable "
+            f"row range(s); every readable row was kept")
