@@ -9,14 +9,38 @@ from __future__ import annotations
 
 import importlib
 from pathlib import Path
+from typing import Any
 
+import click
 import typer
 from rich.console import Console
+from rich.markup import escape
+from typer.core import TyperGroup
 
 from terrainml import __version__
+from terrainml.atomic import DISK_ERRNOS, OutputWriteError
 from terrainml.commands import AREAS
+from terrainml.commands._common import EXIT_USAGE, failure_message
+
+
+class _Group(TyperGroup):
+    """The root command group: a write that fails on a full disk (or a quota, a read-only file
+    system) in any command is one ``error:`` line naming the output, exit 2, never a traceback."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        """Run the command; a failed write becomes the refusal (exit 2), anything else propagates."""
+        try:
+            return super().invoke(ctx)
+        except OSError as exc:
+            if not isinstance(exc, OutputWriteError) and exc.errno not in DISK_ERRNOS:
+                raise
+            Console(stderr=True, soft_wrap=True).print(
+                f"[red]error:[/] {escape(failure_message('', exc))}", highlight=False)
+            raise typer.Exit(EXIT_USAGE) from None
+
 
 app = typer.Typer(
+    cls=_Group,
     name="terrainml",
     help="Terrain-aware traction for wheeled field robots: ingest logs, estimate slip, "
          "classify terrain, serve desired slip.\n\nQuick start: `terrainml demo --out runs/demo`.",

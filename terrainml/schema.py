@@ -30,6 +30,8 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from terrainml.atomic import atomic_output
+
 SCHEMA_VERSION = "1.0"
 DEFAULT_RATE_HZ = 100.0
 METADATA_KEY = b"terrainml"
@@ -247,9 +249,11 @@ def make_metadata(*, robot_json: str | None = None, source_file: str | None = No
 
 
 def write_run_parquet(df: pd.DataFrame, path: str | Path, metadata: dict[str, Any] | None = None) -> Path:
-    """Write a validated run table to Parquet with the terrainml key-value metadata."""
+    """Write a validated run table to Parquet with the terrainml key-value metadata.
+
+    Written whole or not at all (:func:`terrainml.atomic.atomic_output`); a failure raises
+    :class:`terrainml.atomic.OutputWriteError` naming ``path``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     meta = dict(table_metadata(df))
     meta.update(metadata or {})
     meta.setdefault("schema_version", SCHEMA_VERSION)
@@ -258,7 +262,8 @@ def write_run_parquet(df: pd.DataFrame, path: str | Path, metadata: dict[str, An
     table = pa.Table.from_pandas(clean, preserve_index=False)
     kv = dict(table.schema.metadata or {})
     kv[METADATA_KEY] = json.dumps(meta, default=str).encode()
-    pq.write_table(table.replace_schema_metadata(kv), path)
+    with atomic_output(path) as tmp:
+        pq.write_table(table.replace_schema_metadata(kv), tmp)
     return path
 
 

@@ -19,11 +19,12 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
+from terrainml.atomic import DISK_ERRNOS, OutputWriteError
 from terrainml.io.ingest.dataset_spec import DatasetSpecError, load_dataset_spec
 from terrainml.robot import RobotSpec, RobotSpecError, load_robot
 
-__all__ = ["EXIT_USAGE", "check_n_jobs", "check_output_writable", "console", "fail", "is_windows_file",
-           "open_dataset", "open_dataset_spec", "open_robot", "open_run"]
+__all__ = ["EXIT_USAGE", "check_n_jobs", "check_output_writable", "console", "fail", "failure_message",
+           "is_windows_file", "open_dataset", "open_dataset_spec", "open_robot", "open_run"]
 
 #: Exit code of every refusal (bad option, unreadable input, unwritable output).
 EXIT_USAGE = 2
@@ -40,6 +41,32 @@ def fail(msg: str) -> NoReturn:
     """
     console.print(f"[red]error:[/] {escape(msg)}", highlight=False)
     raise typer.Exit(EXIT_USAGE)
+
+
+def failure_message(source: object, exc: BaseException, out: object = None) -> str:
+    """The ``error:`` line for an unexpected failure of a command reading ``source``.
+
+    Parameters
+    ----------
+    source : object
+        The command's input, named for any failure that is not a failed write.
+    exc : BaseException
+        The failure.
+    out : object, optional
+        The command's output, named for a full disk's bare ``OSError`` that names no file.
+
+    Returns
+    -------
+    str
+        A failed write names its output (:class:`terrainml.atomic.OutputWriteError`, or an
+        ``OSError`` of :data:`terrainml.atomic.DISK_ERRNOS`); anything else the input and the
+        exception.
+    """
+    if isinstance(exc, OutputWriteError):
+        return str(exc)
+    if isinstance(exc, OSError) and exc.errno in DISK_ERRNOS:
+        return f"{exc.filename or out or 'an output'}: cannot write ({exc.strerror or exc})"
+    return f"{source}: {type(exc).__name__}: {exc}"
 
 
 def open_robot(robot: str | Path | RobotSpec | None) -> RobotSpec:

@@ -13,6 +13,7 @@ from typing import Optional
 import typer
 from rich.progress import Progress
 
+from terrainml.atomic import write_text
 from terrainml.classes import class_id
 from terrainml.commands._common import check_output_writable, console, fail
 from terrainml.robot import reference_robot
@@ -80,8 +81,7 @@ def closed_loop(
             fail(str(exc))
     text = json.dumps(report, indent=2)
     if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(text + "\n")
+        write_text(out, text + "\n")
         console.print(f"wrote {out}")
     print(text)
 

@@ -12,7 +12,8 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail, open_dataset
+from terrainml.commands._common import (check_n_jobs, check_output_writable, console, fail, failure_message,
+                                        open_dataset)
 
 dataset_app = typer.Typer(help="Build window datasets (steady 2 s windows) from logs.", no_args_is_help=True)
 
@@ -168,7 +169,7 @@ def build(
     except DatasetError as exc:
         fail(str(exc))
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-        fail(f"{source}: {type(exc).__name__}: {exc}")
+        fail(failure_message(source, exc, out))
     if not quiet:
         console.print(rejection_table(ds))
         print_class_report(ds)

@@ -10,7 +10,8 @@ import typer
 from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from terrainml.commands._common import check_output_writable, console, fail, open_robot, open_run
+from terrainml.atomic import write_text
+from terrainml.commands._common import check_output_writable, console, fail, failure_message, open_robot, open_run
 from terrainml.io.damage import damage_summary
 from terrainml.robot import check_wheel_count
 
@@ -76,9 +77,9 @@ def register(app: typer.Typer) -> None:
             report["truth"] = truth_metrics(est, spec.n_wheels)
         try:
             write_run_parquet(est, out)
-            rep_path.write_text(json.dumps(report, indent=2, default=float))
+            write_text(rep_path, json.dumps(report, indent=2, default=float))
         except OSError as exc:  # checked above; a full disk or a race can still fail here
-            fail(f"{exc.filename or out}: cannot write ({exc.strerror or exc})")
+            fail(failure_message(out, exc))
         _print_report(report)
         if damage.any:
             console.print(f"[yellow]{run}: {damage.text}[/]")

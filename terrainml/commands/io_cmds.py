@@ -14,7 +14,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from terrainml.commands._common import (ALLOW_OUTSIDE_HELP, check_output_writable, console, fail,
+from terrainml.commands._common import (ALLOW_OUTSIDE_HELP, check_output_writable, console, fail, failure_message,
                                         open_dataset_spec, open_robot)
 
 
@@ -78,7 +78,7 @@ def ingest(
     except typer.Exit:
         raise
     except Exception as exc:  # noqa: BLE001 - last line of defence: a message, never a traceback
-        fail(f"{log}: {type(exc).__name__}: {exc}")
+        fail(failure_message(log, exc, out))
     if not quiet:
         console.print(f"[green]wrote[/] {out}: {rep.rows} rows, {rep.span_s:.1f} s at {rep.rate_hz:g} Hz; valid "
                       + ", ".join(f"{g} {f:.0%}" for g, f in rep.valid_fraction.items()),
@@ -105,7 +105,7 @@ def inspect(
     except LogReadError as exc:
         fail(str(exc))
     except Exception as exc:  # noqa: BLE001
-        fail(f"{log}: {type(exc).__name__}: {exc}")
+        fail(failure_message(log, exc))
     if as_json:
         print(json.dumps(info, indent=2))
     else:

@@ -14,8 +14,8 @@ from typing import List, Optional
 import typer
 from rich.table import Table
 
-from terrainml.commands._common import (check_n_jobs, check_output_writable, console, fail, is_windows_file,
-                                        open_dataset)
+from terrainml.commands._common import (check_n_jobs, check_output_writable, console, fail, failure_message,
+                                        is_windows_file, open_dataset)
 
 model_app = typer.Typer(help="Sign model folders and check their signatures (ed25519).", no_args_is_help=True)
 
@@ -133,7 +133,7 @@ def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, see
     except typer.Exit:
         raise
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-        fail(f"{data}: {type(exc).__name__}: {exc}")
+        fail(failure_message(data, exc, out))
     if not quiet:
         t = Table(title=f"grouped {res.n_folds}-fold CV ({res.dataset_summary['n_runs']} runs, "
                         f"{res.dataset_summary['n_windows']} windows)", title_justify="left")

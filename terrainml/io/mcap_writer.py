@@ -35,6 +35,7 @@ hand-made table round-trips through ingest.
 from __future__ import annotations
 
 import math
+import os
 import struct
 import zlib
 from collections import defaultdict
@@ -54,6 +55,7 @@ from mcap_ros2._dynamic import serialize_dynamic
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
+from terrainml.atomic import discard, output_error, part_path
 from terrainml.io import cdr, t265, topics
 from terrainml.robot import RobotSpec
 from terrainml.schema import validate_run_table, valid_column, wheel_col
@@ -277,12 +279,20 @@ class RosMcapWriter:
                  topic_names: dict[str, str] | None = None, metadata: dict[str, str] | None = None,
                  chunk_size: int = 1024 * 1024):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = part_path(self.path)  # renamed onto path by close(): never a partial log
         self.n_wheels = int(n_wheels)
         self.t0_ns = int(start_time_ns)
         self._names = dict(topic_names or {})
-        self._file = open(self.path, "wb")
-        self._mcap = ChunkedMcapFile(self._file, chunk_size=chunk_size)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self._tmp, "wb")
+        except OSError as exc:
+            raise output_error(exc, self.path) from None
+        try:
+            self._mcap = ChunkedMcapFile(self._file, chunk_size=chunk_size)
+        except OSError as exc:
+            self.abort()
+            raise output_error(exc, self.path) from None
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._encoders: dict[str, object] = {}
@@ -299,13 +309,35 @@ class RosMcapWriter:
     def __enter__(self) -> "RosMcapWriter":
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, exc, tb) -> None:
+        """Close a complete log; after a failure remove it, an ``OSError`` named by the log."""
+        if exc_type is None:
+            self.close()
+            return
+        self.abort()
+        if isinstance(exc, OSError):  # e.g. ENOSPC from a write: name the log, leave nothing
+            raise output_error(exc, self.path) from None
 
     def close(self) -> None:
-        if not self._file.closed:
+        """Finish the log (summary, footer) and move it onto ``path``; a failure leaves nothing
+        and raises :class:`terrainml.atomic.OutputWriteError` naming ``path``."""
+        if self._file.closed:
+            return
+        try:
             self._mcap.finish()
             self._file.close()
+            os.replace(self._tmp, self.path)
+        except OSError as exc:
+            self.abort()
+            raise output_error(exc, self.path) from None
+
+    def abort(self) -> None:
+        """Stop writing and remove the unfinished log (nothing is left at ``path``)."""
+        try:
+            self._file.close()
+        except OSError:
+            pass
+        discard(self._tmp)
 
     def flush(self) -> None:
         """Close the chunk in progress (e.g. after each time window of blocks, so that chunks cover

@@ -56,6 +56,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from terrainml import __version__
+from terrainml.atomic import write_text
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.lookup import terramechanics as tm
 from terrainml.lookup.catalogue import CatalogueClass, TerrainCatalogue, load_catalogue
@@ -616,7 +617,7 @@ class DesiredSlipTable:
         return table
 
     def save(self, path) -> None:
-        Path(path).write_text(self.to_json() + "\n")
+        write_text(path, self.to_json() + "\n")
 
     @classmethod
     def load(cls, path, *, robot: RobotSpec | None = None) -> "DesiredSlipTable":

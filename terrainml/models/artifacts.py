@@ -53,6 +53,7 @@ import numpy as np
 import skops.io as sio
 
 from terrainml import __version__
+from terrainml.atomic import write_text
 from terrainml.features.windows import WindowSpec
 from terrainml.hashing import sha256_file
 from terrainml.models.calibration import CalibratedModel, Temperature
@@ -224,7 +225,7 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
     for fname, text in (attachments or {}).items():
         if Path(fname).name != fname or fname == MANIFEST_NAME:
             raise ArtifactError(f"{directory / fname}: an attachment is a plain file name, not {MANIFEST_NAME}")
-        (directory / fname).write_text(text)
+        write_text(directory / fname, text)
     nov_entry = None if novelty is None else _novelty_entry(directory, novelty, models)
     doc = {
         "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "terrainml_version": __version__,
@@ -295,7 +296,7 @@ def write_manifest(directory: str | Path, doc: dict | None = None) -> dict:
     doc["files"] = files
     doc = json_safe(doc)
     doc["manifest_sha256"] = _self_hash(doc)
-    (directory / MANIFEST_NAME).write_text(_canonical(doc))
+    write_text(directory / MANIFEST_NAME, _canonical(doc))   # last, whole or not at all
     return doc
 
 

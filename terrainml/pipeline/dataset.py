@@ -31,6 +31,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from joblib import Parallel, delayed, parallel_config
 
+from terrainml.atomic import atomic_output
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.estimation.run import estimate_run
 from terrainml.features.chunks import chunk_source, cut_chunked_runs, needs_estimation
@@ -454,7 +455,8 @@ def write_windows(ds: Dataset, path: str | Path) -> Path:
         "fingerprint": fingerprint(w),
     }
     table = pa.table(cols).replace_schema_metadata({META_KEY: json.dumps(meta, sort_keys=True).encode()})
-    pq.write_table(table, path, compression="zstd")
+    with atomic_output(path) as tmp:   # whole or not at all; a failure names path
+        pq.write_table(table, tmp, compression="zstd")
     return path
 
 

@@ -14,6 +14,7 @@ from typing import Callable
 import numpy as np
 from joblib import Parallel, delayed
 
+from terrainml.atomic import atomic_output
 from terrainml.classes import TERRAIN_CLASSES, class_id
 from terrainml.sim.output import write_mcap, write_parquet
 from terrainml.sim.scenarios import LABELLED_SCENARIOS, make_scenario
@@ -101,7 +102,7 @@ def generate_dataset(out_dir: str | Path, runs_per_class: int, seed: int = 0, *,
         if progress is not None:
             progress(len(rows), total)
     index = out_dir / "index.csv"
-    with index.open("w", newline="") as f:
+    with atomic_output(index) as tmp, tmp.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=INDEX_COLUMNS)
         w.writeheader()
         for r in rows:

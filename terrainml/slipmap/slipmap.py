@@ -23,6 +23,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from terrainml.atomic import write_text
 from terrainml.slipmap.irls import (IRLSRegressor, SufficientStats, polynomial_features,
                                     solve_normal_equations)
 
@@ -249,10 +250,7 @@ class SlipMap:
         return cls.from_message(msg, source)
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(self.to_json())
-        return path
+        return write_text(path, self.to_json())   # whole or not at all
 
     @classmethod
     def load(cls, path: str | Path) -> "SlipMap":

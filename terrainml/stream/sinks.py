@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import socket
 import struct
 import sys
@@ -53,6 +54,7 @@ from typing import IO, Any, Protocol
 import can
 from mcap.writer import Writer
 
+from terrainml.atomic import part_path
 from terrainml.io.topics import WHEEL_STATE_CODES
 from terrainml.stream.foxglove_sink import DEFAULT_FOXGLOVE_SINK, FoxgloveSink, class_names_for
 from terrainml.stream.message import FALLBACK_REASONS, TOPIC, DesiredSlip, json_schema
@@ -176,18 +178,46 @@ class CanSink:
         self.bus.shutdown()
 
 
+class _FlushedFile:
+    """The MCAP writer's stream: every write reaches the OS at once (a full disk raises on the
+    write of the chunk it loses, not at some later flush)."""
+
+    def __init__(self, fh: IO[bytes]):
+        self.fh = fh
+
+    def write(self, data: bytes) -> int:
+        n = self.fh.write(data)
+        self.fh.flush()
+        return n
+
+    def tell(self) -> int:
+        return self.fh.tell()
+
+
+class SinkLost(SinkError):
+    """A send that lost its tick and ``also_lost`` earlier ones (buffered, never written)."""
+
+    def __init__(self, msg: str, also_lost: int = 0):
+        super().__init__(msg)
+        self.also_lost = also_lost
+
+
 class McapSink:
     """MCAP recording: topic ``/terrainml/desired_slip``, JSON messages with a JSON schema.
 
     Foxglove plots e.g. ``/terrainml/desired_slip.slip_desired[0]`` directly. Log time is the
-    tick's ``t_s`` (ns).
+    tick's ``t_s`` (ns). The recording is written to ``.NAME.part`` and renamed onto ``NAME`` when
+    it closes complete. A write failure (full disk) stops it: the send that meets it raises
+    :class:`SinkLost` counting the ticks buffered in the unwritten chunk too, every later send
+    raises (one lost tick each), and the cut recording is left as ``.NAME.part``, never as ``NAME``.
     """
 
     def __init__(self, path: str | Path, n_wheels: int | None = None, n_classes: int | None = None):
         self.path = Path(path)
+        self.tmp = part_path(self.path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.path, "wb")
-        self.writer = Writer(self._fh)
+        self._fh = open(self.tmp, "wb")
+        self.writer = Writer(_FlushedFile(self._fh))  # type: ignore[arg-type]
         self.writer.start(profile="", library="terrainml")
         schema_id = self.writer.register_schema(
             name="terrainml.DesiredSlip", encoding="jsonschema",
@@ -196,28 +226,67 @@ class McapSink:
             topic=TOPIC, message_encoding="json", schema_id=schema_id)
         self.name = f"mcap:{self.path}"
         self._closed = False
+        self._pending = 0       # ticks added since the last write reached the file
+        self.failed: OSError | None = None
 
     def send(self, msg: DesiredSlip) -> None:
+        if self.failed is not None:
+            raise SinkLost(f"{self.path}: recording stopped ({self.failed.strerror or self.failed})")
         t_ns = max(0, int(round(msg.t_s * 1e9)))
-        self.writer.add_message(channel_id=self.channel_id, log_time=t_ns, publish_time=t_ns,
-                                data=msg.to_json().encode(), sequence=msg.seq & 0xFFFFFFFF)
+        before = self._fh.tell()
+        try:
+            self.writer.add_message(channel_id=self.channel_id, log_time=t_ns, publish_time=t_ns,
+                                    data=msg.to_json().encode(), sequence=msg.seq & 0xFFFFFFFF)
+        except OSError as exc:
+            self.failed = exc
+            lost, self._pending = self._pending, 0
+            raise SinkLost(f"{self.path}: cannot write the recording ({exc.strerror or exc}); "
+                           f"{lost + 1} ticks lost with this chunk, recording stopped",
+                           also_lost=lost) from None
+        self._pending = 0 if self._fh.tell() != before else self._pending + 1
 
     def close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            self.writer.finish()
+        if self._closed:
+            return
+        self._closed = True
+        if self.failed is None:
+            try:
+                self.writer.finish()
+                self._fh.close()
+                os.replace(self.tmp, self.path)
+                return
+            except OSError as exc:
+                self.failed = exc
+        try:
             self._fh.close()
+        except OSError:
+            pass
+        raise SinkLost(f"{self.path}: recording incomplete ({self.failed.strerror or self.failed}); "
+                       f"what was written is left as {self.tmp}", also_lost=self._pending)
 
 
 class GuardedSink:
-    """Wrap a sink so that its failures are logged and counted, never raised."""
+    """Wrap a sink so that its failures are logged and counted, never raised.
+
+    ``errors`` counts lost ticks, not failed calls: a :class:`SinkLost` also takes back the
+    ``also_lost`` ticks that were accepted (buffered) but never written, so ``sent + errors`` is
+    the number of ticks offered. A warning is logged on the first failure and every
+    ``log_every`` failures after it.
+    """
 
     def __init__(self, sink: Any, log_every: int = 1000):
         self.sink = sink
         self.name = getattr(sink, "name", type(sink).__name__)
         self.errors = 0
         self.sent = 0
+        self.failures = 0
         self.log_every = log_every
+
+    def _lost(self, exc: Exception) -> int:
+        lost = min(int(getattr(exc, "also_lost", 0)), self.sent)   # accepted earlier, never written
+        self.sent -= lost
+        self.errors += lost
+        return lost
 
     def send(self, msg: DesiredSlip) -> None:
         try:
@@ -225,15 +294,18 @@ class GuardedSink:
             self.sent += 1
         except Exception as exc:  # noqa: BLE001 - a sink that is down must not stop serving
             self.errors += 1
-            if self.errors == 1 or self.errors % self.log_every == 0:
-                log.warning("sink %s failed (%d errors so far; predictor continues): %s",
+            self._lost(exc)
+            self.failures += 1
+            if self.failures == 1 or self.failures % self.log_every == 0:
+                log.warning("sink %s failed (%d ticks lost so far; predictor continues): %s",
                             self.name, self.errors, exc)
 
     def close(self) -> None:
         try:
             self.sink.close()
         except Exception as exc:  # noqa: BLE001
-            log.warning("sink %s failed to close: %s", self.name, exc)
+            self._lost(exc)
+            log.warning("sink %s failed to close (%d ticks lost in all): %s", self.name, self.errors, exc)
 
 
 # --------------------------------------------------------------------------- factory

@@ -250,6 +250,68 @@ def test_label_is_not_carried_across_a_hole_in_a_table(tmp_path):
     assert (terrain[ts < 0.815] == 2).all() and (terrain[ts > 0.815] == -1).all()
 
 
+
+def _write_label_stream(path, label_times, label_of, seconds=10.0):
+    """IMU, wheels, current and camera at 100 Hz for ``seconds``; a label message at each of
+    ``label_times`` (s) with the value ``label_of(t)``."""
+    label_ticks = {int(round(t * 100)) for t in label_times}
+    with RosMcapWriter(path, 3, chunk_size=4 * 1024) as w:
+        for k in range(int(seconds * 100)):
+            t = k / 100
+            w.write_imu(t, (0.1 * t, 0.0, 9.81), (0.0, 0.0, 0.2))
+            w.write_wheel_joints(t, [i + t for i in range(1, 4)], [0.0] * 3)
+            w.write_motor_current(t, [2.0] * 3)
+            w.write_camera_odom(t, (0.0, 0.0, -0.5 * t), (0.0, 0.0, 0.0, 1.0), (0.0, 0.0, -0.5), (0.0, 0.0, 0.0))
+            if k in label_ticks:
+                w.write_terrain_label(t, label_of(t))
+
+
+def _held_labels(ts, label_times, label_of):
+    """The label each tick holds from the complete stream (ground truth: the last message before)."""
+    lt = np.asarray(sorted(label_times))
+    i = np.searchsorted(lt, ts + 1e-9, side="right") - 1
+    return np.array([label_of(lt[j]) if j >= 0 else -1 for j in i])
+
+
+def test_label_is_not_carried_across_a_hole_in_its_own_stream(tmp_path):
+    """Label messages at 3, 4 and 5 s lost (the change 2 -> 6 at 4 s with them) while every
+    sensor stays valid: the 2 s label lasts its period (to 3 s), then -1 until the 6 s message."""
+    label_of = lambda t: 2 if t < 4.0 - 1e-9 else 6          # noqa: E731
+    full = [float(k) for k in range(10)]
+    sent = [t for t in full if t not in (3.0, 4.0, 5.0)]
+    path = tmp_path / "label_hole.mcap"
+    _write_label_stream(path, sent, label_of)
+    for t in (load_run(path).table, read_run_parquet(_ingested(path, tmp_path / "label_hole.parquet"))):
+        ts, terrain = t["t_s"].to_numpy(), t["terrain"].to_numpy()
+        assert t[["wheels_valid", "imu_valid", "current_valid", "cam_valid"]].to_numpy().all()
+        truth = _held_labels(ts, full, label_of)
+        hole = (ts > 3.0 + 1e-9) & (ts < 6.0 - 1e-9)
+        assert (terrain[hole] == -1).all()
+        np.testing.assert_array_equal(terrain[~hole], truth[~hole])   # never a label the truth lacks
+        assert (terrain[(ts >= 2.0 - 1e-9) & (ts <= 3.0 + 1e-9)] == 2).all()
+
+
+def test_label_is_not_carried_past_the_end_of_its_stream(tmp_path):
+    """The label stream stops at 6 s (a cut) while the sensors go on to 10 s: held one period."""
+    label_of = lambda t: 5                                    # noqa: E731
+    path = tmp_path / "label_cut.mcap"
+    _write_label_stream(path, [float(k) for k in range(7)], label_of)
+    t = load_run(path).table
+    ts, terrain = t["t_s"].to_numpy(), t["terrain"].to_numpy()
+    assert (terrain[ts <= 7.0 + 1e-9] == 5).all() and (terrain[ts > 7.0 + 1e-9] == -1).all()
+
+
+def test_labels_sent_on_change_are_held_between_changes(tmp_path):
+    """A label stream published only on change (irregular intervals) has no holes of its own."""
+    times = [0.0, 0.7, 5.0, 5.3, 9.0]
+    label_of = lambda t: {0.0: 1, 0.7: 2, 5.0: 4, 5.3: 2, 9.0: 6}[round(t, 2)]   # noqa: E731
+    path = tmp_path / "on_change.mcap"
+    _write_label_stream(path, times, label_of)
+    t = load_run(path).table
+    ts = t["t_s"].to_numpy()
+    np.testing.assert_array_equal(t["terrain"].to_numpy(), _held_labels(ts, times, label_of))
+
+
 # ----------------------------------------------------------------------------- truncated ROS 1 bag
 def _write_bag(path, n=300, compression=None):
     from rosbags.rosbag1 import Writer

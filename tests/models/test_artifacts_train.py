@@ -134,3 +134,36 @@ def test_cli_train_and_evaluate(log_dir, log_dir2, tmp_path, monkeypatch):
     assert r.exit_code == 2 and "nope" in r.output and "Traceback" not in r.output
     r = runner.invoke(app, ["train", "--data", str(tmp_path / "missing"), "--out", str(tmp_path / "x")])
     assert r.exit_code == 2 and "missing" in r.output
+
+
+def test_cli_train_on_a_full_disk_names_the_folder_and_leaves_no_manifest(log_dir, tmp_path, monkeypatch):
+    """Issue 31 case 3: the model folder's writes fail past 2 kB (RLIMIT_FSIZE, EFBIG, SIGXFSZ
+    ignored): one ``error:`` line naming the file of the model folder, exit 2, no traceback, and
+    no ``manifest.json`` -- never a folder that looks complete."""
+    import resource
+    import signal
+
+    from terrainml.cli import app
+    from terrainml.pipeline import train as train_mod
+
+    from cli_refusal import assert_refused
+
+    real = train_mod.make_factory
+    monkeypatch.setattr(train_mod, "make_factory",
+                        lambda kind, ds, seed=0, subset="all", n_jobs=1, params=None:
+                        real(kind, ds, seed, subset, n_jobs, {**SMALL[kind], **(params or {})}))
+    runner = CliRunner()
+    w = tmp_path / "w.parquet"
+    assert runner.invoke(app, ["dataset", "build", str(log_dir), "--out", str(w), "-q"]).exit_code == 0
+    out = tmp_path / "runs" / "svm"
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    old = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (2_000, hard))
+    try:
+        r = runner.invoke(app, ["train", "--data", str(w), "--model", "svm", "--folds", "3", "--seed", "1",
+                                "--out", str(out), "--no-ablation", "-q"])
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, old)
+    assert_refused(r, out, "cannot write")
+    assert not (out / "manifest.json").exists() and not list(out.rglob(".*.part"))

@@ -148,3 +148,25 @@ def test_topics_and_format_are_refused_for_udp_and_stdin():
     for src in ("-", "udp://127.0.0.1:0"):
         with pytest.raises(SourceError, match="apply to a log file"):
             open_source(src, topic_map="default")
+
+
+def test_predict_on_a_full_disk_counts_every_lost_tick_of_the_mcap_sink(sim_log, model_dir, tmp_path,
+                                                                         monkeypatch, capsys):
+    """Issue 31 case 3: the recording's disk is full (ENOSPC from its file object): serving goes
+    on (exit 0, every tick on stdout), the summary counts each lost tick, not one error, and no
+    recording is left at the sink's path as if complete."""
+    import terrainml.stream.sinks as sinks
+    from terrainml.io.ingest import load_run
+    from terrainml.stream.runner import run_predict
+
+    from disk_full import full_disk_open
+
+    n_ticks = len(load_run(sim_log, robot=load_robot()).table)
+    out = tmp_path / "served.mcap"
+    monkeypatch.setattr(sinks, "open", full_disk_open(2_000), raising=False)
+    code = run_predict(model=model_dir, source=str(sim_log), sinks=[f"mcap:{out}", "stdout"])
+    assert code == 0
+    captured = capsys.readouterr()
+    assert len(captured.out.splitlines()) == n_ticks
+    assert f"sink errors: {{'mcap:{out}': {n_ticks}}}" in captured.err.replace("\n", "")
+    assert not out.exists() and "Traceback" not in captured.err

@@ -410,7 +410,27 @@ class Plan:
 
 
 def _need_gap(signals: list[Signal]) -> float:
-    return max([s.max_gap_s for s in signals if s.method != "previous" and np.isfinite(s.max_gap_s)] + [0.0])
+    """How far past a chunk an unseen sample can still change it: the gap threshold of signals that
+    look at the next sample (interpolated ones, and a regular label stream's hole rule)."""
+    return max([s.max_gap_s for s in signals if (s.method != "previous" or s.period_s is not None)
+                and np.isfinite(s.max_gap_s)] + [0.0])
+
+
+def label_period_s(series: Series, rate_hz: float) -> float | None:
+    """The period of a regular label stream, None when it is published on change (or damaged).
+
+    Regular: at least three intervals and 75 % of them within half a period of the median
+    (``max(base period, median interval)``); a stream of labels sent only when the terrain
+    changes has no period, and its long intervals are no holes.
+    """
+    if not series.in_order or series.n_le + sum(len(g) for g in series.gt) < 3:
+        return None
+    period = series.gap_s(rate_hz) / 2.0
+    d = np.concatenate(series.gt) * 1e-9 if series.gt else np.zeros(0)
+    near = np.count_nonzero(np.abs(d - period) <= 0.5 * period)
+    if series.n_le and series.max_le * 1e-9 >= 0.5 * period:
+        near += series.n_le
+    return period if near >= 0.75 * (series.n_le + len(d)) else None
 
 
 def _unsorted_gaps(log: FileLog, scan: Scan, rate_hz: float, t0: int) -> tuple[dict, dict]:
@@ -509,7 +529,8 @@ def plan(scan: Scan, log: FileLog, tmap: TopicMap, robot: RobotSpec, rate_hz: fl
             f = facts[topic] = SourceFacts(
                 gap_s=ts.series.gap_s(rate_hz) if ts.series.in_order else extra_gaps.get(topic),
                 imu_orientation=not (ts.imu_all_identity or ts.imu_all_zero),
-                cam_yaw0_rad=None if ts.cam_best is None else ts.cam_best[1])
+                cam_yaw0_rad=None if ts.cam_best is None else ts.cam_best[1],
+                label_period_s=label_period_s(ts.series, rate_hz) if ts.kind == "label" else None)
             first = ts.first_row
             tmpl = signals_for(ts.src, first, (first["t_ns"] - t0) * 1e-9, robot, tmap, f)
             if tmpl:
@@ -634,7 +655,8 @@ class Producer:
 
     def _signals(self, buf: Buffer, sl: slice, t_s: np.ndarray) -> list[Signal]:
         if not len(t_s):
-            return [Signal(s.column, t_s, np.zeros(0), s.method, s.max_gap_s) for s in buf.signals]
+            return [Signal(s.column, t_s, np.zeros(0), s.method, s.max_gap_s, period_s=s.period_s)
+                    for s in buf.signals]
         if buf.joint is not None:
             return [Signal(s.column, t_s, buf.data[f][sl], s.method, s.max_gap_s)
                     for s, f in zip(buf.signals, buf.fields)]

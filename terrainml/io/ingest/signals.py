@@ -38,6 +38,7 @@ class Signal:
     method: str                      # resample method: linear, previous, angle
     max_gap_s: float
     extra_invalid: np.ndarray | None = None   # (n,) per-sample flag (e.g. low camera confidence)
+    period_s: float | None = None    # labels: the regular stream's period (None: held without limit)
 
 
 @dataclass
@@ -47,6 +48,7 @@ class SourceFacts:
     gap_s: float                          # gap threshold of the source's stamps
     imu_orientation: bool = True          # the IMU ever publishes an orientation
     cam_yaw0_rad: float | None = None     # raw T265 yaw of the first valid pose
+    label_period_s: float | None = None   # a regular label stream's period (None: on change, unknown)
 
 
 @dataclass
@@ -143,8 +145,40 @@ def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap
             add(col, part[grp][:, "xyz".index(axis)])
     elif kind == "label":
         add("terrain", part["data"], "previous")
-        sig[-1].max_gap_s = np.inf
+        # a regular label stream has holes of its own (a gap over its threshold); on change: none
+        sig[-1].period_s = facts.label_period_s
+        sig[-1].max_gap_s = np.inf if facts.label_period_s is None else facts.gap_s
     return sig
+
+
+def label_stream_stale(s: Signal, grid: np.ndarray) -> np.ndarray:
+    """Ticks of ``grid`` whose label is stale because of a hole in the label stream itself.
+
+    A regular label stream (``s.period_s`` set) has a hole wherever two consecutive label samples
+    are more than ``s.max_gap_s`` apart (its gap threshold), or after its last sample. Across such
+    a hole the held label lasts one period -- as far as it would have in the complete stream --
+    and the ticks after it are stale until the next label sample, whatever the other sensors do.
+    ``s.t_s`` must hold the first sample after ``grid`` when there is one within the threshold.
+
+    Parameters
+    ----------
+    s : Signal
+        The ``terrain`` signal.
+    grid : numpy.ndarray
+        (m,) tick times (s).
+
+    Returns
+    -------
+    numpy.ndarray
+        (m,) bool, True where the label is stale.
+    """
+    if s.period_s is None or not len(s.t_s):
+        return np.zeros(len(grid), bool)
+    i = np.searchsorted(s.t_s, grid + _EPS, side="right") - 1
+    held = s.t_s[np.clip(i, 0, None)]
+    nxt = np.append(s.t_s[1:], np.inf)[np.clip(i, 0, None)]
+    hole = nxt - held > s.max_gap_s + _EPS
+    return (i >= 0) & hole & (grid - held > s.period_s + _EPS)
 
 
 def last_hole_s(df: pd.DataFrame, before_s: float = -np.inf) -> float:
@@ -159,9 +193,10 @@ def assemble(signals: list[Signal], grid: np.ndarray, robot: RobotSpec,
     """Resample ``signals`` onto ``grid`` (m,) s: the canonical columns, each ``{group}_valid``.
 
     Labels are held from one label sample to the next, but never across a hole: a tick at which
-    no sensor group is valid (a corrupt chunk, a cut, every sensor silent). Ticks in a hole and
-    after it get no label (-1) until a new label sample; ``hole_before_s`` is the last hole tick
-    before ``grid`` (chunked ingest, :func:`last_hole_s`).
+    no sensor group is valid (a corrupt chunk, a cut, every sensor silent), or a hole in the label
+    stream itself (:func:`label_stream_stale`). Ticks in a hole and after it get no label (-1)
+    until a new label sample; ``hole_before_s`` is the last hole tick before ``grid`` (chunked
+    ingest, :func:`last_hole_s`).
     """
     spec = column_map(robot.n_wheels)
     data: dict[str, np.ndarray] = {"t_s": grid}
@@ -174,7 +209,9 @@ def assemble(signals: list[Signal], grid: np.ndarray, robot: RobotSpec,
             i = np.searchsorted(s.t_s, grid + _EPS, side="right") - 1
             label_t = np.where(i >= 0, s.t_s[np.clip(i, 0, None)] if len(s.t_s) else 0.0, np.inf)
         out, valid = resample(s.t_s, s.values, grid, method="previous" if held else s.method,
-                              max_gap_s=s.max_gap_s)
+                              max_gap_s=np.inf if s.column == "terrain" else s.max_gap_s)
+        if s.column == "terrain":
+            out = np.where(label_stream_stale(s, grid), np.nan, out)
         if s.extra_invalid is not None and len(s.t_s):
             low, _ = resample(s.t_s, s.extra_invalid.astype(float), grid, method="previous", max_gap_s=np.inf)
             valid = valid & ~(low > 0.5)

@@ -18,6 +18,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from terrainml.atomic import discard, output_error, part_path
 from terrainml.io.ingest.report import Tally
 from terrainml.schema import METADATA_KEY, validate_run_table
 
@@ -54,9 +55,16 @@ class ParquetSink:
 
     @property
     def tmp(self) -> Path:
-        return self.out.with_name(f".{self.out.name}.part")
+        return part_path(self.out)
 
     def write(self, chunk: pd.DataFrame) -> None:
+        """Append ``chunk``; a failed write raises :class:`terrainml.atomic.OutputWriteError` naming ``out``."""
+        try:
+            self._write(chunk)
+        except OSError as exc:   # a full disk: name the output, not the log being read
+            raise output_error(exc, self.out) from None
+
+    def _write(self, chunk: pd.DataFrame) -> None:
         chunk["run_id"] = self.run_id
         if self.writer is None:  # every chunk has the same columns and dtypes: check the first,
             chunk = validate_run_table(chunk, self.n_wheels, source=self.meta["source_file"])  # the
@@ -75,10 +83,21 @@ class ParquetSink:
         self.tally.add(chunk)
 
     def close(self, keep: bool) -> None:
-        """Finish the file; move it to ``out`` when ``keep``, else leave nothing behind."""
-        if self.writer is not None:
-            self.writer.close()
-        if keep:
-            os.replace(self.tmp, self.out)
-        else:
-            self.tmp.unlink(missing_ok=True)
+        """Finish the file; move it to ``out`` when ``keep``, else leave nothing behind.
+
+        A failure to finish or move it leaves nothing either and raises
+        :class:`terrainml.atomic.OutputWriteError` naming ``out``.
+        """
+        try:
+            if self.writer is not None:
+                self.writer.close()
+            if keep:
+                os.replace(self.tmp, self.out)
+                return
+        except OSError as exc:
+            discard(self.tmp)
+            raise output_error(exc, self.out) from None
+        except BaseException:
+            discard(self.tmp)
+            raise
+        discard(self.tmp)
