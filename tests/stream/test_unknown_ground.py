@@ -10,6 +10,10 @@ must come back; the same model saved without its novelty entry must serve as bef
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from stream_fakes import SLIP_OF
@@ -160,3 +164,17 @@ def test_one_flagged_window_never_leaves_the_class_and_leaving_takes_confirmed_w
     g = TerrainFilter(2)
     g.update(known)  # no novelty score: as before
     assert not g.unknown and g.novelty == -1.0
+
+
+def test_predict_says_unknown_terrain_in_its_json_and_its_summary(folders, drive):
+    """``terrainml predict`` end to end (stdin JSON lines in, stdout JSON lines out)."""
+    lines = "\n".join(json.dumps(s) for s in iter_table_samples(drive)) + "\n"
+    proc = subprocess.run([sys.executable, "-m", "terrainml.cli", "predict", "--model", str(folders["with"]),
+                           "--source", "-", "--sink", "stdout"], input=lines, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    out = [json.loads(x) for x in proc.stdout.splitlines()]
+    unknown = [m for m in out if m["fallback_reason"] == "unknown_terrain"]
+    assert unknown and all(ON_S <= m["t_s"] < OFF_S + 4.0 and m["terrain_class"] == -1 for m in unknown)
+    assert max(m["novelty"] for m in unknown) > 1.0
+    assert "unknown ground: 1 stretch" in proc.stderr
