@@ -248,6 +248,30 @@ def _safe_cap_targets(ctrl: LimiterController) -> tuple[np.ndarray, np.ndarray, 
         return np.full(n, s), np.full(n, -s), None
 
 
+def _cap_class(ctrl: LimiterController, s_cap: float) -> int | None:
+    """The class whose traction target is the safe cap ``s_cap`` (the largest peak), or None."""
+    names = getattr(ctrl.predictor, "class_names", None) or None
+    ids = getattr(ctrl.table, "class_ids", None) or ()
+    for cid in ids:
+        if names is not None and ctrl.table.class_name(cid) not in names:
+            continue
+        if abs(float(ctrl.table.target(cid, "traction")) - s_cap) < 1e-9:
+            return int(cid)
+    return None
+
+
+def _unknown_ground_targets(ctrl: LimiterController) -> tuple[np.ndarray, np.ndarray, int | None]:
+    """The safe cap on unknown ground (``unknown_terrain``, issue #30), refined online.
+
+    No class names the ground, so the cap refiner reads the shift of the measured thrust-slip
+    rise against the nominal curve of the class that sets the safe cap (its traction peak is the
+    cap): the served cap stays within the refiner's band around the safe cap. Not yet measured
+    on missions (issue #30 item 5).
+    """
+    s_t, s_b, _ = _safe_cap_targets(ctrl)
+    return s_t, s_b, _cap_class(ctrl, float(s_t[0]))
+
+
 #: m/s, a wheel's command must lead its estimated ground speed by this for it to count as held back
 LAG_MARGIN_MPS = 0.05
 #: s, how long a wheel must be held at its cap on weak thrust before the class counts as contradicted
@@ -310,11 +334,15 @@ class ServedTargets:
         Tuning seeds, every mission: worst energy change against none +2.5 -> +0.1%
         (greenhouse), +1.4 -> +0.0% (field); worst time +2.8 -> +0.3%, +2.0 -> +0.1%; step-start
         and spinning savings unchanged (28.1%, 68%).
+    refine_unknown : on a message saying ``unknown_terrain`` (issue #30) serve the safe cap
+        refined online (the controller's ``refine``; :func:`_unknown_ground_targets`), not while a
+        stall escalation holds it (that serves the largest peak unrefined). Other fallbacks serve
+        it unrefined (no class, no curve: design §12).
     """
 
     def __init__(self, stall_speed_mps: float = 0.1, stall_s: float = 0.5, hold_m: float = 2.0,
                  relearn: bool = True, lag_decel_mps2: float | None = 0.3, lag_s: float = 0.2,
-                 thrust_gate: float | None = 0.5):
+                 thrust_gate: float | None = 0.5, refine_unknown: bool = True):
         for name, v in (("stall_speed_mps", stall_speed_mps), ("stall_s", stall_s), ("hold_m", hold_m),
                         ("lag_s", lag_s), ("lag_decel_mps2", 1.0 if lag_decel_mps2 is None else lag_decel_mps2)):
             if not (math.isfinite(v) and v > 0.0):
@@ -335,6 +363,7 @@ class ServedTargets:
             raise ValueError(f"ServedTargets.thrust_gate must be None or in (0, 1), got {thrust_gate!r}")
         self.thrust_gate = None if thrust_gate is None else float(thrust_gate)
         self.weak_s = 0.0              # how long some wheel has been held at its cap on weak thrust
+        self.refine_unknown = bool(refine_unknown)
 
     def _stale_after_unhealthy(self, msg: Any, dt: float) -> bool:
         """True while the served class predates the last estimator-unhealthy episode."""
@@ -403,6 +432,9 @@ class ServedTargets:
             self._escalate()
         stale = self._stale_after_unhealthy(msg, dt)
         if not classed or self.hold_left_m > 0.0 or stale:
+            unknown = msg is not None and msg.fallback_reason == "unknown_terrain"
+            if unknown and self.refine_unknown and self.hold_left_m <= 0.0:
+                return _unknown_ground_targets(ctrl)
             return _safe_cap_targets(ctrl)
         return _class_targets(ctrl, msg.terrain_class)
 

@@ -56,6 +56,9 @@ DEFAULT_FALSE_ALARM = 0.03
 MAX_REFERENCE_PER_CLASS = 2000
 NOVELTY_FILE = "novelty.safetensors"
 _CLIP = 20.0  # standardised features beyond +-20 sd are clipped (heavy-tailed features)
+#: up to this many windows are scored by a numpy brute-force search (serving scores one window
+#: per hop: sklearn's search measured ~120 ms per window on the shared 2-core machine, numpy < 1 ms)
+_BRUTE_MAX = 64
 
 
 class NoveltyError(ValueError):
@@ -150,7 +153,7 @@ class NoveltyScorer:
         if self.method == "mahalanobis":
             lw = LedoitWolf().fit(Z)
             self.mean_, self.precision_ = lw.location_, lw.precision_
-        self._index = None
+        self._index = self._brute = None
         return self
 
     def _standardise(self, F: np.ndarray) -> np.ndarray:
@@ -163,6 +166,23 @@ class NoveltyScorer:
         if fitted and F.shape[1] != len(self.center_):
             raise NoveltyError(f"novelty: expected {len(self.center_)} features per window, got {F.shape[1]}")
         return np.nan_to_num(F, nan=0.0, posinf=0.0, neginf=0.0)
+
+    def _kth(self, j: int, Z: np.ndarray) -> np.ndarray:
+        """Distance (n,) of each row of ``Z`` to its k-th nearest reference of index ``j``."""
+        if len(Z) <= _BRUTE_MAX:  # a few windows (serving): brute force, no search overhead
+            ref = self._brute_reference()[j]
+            d2 = ((Z[:, None, :] - ref[None, :, :]) ** 2).sum(axis=2)
+            return np.sqrt(np.partition(d2, self.k - 1, axis=1)[:, self.k - 1])
+        return self._neighbours()[j].kneighbors(Z)[0][:, -1]
+
+    def _brute_reference(self) -> list[np.ndarray]:
+        if getattr(self, "_brute", None) is None:
+            if self.method == "class_knn":
+                self._brute = [(self.reference_[self.reference_y_ == c] - self.class_center_[j]) / self.class_scale_[j]
+                               for j, c in enumerate(self.classes_)]
+            else:
+                self._brute = [self.reference_]
+        return self._brute
 
     def _neighbours(self) -> list:
         if getattr(self, "_index", None) is None:
@@ -181,11 +201,10 @@ class NoveltyScorer:
             d = Z - self.mean_
             return np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", d, self.precision_, d), 0.0))
         if self.method == "knn":
-            return self._neighbours()[0].kneighbors(Z)[0][:, -1]
+            return self._kth(0, Z)
         out = np.full(len(Z), np.inf)
-        for j, nn in enumerate(self._neighbours()):
-            Zc = (Z - self.class_center_[j]) / self.class_scale_[j]
-            out = np.minimum(out, nn.kneighbors(Zc)[0][:, -1])
+        for j in range(len(self.classes_)):
+            out = np.minimum(out, self._kth(j, (Z - self.class_center_[j]) / self.class_scale_[j]))
         return out
 
     def is_unknown(self, F: np.ndarray) -> np.ndarray:
@@ -247,7 +266,7 @@ class NoveltyScorer:
             s.class_center_, s.class_scale_ = a["class_center"], a["class_scale"]
         if s.method == "mahalanobis":
             s.mean_, s.precision_ = a["mean"], a["precision"]
-        s._index = None
+        s._index = s._brute = None
         return s
 
     def _arrays_names(self) -> list[str]:

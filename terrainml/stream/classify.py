@@ -8,6 +8,11 @@ A window the steady rules reject yields ``None`` (the predictor keeps the previo
 classification, which ages towards the stale fallback) and leaves the rules it failed, and the
 channels that were invalid, in ``last_rejection`` (a :class:`Rejection`): serving counts them per
 rule and names them when the robot moves without a classification (:mod:`terrainml.stream.scheduler`).
+With the model's novelty scorer (issue #30, :class:`~terrainml.models.novelty.NoveltyScorer`,
+saved with the model by ``train``), each classified window is also scored in the model's own
+feature space (:func:`~terrainml.models.novelty.model_features`, the features the scorer was
+fitted on): ``last_novelty`` holds its score over the threshold and whether it is over it, which
+the fusion filter turns into unknown ground (:mod:`terrainml.stream.fusion`).
 
 :func:`load_serving_model` opens a verified model folder (``runs/NAME``) through
 :mod:`terrainml.models.artifacts` (hashes checked on load) and returns what the predictor needs.
@@ -29,6 +34,7 @@ from terrainml.features.windows import RULES, Windows, WindowSpec, channel_colum
 from terrainml.lookup.catalogue import BUILTIN_CATALOGUES
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import load_artifact
+from terrainml.models.novelty import NoveltyScorer, model_features
 from terrainml.robot import RobotSpec
 
 log = logging.getLogger("terrainml.stream")
@@ -124,10 +130,13 @@ class WindowClassifier:
         matrix, or None when ``model`` consumes raw windows itself (e.g. the CNN wrapper).
     window_spec : the artifact's ``WindowSpec``: the windows are cut with it (the predictor's
         ring buffer and hop come from the same spec).
+    class_ids : class ids of the probabilities (default ``model.classes_``).
+    novelty : the model's fitted :class:`~terrainml.models.novelty.NoveltyScorer` with its
+        threshold, or None (no novelty: ``last_novelty`` stays None).
     """
 
     def __init__(self, model: Any, robot: RobotSpec, features: Any, window_spec: WindowSpec,
-                 class_ids: Sequence[int] | None = None):
+                 class_ids: Sequence[int] | None = None, novelty: NoveltyScorer | None = None):
         self.model = model
         self.robot = robot
         self.features = features
@@ -142,6 +151,12 @@ class WindowClassifier:
         self.raw_columns = tuple(dict.fromkeys(c for ch in chans for c in _raw_columns(ch, robot)))
         #: why the latest window was not classified (None after a classified one)
         self.last_rejection: Rejection | None = None
+        if novelty is not None and novelty.threshold is None:
+            raise ModelLoadError("the model's novelty scorer has no threshold")
+        self.novelty = novelty
+        self._threshold = None if novelty is None else float(novelty.threshold)  # type: ignore[arg-type]
+        #: (score over the threshold, over it) of the latest classified window; None without a scorer
+        self.last_novelty: tuple[float, bool] | None = None
 
     def classify(self, window: pd.DataFrame) -> np.ndarray | None:
         """Probabilities (K,) for the latest window of an EST DataFrame, or None."""
@@ -166,7 +181,15 @@ class WindowClassifier:
             wins = Windows(wins.X[-1:], wins.channels, None, wins.rate_hz)  # type: ignore[arg-type]
         x = self.features.transform(wins) if self.features is not None else wins
         p = np.asarray(self.model.predict_proba(x), dtype=float)
+        self.last_novelty = None if self.novelty is None else self._novelty(x)
         return p[-1]
+
+    def _novelty(self, x: Any) -> tuple[float, bool]:
+        """(score / threshold, flagged) of the latest window ``x`` in the model's feature space."""
+        score = float(self.novelty.score(model_features(self.model, x))[-1])  # type: ignore[union-attr]
+        thr = float(self._threshold)  # type: ignore[arg-type]
+        ratio = score / thr if thr > 0 else (math.inf if score > thr else 0.0)
+        return (ratio if math.isfinite(ratio) else 1e6), bool(score > thr)
 
 
 def _leaves(d: Any, prefix: str = "") -> dict[str, Any]:
@@ -249,7 +272,7 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | None = None,
     for cid, name in zip(ids, own):
         names[cid] = name
     clf = WindowClassifier(art.model, rb, art.features, art.window_spec,
-                           class_ids=[int(c) for c in art.model.classes_])
+                           class_ids=[int(c) for c in art.model.classes_], novelty=art.novelty)
     return ServingModel(rb, table, clf, art.preset or "robust", names, art.window_spec,
                         sensors=None if art.sensors is None else list(art.sensors),
                         members=_members(art, rb, clf.class_ids))

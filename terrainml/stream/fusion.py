@@ -32,6 +32,18 @@ forward pass) over the model's K classes whose clock is the odometer:
   76% instead of >= 80%).
 * **age in metres**: distance since the last classification (``age_m``); beyond ``stale_m``
   (default 3 m) without a fresh one the fused class is stale.
+* **unknown ground** (issue #30): a window may come with its novelty flag (the model's
+  :class:`~terrainml.models.novelty.NoveltyScorer` over its threshold). ``unknown_windows`` = U
+  consecutive flagged windows make the filter :attr:`~TerrainFilter.unknown` (the policy serves
+  the safe cap with ``unknown_terrain``); while unknown, the windows' closed-set probabilities
+  are not fused (they name a class the ground is not). It ends like a class change is
+  confirmed: max(K, U) consecutive windows that are not flagged and name one class; the filter
+  then restarts from the last of them and serves it. U is 1 + round(:data:`UNKNOWN_CONFIRM_S` /
+  hop) (:func:`unknown_windows_for`: 3 at a 0.5 s hop, 11 at 0.1 s), so a window or two over
+  the threshold (about 3 % of known windows are, by the threshold's design) never leave the class;
+  leaving takes at least U windows too, because at a 0.5 s hop K is 1 and one closed-set
+  window that looks known on new ground would end the stretch. A window without a flag (a model
+  without a novelty scorer) changes nothing here: the filter serves exactly as before.
 
 All numbers are finite by construction (``eps`` floors the likelihoods); K-vectors are small and
 each call costs a few microseconds.
@@ -43,10 +55,16 @@ import math
 
 import numpy as np
 
-__all__ = ["TerrainFilter", "CONFIRM_S", "confirm_windows_for"]
+__all__ = ["TerrainFilter", "CONFIRM_S", "UNKNOWN_CONFIRM_S", "confirm_windows_for", "fusion_settings",
+           "unknown_windows_for"]
 
 #: seconds of windows over which a change alarm is confirmed (issue #19, tuning courses)
 CONFIRM_S = 0.2
+#: seconds of flagged windows that make the ground unknown (issue #30). Not tuned on real unknown
+#: ground yet: overlapping windows on known ground are flagged in clusters (the threshold flags
+#: about 3 % of them; on the synthetic test drive two consecutive 0.5 s windows were), so 1.0 s:
+#: 3 windows at a 0.5 s hop, unknown about 1 s after the first flagged window (1 m at 1 m/s)
+UNKNOWN_CONFIRM_S = 1.0
 
 
 def confirm_windows_for(hop_s: float, confirm_s: float = CONFIRM_S) -> int:
@@ -55,6 +73,19 @@ def confirm_windows_for(hop_s: float, confirm_s: float = CONFIRM_S) -> int:
     if not float(hop_s) > 0:
         raise ValueError(f"confirm_windows_for: hop_s must be > 0, got {hop_s!r}")
     return 1 + int(round(float(confirm_s) / float(hop_s)))
+
+
+def unknown_windows_for(hop_s: float, confirm_s: float = UNKNOWN_CONFIRM_S) -> int:
+    """U for a classification every ``hop_s`` seconds: 1 + round(confirm_s / hop_s) flagged
+    windows make the ground unknown (3 at a 0.5 s hop, 11 at 0.1 s)."""
+    return confirm_windows_for(hop_s, confirm_s)
+
+
+def fusion_settings(hop_s: float, overrides: dict | None = None) -> dict:
+    """The predictor's :class:`TerrainFilter` settings for its hop (``confirm_windows``,
+    ``unknown_windows``), with the serving config's ``fusion`` overrides on top."""
+    return {"confirm_windows": confirm_windows_for(hop_s), "unknown_windows": unknown_windows_for(hop_s),
+            **dict(overrides or {})}
 
 
 class TerrainFilter:
@@ -74,6 +105,9 @@ class TerrainFilter:
         before the filter serves it; the class from before the alarm is served meanwhile
         (default 1: the restart is served at once; the predictor uses
         :func:`confirm_windows_for` its hop).
+    unknown_windows : int >= 1, U: consecutive windows flagged unknown (the ``unknown`` argument
+        of :meth:`update`) that make the ground unknown; max(K, U) known windows naming one class
+        end it (default 2; the predictor uses :func:`unknown_windows_for` its hop).
 
     Attributes
     ----------
@@ -81,15 +115,19 @@ class TerrainFilter:
     age_m : float, m travelled since the last classification (inf before the first).
     n_changes : int, change-detector alarms so far.
     pending : bool, an alarm awaits confirmation (:meth:`best` reports the held class).
+    unknown : bool, the latest windows are unknown ground (module docstring).
+    novelty : float, the latest window's novelty score over its threshold (> 1: flagged); -1.0
+        when no window came with a score.
     """
 
     def __init__(self, n_classes: int, *, length_m: float = 20.0, alpha: float = 0.35,
                  eps: float = 0.02, drift: float = 1.5, threshold: float = 4.0,
-                 stale_m: float = 3.0, confirm_windows: int = 1):
+                 stale_m: float = 3.0, confirm_windows: int = 1, unknown_windows: int = 2):
         if int(n_classes) < 1:
             raise ValueError("TerrainFilter: n_classes must be >= 1")
-        if int(confirm_windows) != confirm_windows or int(confirm_windows) < 1:
-            raise ValueError(f"TerrainFilter: confirm_windows must be an integer >= 1, got {confirm_windows!r}")
+        for name, v in (("confirm_windows", confirm_windows), ("unknown_windows", unknown_windows)):
+            if int(v) != v or int(v) < 1:
+                raise ValueError(f"TerrainFilter: {name} must be an integer >= 1, got {v!r}")
         for name, v in (("length_m", length_m), ("eps", eps), ("threshold", threshold),
                         ("stale_m", stale_m)):
             if not float(v) > 0:
@@ -106,6 +144,7 @@ class TerrainFilter:
         self.threshold = float(threshold)
         self.stale_m = float(stale_m)
         self.confirm_windows = int(confirm_windows)
+        self.unknown_windows = int(unknown_windows)
         self.reset()
 
     def reset(self) -> None:
@@ -118,6 +157,11 @@ class TerrainFilter:
         self.pending = False
         self._held = (-1, 0.0)     # (class, posterior) served while an alarm awaits confirmation
         self._run = (-1, 0)        # (class, consecutive windows naming it) since the alarm
+        self.unknown = False
+        self.novelty = -1.0
+        self.n_unknown_stretches = 0
+        self._flagged = 0          # consecutive windows flagged unknown
+        self._known = (-1, 0)      # (class, consecutive known windows naming it) while unknown
 
     # ------------------------------------------------------------------ filter
     def predict(self, distance_m: float) -> None:
@@ -133,13 +177,21 @@ class TerrainFilter:
         b = p_stay * b + (1.0 - p_stay) * (1.0 - b) / (self.n_classes - 1)
         self.posterior = b / b.sum()
 
-    def update(self, probabilities: np.ndarray) -> bool:
-        """Fuse one classification (K probabilities); return True when a change was detected."""
+    def update(self, probabilities: np.ndarray, unknown: bool | None = None,
+               novelty: float = -1.0) -> bool:
+        """Fuse one classification (K probabilities); return True when a change was detected.
+
+        ``unknown``: the window's novelty flag (None: no novelty score, as before issue #30; on
+        unknown ground, e.g. a sensor member without a scorer serving, it counts as not flagged);
+        ``novelty``: its score over the threshold (the message's ``novelty``).
+        """
         p = np.asarray(probabilities, dtype=float).ravel()
         if p.shape[0] != self.n_classes:
             raise ValueError(f"TerrainFilter: {p.shape[0]} probabilities for {self.n_classes} classes")
         self.age_m = 0.0
         self.n_updates += 1
+        if (unknown is not None or self.unknown) and self._unknown_ground(p, bool(unknown), float(novelty)):
+            return False
         if self.posterior is None:
             self.posterior = self._restart(p)
             return False
@@ -163,6 +215,28 @@ class TerrainFilter:
                 self.pending = False
                 self.posterior = self._restart(p)
         return False
+
+    def _unknown_ground(self, p: np.ndarray, flagged: bool, novelty: float) -> bool:
+        """Track the novelty flags; True when the window is not to be fused (unknown ground)."""
+        self.novelty = novelty if math.isfinite(novelty) else -1.0
+        self._flagged = self._flagged + 1 if flagged else 0
+        if not self.unknown:
+            if self._flagged >= self.unknown_windows:
+                self.unknown, self._known = True, (-1, 0)
+                self.n_unknown_stretches += 1
+                return True
+            return False
+        if flagged:
+            self._known = (-1, 0)
+            return True
+        k = int(np.argmax(p))
+        self._known = (k, self._known[1] + 1 if k == self._known[0] else 1)
+        if self._known[1] < max(self.confirm_windows, self.unknown_windows):
+            return True
+        # known again, confirmed like a class change: serve the class from the last window
+        self.unknown, self.pending, self.cusum = False, False, 0.0
+        self.posterior = self._restart(p)
+        return True
 
     def _restart(self, p: np.ndarray) -> np.ndarray:
         """A posterior from one classification: its probabilities, floored like a likelihood."""

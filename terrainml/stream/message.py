@@ -25,9 +25,15 @@ fallback_detail      str             for ``windows_rejected``: the window rule t
 sensors              str[]           sensor groups (``wheels``, ``currents``, ``imu``, ``cam``) of the
                                      model member serving the tick: the artifact's model, or the
                                      best member whose groups are healthy (design §11, issue #28)
+novelty              float           the latest classified window's novelty score over the model's
+                                     threshold (issue #30; > 1: unlike the training windows, the
+                                     ground turns ``unknown_terrain`` after a few such windows);
+                                     -1 when the model has no novelty scorer or no window is scored
 
-The last two are additions to design §11's field list (issue #28: say which sensors served and
-why the windows are rejected); a message without them (an older log) still reads.
+The last three are additions to design §11's field list (issue #28: say which sensors served and
+why the windows are rejected; issue #30: how unlike the training windows the ground is); a
+message without them (an older log) still reads. CAN carries ``unknown_terrain`` as reason code
+8 but not ``novelty`` (its frames have no byte free; :mod:`terrainml.stream.sinks`).
 
 JSON never contains NaN or infinity. :meth:`DesiredSlip.to_dict` replaces any non-finite
 number by its documented safe value (:data:`SAFE_VALUES`): slips 0.0, confidence 0.0,
@@ -54,6 +60,7 @@ FALLBACK_REASONS: tuple[str, ...] = (
     "clock_jump",            # t_s off the stream's timeline, re-anchoring (stream/clock.py)
     "uncertain_classification",  # the fused posterior's maximum is below serve_p (default 0.6)
     "windows_rejected",      # moved > warn_after_m (default 5 m) healthy, every window rejected
+    "unknown_terrain",       # the latest windows are unlike the model's training windows (issue #30)
 )
 
 #: value substituted for a non-finite number, per field
@@ -65,6 +72,7 @@ SAFE_VALUES: dict[str, float] = {
     "class_probabilities": 0.0,
     "classification_age_s": -1.0,
     "processing_ms": 0.0,
+    "novelty": -1.0,
 }
 
 TOPIC = "/terrainml/desired_slip"
@@ -98,6 +106,7 @@ class DesiredSlip:
     processing_ms: float = 0.0
     fallback_detail: str = ""
     sensors: list[str] = field(default_factory=list)
+    novelty: float = -1.0
     extra: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     # ------------------------------------------------------------------ json
@@ -122,6 +131,7 @@ class DesiredSlip:
             "processing_ms": _finite(self.processing_ms, SAFE_VALUES["processing_ms"]),
             "fallback_detail": str(self.fallback_detail),
             "sensors": [str(g) for g in self.sensors],
+            "novelty": max(-1.0, _finite(self.novelty, SAFE_VALUES["novelty"])),
         }
 
     def to_json(self) -> str:
@@ -144,8 +154,8 @@ class DesiredSlip:
 
 
 FIELD_NAMES: tuple[str, ...] = tuple(f for f in DesiredSlip.__dataclass_fields__ if f != "extra")
-#: fields added to design §11's list (issue #28): a message written before them still reads
-ADDED_FIELDS: tuple[str, ...] = ("fallback_detail", "sensors")
+#: fields added to design §11's list (issues #28, #30): a message written before them still reads
+ADDED_FIELDS: tuple[str, ...] = ("fallback_detail", "sensors", "novelty")
 
 
 def json_schema(n_wheels: int | None = None, n_classes: int | None = None) -> dict[str, Any]:
@@ -184,6 +194,8 @@ def json_schema(n_wheels: int | None = None, n_classes: int | None = None) -> di
             "fallback_detail": {"type": "string", "description": "what the fallback reason names: for "
                                 "windows_rejected the window rule (and invalid channels); else empty"},
             "sensors": arr({"type": "string"}, None, "sensor groups of the model member serving this tick"),
+            "novelty": {"type": "number", "minimum": -1, "description": "latest window's novelty score "
+                        "over the model's threshold (> 1: unlike the training windows); -1 when none"},
         },
         "required": list(FIELD_NAMES),
     }

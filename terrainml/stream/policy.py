@@ -17,13 +17,24 @@ turns the fused posterior into what a tick serves:
 
 Reasons, by priority (:data:`FALLBACK_REASONS`): ``clock_jump`` (the tick's stamp is off the
 timeline, the chain did not run) > ``estimator_unhealthy`` > ``classifier_error`` (the last
-attempt raised, no fused class) > ``windows_rejected`` (no class, or a stale one, and every
+attempt raised, no fused class) > ``unknown_terrain`` (the latest classified windows are unlike
+the model's training windows: the fusion filter's ``unknown``, :mod:`terrainml.stream.fusion`;
+issue #30) > ``windows_rejected`` (no class, or a stale one, and every
 window rejected while the robot moved more than ``warn_after_m`` healthy: the message's
 ``fallback_detail`` names the rule and channels) > ``no_classification`` (none yet) > ``stale_classification``
 (more than ``stale_m`` travelled since the last classification, or, when ``max_age_s`` is set,
 an older one) > ``uncertain_classification`` (posterior max below ``serve_p``). A table or
 policy that raises serves zero slip with the tick's reason (``classifier_error`` when none):
 serving never stops on it.
+
+Why ``unknown_terrain`` sits there: below the reasons that say the chain itself cannot be
+trusted on this tick (a clock jump, an unhealthy estimator, a raising classifier), whose causes
+the robot must hear first; above the reasons about the age or confidence of the class
+(``windows_rejected``, ``no_classification``, ``stale_classification``, ``uncertain``),
+because the ground was judged unlike any trained class, and ageing does not make it known:
+windows rejected or a stale class on that stretch keep saying ``unknown_terrain``, so a
+controller that refines its cap on unknown ground (``control/cap_refiner.py``) is not switched
+off and on by the age rules. It ends only on confirmed known windows (or a new timeline).
 """
 
 from __future__ import annotations
@@ -46,8 +57,9 @@ NO_CLASS_ID = -1        # no class served (CAN: 255)
 NO_CLASS_NAME = "none"
 SERVE_P = 0.6           # design §10: serve the fused argmax at or above this posterior
 #: the fallback reasons, highest priority first
-FALLBACK_REASONS = ("clock_jump", "estimator_unhealthy", "classifier_error", "windows_rejected",
-                    "no_classification", "stale_classification", "uncertain_classification")
+FALLBACK_REASONS = ("clock_jump", "estimator_unhealthy", "classifier_error", "unknown_terrain",
+                    "windows_rejected", "no_classification", "stale_classification",
+                    "uncertain_classification")
 
 
 @dataclass(frozen=True)
@@ -63,6 +75,8 @@ class PolicyDecision:
     fallback : True when the safe cap is served.
     reason : "" or one of :data:`FALLBACK_REASONS`.
     detail : for ``windows_rejected``, the rule (and channels) that rejects the windows; else "".
+    novelty : the latest window's novelty score over the model's threshold (> 1: unlike the
+        training windows), -1.0 without one (no novelty scorer, or no window scored yet).
     """
 
     class_id: int
@@ -72,6 +86,7 @@ class PolicyDecision:
     fallback: bool
     reason: str
     detail: str = ""
+    novelty: float = -1.0
 
 
 class FusedClass(Protocol):
@@ -79,6 +94,8 @@ class FusedClass(Protocol):
 
     posterior: np.ndarray | None
     stale: bool
+    #: optional (getattr): unknown ground, and the latest window's novelty over its threshold
+    #: (:class:`~terrainml.stream.fusion.TerrainFilter`); absent: known, -1.0
 
     def best(self) -> tuple[int, float]: ...
 
@@ -160,6 +177,8 @@ class ServingPolicy:
             return "estimator_unhealthy"
         if classifier_error and fused.posterior is None:
             return "classifier_error"
+        if getattr(fused, "unknown", False):
+            return "unknown_terrain"
         if fused.posterior is None:
             return "windows_rejected" if rejected_by else "no_classification"
         if fused.stale or (self.max_age_s is not None and age_s is not None
@@ -186,19 +205,20 @@ class ServingPolicy:
         reason = self.reason(fused, estimator_ok=estimator_ok, classifier_error=classifier_error,
                              age_s=age_s, clock_jump=clock_jump, rejected_by=rejected_by)
         detail = str(rejected_by) if reason == "windows_rejected" else ""
+        nov = float(getattr(fused, "novelty", -1.0))
         try:
             k, post = fused.best()
             if reason or k < 0:
                 slip = safe_cap_per_wheel(states, v_long, self.cap_table, self.cap_classes)
                 return PolicyDecision(class_id=NO_CLASS_ID, class_name=NO_CLASS_NAME,
                                       confidence=0.0, slip_desired=tuple(slip), fallback=True,
-                                      reason=reason or "no_classification", detail=detail)
+                                      reason=reason or "no_classification", detail=detail, novelty=nov)
             cid = self.class_ids[k]
             slip = desired_slip_per_wheel(cid, states, v_long, self.table)
             return PolicyDecision(class_id=cid, class_name=self.name(cid), confidence=float(post),
-                                  slip_desired=tuple(slip), fallback=False, reason="")
+                                  slip_desired=tuple(slip), fallback=False, reason="", novelty=nov)
         except Exception as exc:  # noqa: BLE001 - a broken table/policy must not stop serving
             log.warning("policy failed at t=%.3f s (serving zero slip): %s", t_s, exc)
             return PolicyDecision(class_id=NO_CLASS_ID, class_name=NO_CLASS_NAME, confidence=0.0,
                                   slip_desired=(0.0,) * len(states), fallback=True,
-                                  reason=reason or "classifier_error", detail=detail)
+                                  reason=reason or "classifier_error", detail=detail, novelty=nov)

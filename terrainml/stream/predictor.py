@@ -48,7 +48,7 @@ from terrainml.stream.classify import ServingMember, load_serving_model, one_win
 from terrainml.stream.clock import ACCEPT, JUMP, REANCHOR, ClockGate
 from terrainml.stream.config import ServingConfig
 from terrainml.stream.estimate import WheelRow, warm_up
-from terrainml.stream.fusion import TerrainFilter, confirm_windows_for
+from terrainml.stream.fusion import TerrainFilter, fusion_settings
 from terrainml.stream.health import HealthMonitor, InputCounters
 from terrainml.stream.members import Candidate, MemberSwitch, candidate, check_members
 from terrainml.stream.message import DesiredSlip
@@ -139,8 +139,7 @@ class Predictor:
         ids = (list(range(len(self.class_names))) if classifier is None
                else [int(c) for c in classifier.class_ids])
         hop_s = self.window_spec.online_hop_s
-        fusion = {"confirm_windows": confirm_windows_for(hop_s), **dict(cfg.fusion or {})}
-        self.filter = TerrainFilter(len(ids), stale_m=cfg.stale_m, **fusion)
+        self.filter = TerrainFilter(len(ids), stale_m=cfg.stale_m, **fusion_settings(hop_s, cfg.fusion))
         self.policy = ServingPolicy(table, ids, self.class_names, serve_p=cfg.serve_p,
                                     max_age_s=cfg.max_age_s)
         check_members(ids, [m.name for m in members], [m.classifier.class_ids for m in members])
@@ -296,7 +295,7 @@ class Predictor:
             class_probabilities=self._full_probs(len(self.class_names)),
             classification_age_s=-1.0 if age is None else float(age),
             fallback=dec.fallback, fallback_reason=dec.reason, estimator_ok=est_ok,
-            fallback_detail=dec.detail, sensors=list(self.served_sensors),
+            fallback_detail=dec.detail, sensors=list(self.served_sensors), novelty=dec.novelty,
         )
         self.seq += 1
         msg.processing_ms = (time.perf_counter() - t_start) * 1e3
@@ -346,4 +345,5 @@ class Predictor:
                 "unsteady_windows": sch.n_unsteady, "estimator_errors": self.n_estimator_errors,
                 "rejections": dict(sch.rejections), "rejected_channels": dict(sch.rejected_channels),
                 "member_ticks": dict(self.switch.ticks), "member_switches": self.switch.switches,
-                "distance_m": self.odometer.distance_m, "terrain_changes": self.filter.n_changes}
+                "distance_m": self.odometer.distance_m, "terrain_changes": self.filter.n_changes,
+                "unknown_stretches": self.filter.n_unknown_stretches}

@@ -200,6 +200,10 @@ def _print_summary(console: Console, predictor: Predictor, opened: list[GuardedS
         highlight=False)
     if st["unsteady_windows"]:
         console.print(f"terrainml predict: {rejection_text(st)}", highlight=False)
+    if st.get("unknown_stretches"):  # issue #30: ground unlike the model's training windows
+        console.print(f"terrainml predict: unknown ground: {st['unknown_stretches']} stretch(es) of windows "
+                      "unlike the model's training windows, served the safe cap (unknown_terrain)",
+                      highlight=False)
     if counters.damage is not None and counters.damage.any:
         console.print(f"terrainml predict: source {source}: {counters.damage.text}", highlight=False)
 

@@ -11,6 +11,8 @@ keeps the previous classification and counts the rules it failed (:attr:`Classif
 :meth:`ClassificationScheduler.silence` names the rule once the robot has moved a set distance
 without a classification); any exception is caught, counted and served as
 ``classifier_error`` (:mod:`terrainml.stream.policy`) until a later classification succeeds.
+A classifier with a novelty scorer leaves the window's ``last_novelty`` (score over threshold,
+flagged), which goes to the filter with the probabilities (unknown ground, issue #30).
 
 The classification thread runs under the interpreter's own GIL switch interval: nothing
 process-wide is changed (lowering it measured no better, often worse, for the paced per-tick
@@ -223,7 +225,8 @@ class ClassificationScheduler:
         self.odo_at_class = self._odo_now
         self.rules_since.clear()
         self.channels_since.clear()
-        self.fused.update(self.probs)
+        nov = getattr(classifier, "last_novelty", None)
+        self.fused.update(self.probs, *(() if nov is None else (nov[1], nov[0])))
 
     def _fail(self, t: float, exc: BaseException) -> None:
         self.n_errors += 1

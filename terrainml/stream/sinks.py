@@ -35,9 +35,11 @@ Wheel frame i (1..N), id ``BASE + i``::
     byte  7    uint8   seq & 0xFF (pairs the wheel frames of one tick)
 
 Fallback reason codes: 0 none, 1 estimator_unhealthy, 2 classifier_error, 3 no_classification,
-4 stale_classification, 5 clock_jump, 6 uncertain_classification, 7 windows_rejected (63:
-unknown; codes 1-6 keep the bits they had when the field was bits 2-4). In fallback no
-class is served: ``terrain_class`` -1 is sent as 255.
+4 stale_classification, 5 clock_jump, 6 uncertain_classification, 7 windows_rejected,
+8 unknown_terrain (63: unknown; codes 1-6 keep the bits they had when the field was bits 2-4).
+In fallback no class is served: ``terrain_class`` -1 is sent as 255. The message's
+``fallback_detail``, ``sensors`` and ``novelty`` are not in the frames (JSON, UDP and MCAP
+carry them).
 """
 
 from __future__ import annotations

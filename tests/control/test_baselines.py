@@ -250,3 +250,28 @@ def test_weak_thrust_gate_needs_a_measured_current(robot):
         ctrl(_sample(robot, k * 0.01, cmd, cmd, current=float("nan")))
     assert ctrl.limiting.any()                                   # held at the cap throughout
     assert np.allclose(ctrl.last_cap, pred.table.target(1, "traction"))
+
+
+def test_unknown_ground_turns_on_refinement_of_the_safe_cap(robot):
+    """Issue #30 §3: on ``unknown_terrain`` the safe cap is served refined, read against the nominal
+    curve of the class whose traction peak is the cap (the largest of the classes); any other
+    fallback serves it unrefined (no class, no curve)."""
+    from types import SimpleNamespace
+    from terrainml.classes import TERRAIN_CLASSES
+    pred = _FirmClassPredictor(robot, 1)
+    ctrl = bl.terrain_aware(robot, predictor=pred, refine=True)
+    targets = {c: pred.table.target(c, "traction") for c in range(len(TERRAIN_CLASSES))}
+    cap_class = max(targets, key=targets.get)
+    for reason, want in (("unknown_terrain", cap_class), ("uncertain_classification", None),
+                         ("stale_classification", None)):
+        pred._msg = SimpleNamespace(terrain_class=-1, fallback=True, fallback_reason=reason,
+                                    classification_age_s=0.1)
+        ctrl(_sample(robot, 0.0, 0.0, 0.0))
+        s_t, _, cid = ctrl.targets(ctrl, _sample(robot, 0.01, 0.0, 0.0))
+        assert cid == want and np.allclose(s_t, targets[cap_class])
+        assert np.allclose(ctrl.last_cap, targets[cap_class])  # nothing learnt yet: the cap itself
+    assert np.isfinite(ctrl.curves.get(cap_class)[2]).any()    # a nominal curve to refine against
+    off = bl.ServedTargets(refine_unknown=False)
+    pred._msg = SimpleNamespace(terrain_class=-1, fallback=True, fallback_reason="unknown_terrain",
+                                classification_age_s=0.1)
+    assert off(ctrl, _sample(robot, 0.02, 0.0, 0.0))[2] is None

@@ -53,3 +53,21 @@ def test_saved_scorer_scores_alike_and_mismatched_entry_is_refused(tmp_path):
     path.write_bytes(b"not safetensors")
     with pytest.raises(NoveltyError, match=str(path)):
         NoveltyScorer.load(path, cfg)
+
+
+@pytest.mark.parametrize("method", ["class_knn", "knn"])
+def test_one_window_is_scored_as_in_a_batch_the_k_th_neighbour_by_brute_force(method):
+    """Serving scores one window at a time (numpy search); a batch goes through sklearn's index:
+    the same k-th neighbour distance, and for ``knn`` the one computed here by hand."""
+    rng = np.random.default_rng(3)
+    F, y, g = _clusters(rng)
+    scorer = NoveltyScorer(method, k=5).fit(F, y)
+    Q = rng.normal(size=(100, 6)) * 2.0
+    batch = scorer.score(Q)
+    one = np.array([scorer.score(Q[i:i + 1])[0] for i in range(len(Q))])
+    assert np.allclose(one, batch, rtol=0, atol=1e-9)
+    if method == "knn":
+        Z = np.clip((Q - F.mean(0)) / F.std(0), -20, 20)
+        R = (F - F.mean(0)) / F.std(0)
+        d = np.sort(np.linalg.norm(Z[:, None] - R[None], axis=2), axis=1)[:, 4]
+        assert np.allclose(one, d, atol=1e-9)

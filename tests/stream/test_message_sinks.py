@@ -16,7 +16,8 @@ DESIGN_11_FIELDS = ["t_s", "seq", "slip_desired", "slip_measured", "wheel_state"
                     "terrain_name", "confidence", "class_probabilities", "classification_age_s",
                     "fallback", "fallback_reason", "estimator_ok", "processing_ms"]
 #: added by issue #28 (design §11 amendment: say which sensors served, and why windows are rejected)
-ADDED = ["fallback_detail", "sensors"]
+#: and issue #30 (the novelty score of the latest window)
+ADDED = ["fallback_detail", "sensors", "novelty"]
 
 
 def _msg(**kw):
@@ -29,14 +30,14 @@ def _msg(**kw):
     return DesiredSlip(**d)
 
 
-def test_fields_are_those_of_system_11_and_the_two_added():
+def test_fields_are_those_of_system_11_and_the_three_added():
     assert list(FIELD_NAMES) == DESIGN_11_FIELDS + ADDED
     assert list(json.loads(_msg().to_json())) == DESIGN_11_FIELDS + ADDED
     assert json_schema(3, 8)["required"] == DESIGN_11_FIELDS + ADDED
-    # a message written before the two were added still reads, with their defaults
+    # a message written before they were added still reads, with their defaults
     old = {k: v for k, v in json.loads(_msg().to_json()).items() if k not in ADDED}
     back = DesiredSlip.from_dict(old)
-    assert back.fallback_detail == "" and back.sensors == []
+    assert back.fallback_detail == "" and back.sensors == [] and back.novelty == -1.0
 
 
 def test_windows_rejected_has_its_own_can_code_and_an_unknown_reason_is_63():
@@ -46,6 +47,18 @@ def test_windows_rejected_has_its_own_can_code_and_an_unknown_reason_is_63():
         assert flags >> 2 == code and flags & 1
     frames = encode_can_frames(_msg(fallback=True, fallback_reason="windows_rejected"))
     assert decode_can_frames(frames)["fallback_reason"] == "windows_rejected"
+
+
+def test_unknown_terrain_is_can_code_8_and_its_novelty_is_in_the_json_only():
+    m = _msg(fallback=True, fallback_reason="unknown_terrain", terrain_class=-1, terrain_name="none",
+             novelty=3.25)
+    frames = encode_can_frames(m)
+    assert frames[0][1][6] >> 2 == 8 and frames[1][1][6] >> 2 == 8  # summary and wheel frames
+    assert decode_can_frames(frames)["fallback_reason"] == "unknown_terrain"
+    d = json.loads(m.to_json())
+    assert d["fallback_reason"] == "unknown_terrain" and d["novelty"] == 3.25
+    assert "unknown_terrain" in json_schema()["properties"]["fallback_reason"]["enum"]
+    assert json.loads(_msg(novelty=math.nan).to_json())["novelty"] == -1.0  # never NaN
 
 
 def test_non_finite_values_replaced_by_documented_safe_values():

@@ -29,9 +29,10 @@ class HandTable:
 class Fused:
     """The fusion filter's face to the policy: a posterior (or None) and a staleness flag."""
 
-    def __init__(self, posterior=None, stale=False):
+    def __init__(self, posterior=None, stale=False, unknown=False):
         self.posterior = None if posterior is None else np.asarray(posterior, dtype=float)
         self.stale = stale
+        self.unknown = unknown
 
     def best(self):
         if self.posterior is None:
@@ -75,7 +76,8 @@ def test_at_serve_p_a_class_is_served_below_it_the_safe_cap():
 @pytest.mark.parametrize("facts,fused,reason", [
     ({"clock_jump": True, "estimator_ok": False, "classifier_error": True}, Fused(), "clock_jump"),
     ({"estimator_ok": False, "classifier_error": True}, Fused(one_hot(3)), "estimator_unhealthy"),
-    ({"classifier_error": True, "rejected_by": "speed"}, Fused(), "classifier_error"),
+    ({"classifier_error": True, "rejected_by": "speed"}, Fused(unknown=True), "classifier_error"),
+    ({"rejected_by": "speed"}, Fused(one_hot(3, 0.3), stale=True, unknown=True), "unknown_terrain"),
     ({"rejected_by": "speed"}, Fused(), "windows_rejected"),
     ({}, Fused(), "no_classification"),
     ({}, Fused(one_hot(3, 0.3), stale=True), "stale_classification"),

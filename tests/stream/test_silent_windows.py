@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from terrainml.estimation.synthetic import kinematic_run, trapezoid_speed
+from terrainml.testing import kinematic_run, trapezoid_speed
 from terrainml.features.side_channel import SideChannelFeatures, track_of
 from terrainml.features.windows import SIDE_CHANNEL_NAMES, Windows, window_spec
 from terrainml.models.artifacts import save_artifact

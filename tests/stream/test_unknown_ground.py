@@ -1,0 +1,180 @@
+"""Serving unknown ground (issue #30 §3): a model that never saw the ground serves the safe cap.
+
+Hand-made truth: a model trained on two slip levels (the ``SLIP_OF`` classes 0 and 2, slip 0.02
+and 0.12, simulated kinematic runs) serves one drive whose true slip is 0.02, then 0.45 (far
+from both: ground it never saw), then 0.02 again. Where the true slip is 0.45 the ticks must
+say ``unknown_terrain`` and serve the class-free safe cap; where it is 0.02 again the class 0
+must come back; the same model saved without its novelty entry must serve as before (never
+``unknown_terrain``).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from stream_fakes import SLIP_OF
+
+from terrainml.classes import TERRAIN_CLASSES
+from terrainml.estimation.run import estimate_run
+from terrainml.features.sets import FeatureSet
+from terrainml.features.windows import Windows, WindowSpec, cut_windows
+from terrainml.lookup.table import DesiredSlipTable
+from terrainml.models.artifacts import load_artifact, save_artifact
+from terrainml.models.novelty import fit_model_novelty
+from terrainml.models.svm import SVMClassifier
+from terrainml.robot import load_robot
+from terrainml.stream.fusion import TerrainFilter
+from terrainml.stream.predictor import Predictor
+from terrainml.stream.sources import iter_table_samples
+from terrainml.testing import kinematic_run, trapezoid_speed
+
+ROBOT = load_robot()
+KNOWN = (0, 2)
+FAR_SLIP = 0.45                          # no trained class slips like this
+ON_S, OFF_S, END_S = 20.0, 40.0, 62.0    # the drive: known, unknown from ON_S, known from OFF_S
+
+
+def _train_windows():
+    wins = []
+    for cid in KNOWN:
+        for rep in range(3):
+            table = kinematic_run(ROBOT, duration_s=40.0, slip=SLIP_OF[cid], terrain=cid,
+                                  seed=500 + 10 * cid + rep, imu_acc_noise=0.005,
+                                  vx=lambda t: trapezoid_speed(t, 1.0, 1.0, 1.0), run_id=f"c{cid}r{rep}")
+            wins.append(cut_windows(estimate_run(table, ROBOT), ROBOT)[0])
+    return Windows.concat(wins)
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    """The same SVM saved twice: with its novelty scorer and without (an older folder)."""
+    W = _train_windows()
+    clf = SVMClassifier(FeatureSet.for_robot(ROBOT), C_grid=[10.0], gamma_grid=["scale"],
+                        inner_folds=2).fit(W, W.y)
+    scorer, info = fit_model_novelty(clf, W, seed=0)
+    out = {}
+    for name, nov in (("with", ("svm", scorer, info)), ("without", None)):
+        out[name] = tmp_path_factory.mktemp("unknown") / name
+        save_artifact(out[name], {"svm": clf}, classes=list(KNOWN),
+                      class_names=[TERRAIN_CLASSES[c] for c in KNOWN], channels=list(W.channels),
+                      window_spec=WindowSpec(), robot=ROBOT, training_fingerprint="test-unknown",
+                      attachments={"desired_slip_table.json": DesiredSlipTable.build(ROBOT).to_json()},
+                      novelty=nov)
+    return out
+
+
+def _slip(t):
+    return FAR_SLIP if ON_S <= t < OFF_S else SLIP_OF[0]
+
+
+@pytest.fixture(scope="module")
+def drive():
+    table = kinematic_run(ROBOT, duration_s=END_S, slip=_slip, terrain=0, seed=77, imu_acc_noise=0.005,
+                          vx=lambda t: trapezoid_speed(t, 1.0, 1.0, 1.0), run_id="drive")
+    return table.drop(columns=[c for c in table.columns if c.startswith("gt_") or c in ("terrain", "run_id")])
+
+
+def _serve(folder, table):
+    p = Predictor.from_model_dir(folder)
+    out, odo = [], []
+    for s in iter_table_samples(table):
+        out.append(p.step(s))
+        odo.append(p.odometer_m)
+    p.close()
+    return p, out, np.array(odo)
+
+
+@pytest.fixture(scope="module")
+def served(folders, drive):
+    return {name: _serve(folder, drive) for name, folder in folders.items()}
+
+
+def test_the_folder_loads_its_novelty_scorer_and_the_older_one_has_none(folders):
+    with_ = Predictor.from_model_dir(folders["with"])
+    assert with_.classifier.novelty is not None and with_.classifier.novelty.threshold > 0
+    assert load_artifact(folders["without"]).novelty is None
+    assert Predictor.from_model_dir(folders["without"]).classifier.novelty is None
+
+
+def test_unknown_ground_is_served_the_safe_cap_within_3_m_and_the_class_comes_back(served, drive):
+    p, out, odo = served["with"]
+    t = drive["t_s"].to_numpy()
+    reason = np.array([m.fallback_reason for m in out])
+    unknown = reason == "unknown_terrain"
+    # known ground before: never unknown; the class 0 is served once classified
+    assert not unknown[t < ON_S].any()
+    assert (np.array([m.terrain_class for m in out])[(t > 10.0) & (t < ON_S)] == 0).mean() > 0.9
+    # onto the far slip: unknown within 3 m travelled, and it holds to the end of the stretch
+    first = int(np.flatnonzero(unknown)[0])
+    assert t[first] >= ON_S
+    on_idx = int(np.searchsorted(t, ON_S))
+    assert odo[first] - odo[on_idx] <= 3.0
+    stretch = (t >= t[first]) & (t < OFF_S)
+    assert unknown[stretch].mean() > 0.95
+    cap = p.safe_cap_traction()
+    for m in (out[i] for i in np.flatnonzero(unknown)):
+        assert m.fallback and m.terrain_class == -1 and m.terrain_name == "none"
+        assert m.novelty > 1.0 or m.t_s >= OFF_S  # known windows confirm the way back after OFF_S
+        assert all(s == pytest.approx(cap) for s, st in zip(m.slip_desired, m.wheel_state) if st == "traction")
+    # known ground again: the class 0 comes back (after U = 3 known windows, 0.5 s apart), stays
+    back = (t >= OFF_S + 4.0)
+    assert not unknown[back].any()
+    assert (np.array([m.terrain_class for m in out])[back & (t < END_S - 3.0)] == 0).mean() > 0.9
+    assert p.stats()["unknown_stretches"] == 1
+
+
+def test_a_folder_without_novelty_serves_exactly_as_before(served, drive):
+    _, old, _ = served["without"]
+    _, new, _ = served["with"]
+    assert not any(m.fallback_reason == "unknown_terrain" for m in old)
+    assert all(m.novelty == -1.0 for m in old)
+    # until the first flagged window the two serve the same ticks (only the novelty field differs)
+    first = next(i for i, m in enumerate(new) if m.novelty > 1.0)
+    for a, b in zip(old[:first], new[:first]):
+        da, db = a.to_dict(), b.to_dict()
+        for d in (da, db):
+            d.pop("novelty"), d.pop("processing_ms")
+        assert da == db
+    # and on the far slip the closed-set model names a class (today's behaviour, issue #30)
+    t = drive["t_s"].to_numpy()
+    far = (t > ON_S + 5.0) & (t < OFF_S)
+    assert (np.array([m.terrain_class for m in old])[far] >= 0).mean() > 0.5
+
+
+def test_one_flagged_window_never_leaves_the_class_and_leaving_takes_confirmed_windows():
+    f = TerrainFilter(2, confirm_windows=1, unknown_windows=2)
+    known, other = np.array([0.9, 0.1]), np.array([0.1, 0.9])
+    f.update(known, False, 0.5)
+    f.update(known, True, 1.5)  # one over the threshold: still the class
+    assert not f.unknown and f.best()[0] == 0 and f.novelty == 1.5
+    f.update(known, False, 0.5)
+    f.update(known, True, 2.0)
+    f.update(known, True, 2.0)
+    assert f.unknown
+    f.update(other, False, 0.5)  # one known window: still unknown (max(K, U) = 2 are needed)
+    assert f.unknown
+    f.update(known, False, 0.5)  # names another class than the one before: the count restarts
+    assert f.unknown
+    f.update(known, False, 0.5)
+    assert not f.unknown and f.best()[0] == 0
+    g = TerrainFilter(2)
+    g.update(known)  # no novelty score: as before
+    assert not g.unknown and g.novelty == -1.0
+
+
+def test_predict_says_unknown_terrain_in_its_json_and_its_summary(folders, drive):
+    """``terrainml predict`` end to end (stdin JSON lines in, stdout JSON lines out)."""
+    lines = "\n".join(json.dumps(s) for s in iter_table_samples(drive)) + "\n"
+    proc = subprocess.run([sys.executable, "-m", "terrainml.cli", "predict", "--model", str(folders["with"]),
+                           "--source", "-", "--sink", "stdout"], input=lines, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    out = [json.loads(x) for x in proc.stdout.splitlines()]
+    unknown = [m for m in out if m["fallback_reason"] == "unknown_terrain"]
+    assert unknown and all(ON_S <= m["t_s"] < OFF_S + 4.0 and m["terrain_class"] == -1 for m in unknown)
+    assert max(m["novelty"] for m in unknown) > 1.0
+    assert "unknown ground: 1 stretch" in proc.stderr
