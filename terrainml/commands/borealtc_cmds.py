@@ -14,6 +14,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from terrainml.atomic import write_text
 from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail, open_robot
 
 PROTOCOLS = ("a", "b", "both")
@@ -125,7 +126,7 @@ def _write_json(out_json: Path, results: dict, setup: dict, quiet: bool) -> None
                for (p, m), r in results.items()}
     payload["_setup"] = setup
     try:
-        out_json.write_text(json.dumps(payload, indent=2))
+        write_text(out_json, json.dumps(payload, indent=2))
     except OSError as exc:
         fail(f"{out_json}: cannot write ({exc})")
     if not quiet:

@@ -15,6 +15,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
+from terrainml.atomic import write_text
 from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail
 
 mission_app = typer.Typer(help="Mission suite: position-based missions that ask for traction.",
@@ -124,7 +125,7 @@ def run(
         arrays = {f"{i}/{k}": v for i, lg in enumerate(logs) for k, v in lg.arrays().items()}
         np.savez_compressed(npz, **arrays)
         report["traces"] = npz.name
-    out.write_text(json.dumps(_json_ready(report), indent=1) + "\n")
+    write_text(out, json.dumps(_json_ready(report), indent=1) + "\n")
     s = report["summary"]["overall"]
     console.print(f"wrote {escape(str(out))}: {s['n']} missions, success {100 * s['success_rate']:.0f}%"
                   + (f", traces {escape(npz.name)}" if traces else ""), highlight=False)

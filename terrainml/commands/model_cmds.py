@@ -14,6 +14,7 @@ from typing import List, Optional
 import typer
 from rich.table import Table
 
+from terrainml.atomic import write_text
 from terrainml.commands._common import (check_n_jobs, check_output_writable, console, fail, failure_message,
                                         is_windows_file, open_dataset)
 
@@ -388,7 +389,7 @@ def evaluate(
         print(text, end="")
     else:
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(text)
+        write_text(out, text)
     if not quiet:
         dse = m.get("desired_slip_error_mean")
         console.print(f"{m['model']} on {m['n_windows']} windows: balanced accuracy {m['balanced_accuracy']:.3f}, "

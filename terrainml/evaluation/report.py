@@ -23,6 +23,7 @@ from typing import Any, Sequence
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: no global backend or figure registry
 
+from terrainml.atomic import atomic_output, write_text
 from terrainml.evaluation.open_set import open_set_markdown
 from terrainml.models.artifacts import json_safe
 
@@ -71,7 +72,8 @@ def plot_confusion(cm: np.ndarray, names: Sequence[str], path: Path, title: str)
                         color="white" if norm[i, j] > 0.5 else "black")
     fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
     fig.tight_layout()
-    fig.savefig(path, metadata={"Software": None})
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format=Path(path).suffix.lstrip(".") or "png", metadata={"Software": None})
     return path
 
 
@@ -124,7 +126,7 @@ def write_report(out: str | Path, result: Any) -> dict:
     for name, r in result.models.items():
         cv = r["cv"]
         frame = cv.per_fold_frame()
-        frame.to_csv(out / f"folds_{name}.csv", index=False)
+        write_text(out / f"folds_{name}.csv", frame.to_csv(index=False))
         png = plot_confusion(np.asarray(cv.pooled["confusion_matrix"]), list(cv.class_names),
                              out / f"confusion_{name}.png",
                              f"{name}: out-of-fold confusion (balanced acc. "
@@ -148,7 +150,7 @@ def write_report(out: str | Path, result: Any) -> dict:
             md += [f"Chosen hyper-parameters (final fit): `{json.dumps(json_safe(r['params']))}`", ""]
     if result.ablation is not None and len(result.ablation):
         ab = result.ablation
-        ab.to_csv(out / "ablation.csv", index=False)
+        write_text(out / "ablation.csv", ab.to_csv(index=False))
         doc["ablation"] = ab.to_dict(orient="records")
         md += ["## Feature-set ablation (SVM, same folds)", "",
                markdown_table(["feature set", "features", "bal. acc.", "macro-F1", "desired-slip error"],
@@ -162,8 +164,8 @@ def write_report(out: str | Path, result: Any) -> dict:
         md += ["## Window rejections (steady rules, design §8)", "",
                markdown_table(["rule", "windows rejected"], [[k, v] for k, v in counts.items()]), ""]
     doc = json_safe(doc)
-    (out / "report.json").write_text(json.dumps(doc, indent=2, sort_keys=True, allow_nan=False) + "\n")
-    (out / "report.md").write_text("\n".join(md) + "\n")
+    write_text(out / "report.json", json.dumps(doc, indent=2, sort_keys=True, allow_nan=False) + "\n")
+    write_text(out / "report.md", "\n".join(md) + "\n")
     return doc
 
 

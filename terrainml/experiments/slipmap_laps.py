@@ -26,6 +26,7 @@ from typing import Callable
 
 import numpy as np
 
+from terrainml.atomic import write_text
 from terrainml.classes import class_name
 from terrainml.experiments.slipmap_plot import plot_experiment
 from terrainml.sim.patch_slip import CLASS_SLIP_AT_1MPS, PatchGrid, PatchSlipModel
@@ -361,6 +362,6 @@ def write_report(result: ExperimentResult, out_json: str | Path) -> tuple[Path, 
     """Write the JSON report and the PNG figure next to it (same stem)."""
     out_json = Path(out_json)
     out_json.parent.mkdir(parents=True, exist_ok=True)
-    out_json.write_text(json.dumps(result.report, indent=2, sort_keys=True))
+    write_text(out_json, json.dumps(result.report, indent=2, sort_keys=True))
     png = plot_experiment(result, out_json.with_suffix(".png"))
     return out_json, png

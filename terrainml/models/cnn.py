@@ -71,6 +71,7 @@ from sklearn.model_selection import GroupShuffleSplit, StratifiedGroupKFold
 from sklearn.utils.validation import check_is_fitted, check_random_state
 from torch import nn
 
+from terrainml.atomic import write_text
 from terrainml.features.sets import ROUGHNESS_MIN_SPEED_MPS
 
 __all__ = ["CNNClassifier", "CONFIG_NAME", "WEIGHTS_NAME", "CONFIG_FORMAT"]
@@ -794,7 +795,7 @@ class CNNClassifier(ClassifierMixin, BaseEstimator):
         config = directory / CONFIG_NAME
         state = {k: v.detach().cpu().contiguous() for k, v in self.model_.net.state_dict().items()}
         save_file(state, str(weights), metadata={"format": CONFIG_FORMAT, "version": str(CONFIG_VERSION)})
-        config.write_text(json.dumps(self._config(), indent=2, allow_nan=False) + "\n")
+        write_text(config, json.dumps(self._config(), indent=2, allow_nan=False) + "\n")
         return [weights, config]
 
     @classmethod

@@ -35,6 +35,8 @@ from typing import Any, Callable, Iterable, Union
 from cryptography.exceptions import InvalidSignature
 from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+from terrainml.atomic import write_text
+
 
 __all__ = ["MANIFEST_NAME", "SIGNATURE_NAME", "SignatureError", "generate_keypair", "key_fingerprint",
            "load_private_key", "load_public_key", "public_key_path", "sign_artifact",
@@ -160,7 +162,7 @@ def sign_artifact(directory: str | Path, private_key_path: str | Path) -> Path:
         "signature": base64.b64encode(key.sign(manifest)).decode("ascii"),
     }
     path = directory / SIGNATURE_NAME
-    path.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+    write_text(path, json.dumps(doc, indent=2, sort_keys=True) + "\n")
     return path
 
 

@@ -31,6 +31,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import pandas as pd
 
+from terrainml.atomic import write_text
 from terrainml.evaluation.metrics import latency_per_window_ms
 from terrainml.evaluation.report import selection_markdown, write_report
 from terrainml.features.windows import window_spec
@@ -287,7 +288,7 @@ def _write_docs(out: Path, tr: TrainResult | None, doc: dict, sel: Selection) ->
     base = write_report(out, tr) if tr is not None else {}
     full = json_safe({**base, **doc, "nested_balanced_accuracy": sel.honest["mean"],
                       "nested_balanced_accuracy_std": sel.honest["std"], "chosen": sel.chosen.name})
-    (out / "report.json").write_text(json.dumps(full, indent=2, sort_keys=True, allow_nan=False) + "\n")
+    write_text(out / "report.json", json.dumps(full, indent=2, sort_keys=True, allow_nan=False) + "\n")
     md = (out / "report.md").read_text().splitlines() if tr is not None else [f"# Training report: {out.name}", ""]
     head, rest = md[:2], md[2:]
-    (out / "report.md").write_text("\n".join(head + selection_markdown(full) + rest) + "\n")
+    write_text(out / "report.md", "\n".join(head + selection_markdown(full) + rest) + "\n")
