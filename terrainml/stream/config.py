@@ -32,8 +32,9 @@ class ServingConfig:
     fusion : dict of :class:`~terrainml.stream.fusion.TerrainFilter` settings (``length_m``,
         ``alpha``, ``eps``, ``drift``, ``threshold``, ``confirm_windows``, ``unknown_windows``;
         the last two default to :func:`~terrainml.stream.fusion.confirm_windows_for` the hop: 3
-        at 0.1 s, 1 at 0.5 s, and :func:`~terrainml.stream.fusion.unknown_windows_for` it: 11 at
-        0.1 s, 3 at 0.5 s, flagged windows that make the ground ``unknown_terrain``).
+        at 0.1 s, 1 at 0.5 s, and :func:`~terrainml.stream.fusion.unknown_windows_for` the hop and
+        window length: 5 for 1 s windows at 0.5 s, flagged windows that make the ground
+        ``unknown_terrain``).
     silent_s : s (0.2), health rule: a sensor group silent this long is unhealthy.
     classify_lag_ticks : 0 (default) classifies inline on the hop tick. L > 0 runs the
         classification in a background thread and applies its result exactly L ticks later

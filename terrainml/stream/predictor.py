@@ -139,7 +139,8 @@ class Predictor:
         ids = (list(range(len(self.class_names))) if classifier is None
                else [int(c) for c in classifier.class_ids])
         hop_s = self.window_spec.online_hop_s
-        self.filter = TerrainFilter(len(ids), stale_m=cfg.stale_m, **fusion_settings(hop_s, cfg.fusion))
+        self.filter = TerrainFilter(len(ids), stale_m=cfg.stale_m,
+                                    **fusion_settings(hop_s, cfg.fusion, self.window_spec.window_s))
         self.policy = ServingPolicy(table, ids, self.class_names, serve_p=cfg.serve_p,
                                     max_age_s=cfg.max_age_s)
         check_members(ids, [m.name for m in members], [m.classifier.class_ids for m in members])

@@ -36,6 +36,9 @@ ROBOT = load_robot()
 KNOWN = (0, 2)
 FAR_SLIP = 0.45                          # no trained class slips like this
 ON_S, OFF_S, END_S = 20.0, 40.0, 62.0    # the drive: known, unknown from ON_S, known from OFF_S
+#: 1 s windows, as the served default (`short`): unknown is entered after U = 5 flagged windows
+#: (stream/fusion.unknown_windows_for: window length + 1 s at a 0.5 s hop)
+SPEC = WindowSpec(window_s=1.0)
 
 
 def _train_windows():
@@ -45,7 +48,7 @@ def _train_windows():
             table = kinematic_run(ROBOT, duration_s=40.0, slip=SLIP_OF[cid], terrain=cid,
                                   seed=500 + 10 * cid + rep, imu_acc_noise=0.005,
                                   vx=lambda t: trapezoid_speed(t, 1.0, 1.0, 1.0), run_id=f"c{cid}r{rep}")
-            wins.append(cut_windows(estimate_run(table, ROBOT), ROBOT)[0])
+            wins.append(cut_windows(estimate_run(table, ROBOT), ROBOT, spec=SPEC)[0])
     return Windows.concat(wins)
 
 
@@ -61,7 +64,7 @@ def folders(tmp_path_factory):
         out[name] = tmp_path_factory.mktemp("unknown") / name
         save_artifact(out[name], {"svm": clf}, classes=list(KNOWN),
                       class_names=[TERRAIN_CLASSES[c] for c in KNOWN], channels=list(W.channels),
-                      window_spec=WindowSpec(), robot=ROBOT, training_fingerprint="test-unknown",
+                      window_spec=SPEC, robot=ROBOT, training_fingerprint="test-unknown",
                       attachments={"desired_slip_table.json": DesiredSlipTable.build(ROBOT).to_json()},
                       novelty=nov)
     return out
@@ -120,7 +123,7 @@ def test_unknown_ground_is_served_the_safe_cap_within_3_m_and_the_class_comes_ba
         assert m.fallback and m.terrain_class == -1 and m.terrain_name == "none"
         assert m.novelty > 1.0 or m.t_s >= OFF_S  # known windows confirm the way back after OFF_S
         assert all(s == pytest.approx(cap) for s, st in zip(m.slip_desired, m.wheel_state) if st == "traction")
-    # known ground again: the class 0 comes back (after U = 3 known windows, 0.5 s apart), stays
+    # known ground again: the class 0 comes back (after U = 5 known windows, 0.5 s apart), stays
     back = (t >= OFF_S + 4.0)
     assert not unknown[back].any()
     assert (np.array([m.terrain_class for m in out])[back & (t < END_S - 3.0)] == 0).mean() > 0.9
