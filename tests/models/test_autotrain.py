@@ -84,3 +84,13 @@ def test_cli_train_auto_selects_replays_and_saves_a_calibrated_model(tmp_path):
     assert isinstance(served.classifier.model, CalibratedModel)
     entry = json.loads((out / "manifest.json").read_text())["models"]["hgb"]
     assert entry["calibration"]["temperature"] == pytest.approx(rep["selection"]["temperature"])
+    # the sensor members (issue #28 §3): the chosen spec and model again without the IMU and
+    # without the currents, each validated like the model, listed in the manifest, served
+    members = json.loads((out / "manifest.json").read_text()).get("sensor_members", [])
+    assert members, "default train made no sensor member"
+    for m in members:
+        dropped = {"no_imu": "imu", "no_currents": "currents"}[m["name"]]
+        assert dropped not in m["sensors"] and "wheels" in m["sensors"]
+        mrep = json.loads((out / m["path"] / "report.json").read_text())
+        assert mrep["chosen"] == "short/hgb" and mrep["replay"]["refusal"] == ""
+    assert sorted(s.name for s in served.members) == sorted(m["name"] for m in members)
