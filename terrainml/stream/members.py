@@ -105,9 +105,10 @@ class MemberSwitch:
                         f"; silent: {','.join(silent)}" if silent else "", n)
 
 
-def check_members(ids: Sequence[int], names: Sequence[str], member_ids: Sequence[Sequence[int]]) -> None:
-    """Members classify the model's classes (the fusion and the policy read one set of ids)."""
-    for name, own in zip(names, member_ids):
-        own = [int(c) for c in own]
+def check_members(ids: Sequence[int], members: Sequence[Any]) -> None:
+    """Members (``name``, ``classifier.class_ids``) classify the model's classes: the fusion and the
+    policy read one set of ids."""
+    for m in members:
+        own = [int(c) for c in m.classifier.class_ids]
         if own != list(ids):
-            raise ValueError(f"member {name!r} classifies class ids {own}, the model {list(ids)}")
+            raise ValueError(f"member {m.name!r} classifies class ids {own}, the model {list(ids)}")

@@ -143,7 +143,7 @@ class Predictor:
                                     **fusion_settings(hop_s, cfg.fusion, self.window_spec.window_s))
         self.policy = ServingPolicy(table, ids, self.class_names, serve_p=cfg.serve_p,
                                     max_age_s=cfg.max_age_s)
-        check_members(ids, [m.name for m in members], [m.classifier.class_ids for m in members])
+        check_members(ids, members)
         # one ring for the model and its members: the longest window; each cuts its own newest rows
         self.ring = RingBuffer(max(c.window_spec.n_samples for c in self.switch.candidates))
         self.scheduler = ClassificationScheduler(classifier, self.ring, self.filter, hop_s,
