@@ -57,8 +57,10 @@ def _section(title: str, res, wall_s: float, cpu_s: float) -> list[str]:
         rows.append([c.name + (" (chosen)" if c == sel.chosen else ""),
                      "screened out" if cv is None else _f(cv.summary["balanced_accuracy"]["mean"]),
                      "" if cv is None else _f(cv.summary["balanced_accuracy"]["std"]),
+                     "" if cv is None else _f(cv.pooled["balanced_accuracy"]),
                      str(sum(o["chosen"] == c.name for o in sel.outer))])
     best = max((sel.cv[c.name].summary["balanced_accuracy"]["mean"] for c in sel.candidates if c.name in sel.cv))
+    best_pooled = max(sel.cv[c.name].pooled["balanced_accuracy"] for c in sel.candidates if c.name in sel.cv)
     outer = [[o["fold"] + 1, o["chosen"], _f(o["balanced_accuracy"]), _f(o["ece_before"]), _f(o["ece_after"]),
               _f(o["temperature"], 2)] for o in sel.outer]
     w = np.array([o["n_windows"] for o in sel.outer], dtype=float)
@@ -72,10 +74,13 @@ def _section(title: str, res, wall_s: float, cpu_s: float) -> list[str]:
                 "", _f(p.get("fallback_share"), 1, 100), _f(p.get("classifications_per_m"), 2),
                 _f(p.get("median_change_m"), 2)])
     return [f"#### {title}", "",
-            markdown_table(["candidate", "grouped 5-fold CV bal. acc.", "std", "chosen in outer folds"], rows), "",
+            markdown_table(["candidate", "grouped CV bal. acc. (mean of folds)", "std", "pooled",
+                            "chosen in outer folds"], rows), "",
             f"Chosen **{sel.chosen.name}**; nested (honest) balanced accuracy **{sel.honest['mean']:.3f} ± "
-            f"{sel.honest['std']:.3f}**, {100 * (sel.honest['mean'] - best):+.1f} points from the best candidate's "
-            f"CV figure ({best:.3f}). Not candidates: "
+            f"{sel.honest['std']:.3f}** over the outer folds, {100 * (sel.honest['mean'] - best):+.1f} points from "
+            f"the best candidate's CV figure ({best:.3f}); pooled over all outer folds' held-out windows "
+            f"**{sel.honest['pooled']:.3f}**, {100 * (sel.honest['pooled'] - best_pooled):+.1f} points from the best "
+            f"candidate's pooled CV figure ({best_pooled:.3f}). Not candidates: "
             + ("; ".join(f"`{s}` ({r})" for s, r in sel.infeasible.items()) or "none") + ".", "",
             markdown_table(["outer fold", "chosen", "bal. acc.", "ECE before", "ECE after", "temperature"], outer), "",
             f"ECE over the outer folds (window-weighted): **{ece_b:.3f} before, {ece_a:.3f} after** calibration "

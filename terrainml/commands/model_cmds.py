@@ -318,7 +318,8 @@ def _print_selection(res, out: Path) -> None:
               f"{pooled['moving_ticks']} moving ticks right, {100 * pooled['fallback_share']:.1f}% fallback"
               if pooled.get("moving_ticks") else "; served replay: not run")
     console.print(f"chosen [bold]{sel.chosen.name}[/]; nested run-grouped balanced accuracy (honest) "
-                  f"{sel.honest['mean']:.3f} ± {sel.honest['std']:.3f}{replay}; temperature {sel.temperature:.2f}",
+                  f"{sel.honest['mean']:.3f} ± {sel.honest['std']:.3f} over folds, {sel.honest['pooled']:.3f} pooled"
+                  f"{replay}; temperature {sel.temperature:.2f}",
                   highlight=False)
     if res.refusal:
         console.print(f"[yellow]warning:[/] {res.refusal} (saved anyway: --allow-unproven)", highlight=False)

@@ -185,6 +185,19 @@ def _selection_rows(sel: dict) -> list[list[str]]:
     return rows
 
 
+def _pooled_line(sel: dict, best: dict | None) -> list[str]:
+    """The nested figure pooled over every outer fold's held-out windows, beside the best candidate's
+    pooled CV figure (the evaluation engine's definition, as in ``train --windows X``'s report)."""
+    pooled = sel["nested"].get("pooled")
+    if pooled is None or not np.isfinite(pooled):
+        return []
+    ref = best.get("cv_pooled_balanced_accuracy") if best else None
+    gap = (f"; the best candidate's pooled CV figure is {ref:.3f} ({100 * (pooled - ref):+.1f} points)"
+           if ref is not None and np.isfinite(ref) else "")
+    return [f"Pooled over the held-out windows of all outer folds (one balanced accuracy, as the grouped CV of "
+            f"`train --windows X` reports it): **{pooled:.3f}**{gap}.", ""]
+
+
 def selection_markdown(doc: dict) -> list[str]:
     """Markdown of ``train --windows auto --model auto`` (:mod:`terrainml.pipeline.autotrain`):
     every candidate side by side, the choice and why, the nested (honest) figure per outer
@@ -206,6 +219,7 @@ def selection_markdown(doc: dict) -> list[str]:
           f"its winner, fitted without group k, is scored on it"
           + (f"; {100 * (sel['nested']['mean'] - best['cv_balanced_accuracy']):+.1f} points from the best "
              f"candidate's CV figure" if best else "") + ".", "",
+          *_pooled_line(sel, best),
           markdown_table(["candidate", "windows", f"CV bal. acc. (mean ± std, {K} folds)", "pooled", "ECE (raw)",
                           "inner scores (outer fold 1..K)", "chosen in outer folds", "screened out"],
                          _selection_rows(sel)), ""]

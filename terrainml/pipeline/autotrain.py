@@ -287,7 +287,8 @@ def _write_docs(out: Path, tr: TrainResult | None, doc: dict, sel: Selection) ->
     """report.md/json: the chosen model's sections (when saved) and the selection, replay, calibration."""
     base = write_report(out, tr) if tr is not None else {}
     full = json_safe({**base, **doc, "nested_balanced_accuracy": sel.honest["mean"],
-                      "nested_balanced_accuracy_std": sel.honest["std"], "chosen": sel.chosen.name})
+                      "nested_balanced_accuracy_std": sel.honest["std"],
+                      "nested_balanced_accuracy_pooled": sel.honest["pooled"], "chosen": sel.chosen.name})
     write_text(out / "report.json", json.dumps(full, indent=2, sort_keys=True, allow_nan=False) + "\n")
     md = (out / "report.md").read_text().splitlines() if tr is not None else [f"# Training report: {out.name}", ""]
     head, rest = md[:2], md[2:]

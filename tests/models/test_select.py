@@ -8,8 +8,9 @@ from logs_synth import write_logs
 from terrainml.evaluation.cv import cross_validate
 from terrainml.evaluation.folds import folds_of_partition, run_partition
 from terrainml.features.windows import window_spec
+from terrainml.models.calibration import Temperature
 from terrainml.pipeline.dataset import Dataset, build_dataset
-from terrainml.pipeline.select import parse_auto_models, select, spec_feasibility
+from terrainml.pipeline.select import fit_temperature, parse_auto_models, select, spec_feasibility
 from terrainml.pipeline.train import make_factory
 
 
@@ -74,3 +75,29 @@ def test_nested_figures_are_those_of_models_that_never_saw_their_test_runs(short
         assert o["balanced_accuracy"] == pytest.approx(bal)
         assert k not in sel.inner[k].held
     assert sel.honest["mean"] == pytest.approx(np.mean([o["balanced_accuracy"] for o in sel.outer]))
+    # pooled: one balanced accuracy over every outer fold's held-out windows together (the engine's definition)
+    y_all, pred_all = [], []
+    for k in range(len(sel.partition)):
+        te = np.isin(W.groups, sel.partition[k])
+        m = make_factory("hgb", short_ds, 0)()
+        m.fit(W.subset(np.flatnonzero(~te)), W.y[~te], groups=W.groups[~te])
+        y_all.append(W.y[te])
+        pred_all.append(m.predict(W.subset(np.flatnonzero(te))))
+    assert sel.honest["pooled"] == pytest.approx(balanced_accuracy_score(np.concatenate(y_all),
+                                                                         np.concatenate(pred_all)))
+
+
+def test_near_perfect_probabilities_keep_temperature_one_and_overconfident_ones_are_softened():
+    # 400 windows, 2 classes, every one at confidence 0.999, 3 of them wrong: accuracy 0.9925, ECE 0.0065.
+    # Likelihood alone softens to T = log(999) / log(0.9925 / 0.0075) = 1.41 (hand-worked)
+    y = np.array([0, 1] * 200)
+    proba = np.where(y[:, None] == np.arange(2), 0.999, 0.001)
+    proba[:3] = proba[:3, ::-1]
+    assert Temperature.fit(proba, y, np.arange(2)).temperature == pytest.approx(np.log(999) / np.log(397 / 3),
+                                                                                 rel=0.01)
+    assert fit_temperature(proba, y, np.arange(2)).temperature == 1.0
+    # 70% right at confidence 0.99 (ECE 0.29): softened as Temperature.fit would
+    wrong = np.arange(len(y)) % 10 < 3
+    proba2 = np.where((y[:, None] == np.arange(2)) ^ wrong[:, None], 0.99, 0.01)
+    t = fit_temperature(proba2, y, np.arange(2)).temperature
+    assert t > 1.5 and t == pytest.approx(Temperature.fit(proba2, y, np.arange(2)).temperature)
