@@ -87,17 +87,23 @@ def test_nested_figures_are_those_of_models_that_never_saw_their_test_runs(short
                                                                          np.concatenate(pred_all)))
 
 
-def test_near_perfect_probabilities_keep_temperature_one_and_overconfident_ones_are_softened():
-    # 400 windows, 2 classes, every one at confidence 0.999, 3 of them wrong: accuracy 0.9925, ECE 0.0065.
-    # Likelihood alone softens to T = log(999) / log(0.9925 / 0.0075) = 1.41 (hand-worked)
+def test_a_temperature_is_kept_only_where_it_calibrates_run_groups_it_was_not_fitted_on():
+    classes = np.arange(2)
+    # near-perfect: 4 run groups of 100 windows at confidence 0.999, group 0 holds 3 errors. Likelihood on all
+    # rows softens to T = log(999) / log(397 / 3) = 1.41 (hand-worked), but fitted without group 0 it sharpens
+    # (no error left) and without another group it softens that group's right answers: T stays 1
     y = np.array([0, 1] * 200)
-    proba = np.where(y[:, None] == np.arange(2), 0.999, 0.001)
+    groups = np.repeat(np.arange(4), 100)
+    proba = np.where(y[:, None] == classes, 0.999, 0.001)
     proba[:3] = proba[:3, ::-1]
-    assert Temperature.fit(proba, y, np.arange(2)).temperature == pytest.approx(np.log(999) / np.log(397 / 3),
-                                                                                 rel=0.01)
-    assert fit_temperature(proba, y, np.arange(2)).temperature == 1.0
-    # 70% right at confidence 0.99 (ECE 0.29): softened as Temperature.fit would
-    wrong = np.arange(len(y)) % 10 < 3
-    proba2 = np.where((y[:, None] == np.arange(2)) ^ wrong[:, None], 0.99, 0.01)
-    t = fit_temperature(proba2, y, np.arange(2)).temperature
-    assert t > 1.5 and t == pytest.approx(Temperature.fit(proba2, y, np.arange(2)).temperature)
+    assert Temperature.fit(proba, y, classes).temperature == pytest.approx(np.log(999) / np.log(397 / 3), rel=0.01)
+    assert fit_temperature(proba, y, groups, classes).temperature == 1.0
+    # over-confident in every run group alike (true T = 2.5): kept, as Temperature.fit gives it
+    rng = np.random.default_rng(0)
+    z = rng.normal(0.0, 2.0, size=(2000, 3))
+    p_true = np.exp(z) / np.exp(z).sum(axis=1, keepdims=True)
+    y3 = np.array([rng.choice(3, p=p) for p in p_true])
+    over = np.exp(2.5 * z) / np.exp(2.5 * z).sum(axis=1, keepdims=True)
+    t = fit_temperature(over, y3, rng.integers(0, 4, size=2000), np.arange(3)).temperature
+    assert t == pytest.approx(2.5, rel=0.1)
+    assert t == Temperature.fit(over, y3, np.arange(3)).temperature
