@@ -1,0 +1,164 @@
+"""Unknown ground on a real robot: BorealTC SNOW served by a model that never saw SNOW (issue #30).
+
+Not part of ``make bench`` (a few minutes on 2 cores). The issue's serving line: ``unknown_terrain``
+ticks appear on a SNOW run served by a model without SNOW, within 3 m of moving onto it, and
+known ground keeps its served class.
+
+Protocol, fixed before it was run (nothing here is tuned on its figures):
+
+* the model: ``--windows chunks`` (the BorealTC authors' windows), ``svm+hgb`` (the choice of
+  default ``train`` on BorealTC), all sensor groups, trained by :func:`terrainml.pipeline.train.train`
+  (its novelty scorer and threshold fitted with it, inner grouped folds) on every ASPHALT,
+  FLOORING, ICE and SANDY_LOAM run except the last one of each class;
+* the course: 30 s from the middle of each run, IMU kept, alternating a held-out known run (the
+  four in turn) and a SNOW run, for every SNOW run: known, SNOW_00, known, SNOW_01, ...;
+  :class:`~terrainml.stream.predictor.Predictor` serves it tick by tick as ``terrainml predict``;
+* per SNOW segment: the wheel distance (mean rim speed integrated) from the segment's start to
+  its first ``unknown_terrain`` tick, and the share of its moving ticks served ``unknown_terrain``;
+  per known segment: the shares of its moving ticks served ``unknown_terrain`` and the labelled
+  class. A tick moves when the mean rim speed exceeds 0.2 m/s.
+
+``python -m benchmarks.unknown_ground_study`` prints the Markdown.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from tempfile import TemporaryDirectory
+
+import numpy as np
+import pandas as pd
+
+from benchmarks.bench_real_robots import DATA
+from terrainml.evaluation.report import markdown_table
+from terrainml.experiments.borealtc import make_course, runs_by_class
+from terrainml.features.windows import window_spec
+from terrainml.io.ingest import load_dataset
+from terrainml.pipeline.dataset import build_from_tables
+from terrainml.pipeline.train import train
+from terrainml.robot import load_robot
+from terrainml.stream.predictor import Predictor
+
+UNKNOWN = "SNOW"
+SEGMENT_S = 30.0
+MOVING_MPS = 0.2
+MODEL = "svm+hgb"
+
+
+def _log(msg: str) -> None:
+    print(f"[unknown_ground_study {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+def _course_order(tables, names: list[str]) -> tuple[list[str], list[str], list[str]]:
+    """(course run ids, held-out known runs, SNOW runs): known and SNOW alternating."""
+    by_class = runs_by_class(tables)
+    snow = by_class[names.index(UNKNOWN)]
+    known = [ids[-1] for c, ids in by_class.items() if names[c] != UNKNOWN]
+    order = []
+    for j, s in enumerate(snow):
+        order += [known[j % len(known)], s]
+    return order, known, snow
+
+
+def _segments(tables, course: pd.DataFrame, order: list[str], robot) -> list[dict]:
+    """The course's rows of each run (make_course takes up to SEGMENT_S from each, end to end)."""
+    by_id = {str(t["run_id"].iloc[0]): t for t in tables}
+    om = [c for c in course.columns if c.endswith("_omega_radps")]
+    speed = np.abs(course[om].to_numpy(dtype=float)).mean(axis=1) * robot.wheel_radius_m
+    dt = float(np.median(np.diff(course["t_s"].to_numpy())))
+    out, start = [], 0
+    for rid in order:
+        n = min(len(by_id[rid]), int(round(SEGMENT_S / dt)))
+        out.append({"run": rid, "rows": slice(start, start + n), "speed": speed, "dt": dt})
+        start += n
+    if start != len(course):
+        raise RuntimeError(f"segments cover {start} rows of a {len(course)}-row course")
+    return out
+
+
+def _score(seg: dict, served: list[dict], label: str) -> dict:
+    rows = seg["rows"]
+    speed = seg["speed"][rows]
+    moving = speed > MOVING_MPS
+    reason = np.array([m["fallback_reason"] for m in served[rows]], dtype=object)
+    name = np.array([m["terrain_name"] for m in served[rows]], dtype=object)
+    unknown = reason == "unknown_terrain"
+    dist = np.cumsum(speed * seg["dt"])
+    first = int(np.argmax(unknown)) if unknown.any() else None
+    return {"run": seg["run"], "moving": int(moving.sum()),
+            "unknown_share": float(unknown[moving].mean()) if moving.any() else float("nan"),
+            "right_share": float((name == label)[moving & ~unknown].sum() / moving.sum()) if moving.any()
+            else float("nan"),
+            "first_unknown_m": None if first is None else float(dist[first]),
+            "reasons": pd.Series(reason[moving]).value_counts(normalize=True).round(3).to_dict()}
+
+
+def measure() -> dict:
+    robot = load_robot("husky")
+    tables, report = load_dataset("borealtc", DATA, robot=robot)
+    names = list(report.classes)
+    order, known, snow = _course_order(tables, names)
+    train_tables = [t for t in tables if str(t["run_id"].iloc[0]) not in known
+                    and names[int(t["terrain"].iloc[0])] != UNKNOWN]
+    spec = window_spec("chunks").resolve(robot, ["wheels", "currents", "imu"])
+    ds = build_from_tables(train_tables, robot, spec=spec)
+    course = make_course(tables, order, segment_s=SEGMENT_S, drop_imu=False)
+    with TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        res = train(ds, Path(tmp) / "m", [MODEL], folds=2, seed=0, ablation=False, progress=_log)
+        t_train = time.perf_counter() - t0
+        p = Predictor.from_model_dir(Path(tmp) / "m")
+        cols = list(course.columns)
+        _log(f"serving {len(course)} ticks ({len(order)} segments)")
+        served = np.array([p.step(dict(zip(cols, row))).to_dict() for row in course.itertuples(index=False)],
+                          dtype=object)
+    segs = _segments(tables, course, order, robot)
+    lab = [names[int(course["terrain"].iloc[s["rows"].start])] for s in segs]
+    rows = [_score(s, served, label) for s, label in zip(segs, lab)]
+    return {"snow": [r for r, label in zip(rows, lab) if label == UNKNOWN],
+            "known": [r for r, label in zip(rows, lab) if label != UNKNOWN],
+            "train_runs": len(train_tables), "held_known": known, "t_train_s": t_train,
+            "cv": res.models[MODEL]["cv"].pooled["balanced_accuracy"]}
+
+
+def _f(x, d=1, scale=100.0) -> str:
+    return "n/a" if x is None or not np.isfinite(x) else f"{scale * x:.{d}f}"
+
+
+def markdown(m: dict) -> str:
+    snow, known = m["snow"], m["known"]
+    first = [r["first_unknown_m"] for r in snow]
+    within = sum(f is not None and f <= 3.0 for f in first)
+    reached = [f for f in first if f is not None]
+    w = np.array([r["moving"] for r in known], dtype=float)
+    false_unknown = float(np.sum(w * [r["unknown_share"] for r in known]) / w.sum())
+    right_known = float(np.sum(w * [r["right_share"] for r in known]) / w.sum())
+    ws = np.array([r["moving"] for r in snow], dtype=float)
+    snow_unknown = float(np.sum(ws * [r["unknown_share"] for r in snow]) / ws.sum())
+    rows = [[r["run"], r["moving"], _f(r["unknown_share"]), _f(r["first_unknown_m"], 2, 1.0),
+             ", ".join(f"{k or 'class'} {100 * v:.0f}%" for k, v in r["reasons"].items())] for r in snow]
+    return "\n".join([
+        "### SNOW served by a model that never saw SNOW (`benchmarks/unknown_ground_study.py`)", "",
+        f"`{MODEL}` on `chunks` windows, all sensors, trained on {m['train_runs']} runs of the four other classes "
+        f"(grouped 2-fold CV balanced accuracy {m['cv']:.3f}; {m['t_train_s'] / 60:.1f} min); held-out known runs "
+        f"{', '.join(m['held_known'])}; a course of {SEGMENT_S:.0f} s segments alternating a held-out known run and "
+        f"each of the {len(snow)} SNOW runs, served tick by tick.", "",
+        f"- SNOW segments with an `unknown_terrain` tick within 3 m of wheel travel from their start: "
+        f"**{within} of {len(snow)}**; with one at all: {len(reached)}; median distance to the first "
+        f"{_f(float(np.median(reached)), 2, 1.0) if reached else 'n/a'} m.",
+        f"- SNOW moving ticks served `unknown_terrain`: **{100 * snow_unknown:.1f}%**.",
+        f"- Known held-out segments ({int(w.sum())} moving ticks): `unknown_terrain` on "
+        f"**{100 * false_unknown:.1f}%**, the labelled class on {100 * right_known:.1f}%.", "",
+        markdown_table(["SNOW run", "moving ticks", "unknown_terrain %", "m to first unknown",
+                        "served on moving ticks (fallback reason)"], rows), ""])
+
+
+def main() -> int:
+    print(markdown(measure()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
