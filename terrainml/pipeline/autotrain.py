@@ -8,10 +8,13 @@
    select.select`): the honest figure of the choice comes from outer folds it never saw;
 3. replays each outer fold's held-out runs through the online predictor, with that fold's model
    saved as a model folder and loaded like ``terrainml predict`` loads one
-   (:mod:`terrainml.pipeline.replay`); a model whose replay classifies on too few moving ticks
-   is refused (:class:`ReplayRefused`, report written, no model saved) unless ``allow_unproven``;
+   (:mod:`terrainml.pipeline.replay`), with its novelty score fitted on the fold's training runs
+   (so the replay serves ``unknown_terrain`` as ``predict`` would); a model whose replay
+   classifies on too few moving ticks is refused (:class:`ReplayRefused`, report written, no
+   model saved) unless ``allow_unproven``;
 4. fits the chosen candidate on every window of its spec, with the temperature fitted on its
-   out-of-fold probabilities (:mod:`terrainml.models.calibration`), and saves it with the
+   out-of-fold probabilities (:mod:`terrainml.models.calibration`) and its novelty score
+   (:mod:`terrainml.models.novelty`, threshold from inner grouped folds), and saves it with the
    report (every candidate side by side, the choice and why, per-fold replay, ECE before and
    after calibration).
 
@@ -44,7 +47,7 @@ from terrainml.pipeline.replay import (MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S, m
 from terrainml.pipeline import train as train_lib  # make_factory read at call time
 from terrainml.pipeline.select import Selection, candidate_specs, select
 from terrainml.pipeline.train import (MIN_RUNS_PER_CLASS, TABLE_FILE, TrainResult, desired_slip_table_for,
-                                      feature_family)
+                                      feature_family, served_novelty)
 from terrainml.robot import RobotSpec
 
 __all__ = ["train_auto", "build_candidates", "AutoResult", "ReplayRefused", "DEFAULT_BUDGET_MIN"]
@@ -108,7 +111,8 @@ def _fit_final(ds: Dataset, model: str, seed: int, temperature: float, say) -> t
 
 
 def _save(out: Path, ds: Dataset, fitted: dict, served: str, temperature: float, table: Any,
-          extra: dict | None = None, metrics: dict | None = None) -> dict:
+          extra: dict | None = None, metrics: dict | None = None, novelty: Any = None) -> dict:
+    """Save a model folder as ``terrainml predict`` loads it; ``novelty``: (name, scorer, info) or None."""
     W = ds.windows
     classes = sorted(set(W.y.tolist()))
     names = _names(ds, classes)
@@ -117,7 +121,8 @@ def _save(out: Path, ds: Dataset, fitted: dict, served: str, temperature: float,
                          default_model=served, preset=ds.preset, sensors=ds.sensors,
                          feature_family=feature_family(W.channels),
                          attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
-                         extra=extra or {}, calibration={served: Temperature(temperature).to_dict()})
+                         extra=extra or {}, calibration={served: Temperature(temperature).to_dict()},
+                         novelty=novelty)
 
 
 def _names(ds: Dataset, classes: Sequence[int]) -> list[str]:
@@ -127,8 +132,9 @@ def _names(ds: Dataset, classes: Sequence[int]) -> list[str]:
             for c in classes]
 
 
-def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, say) -> list[dict]:
-    """Replay of every outer fold's held-out runs through its calibrated model, saved and loaded."""
+def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, seed: int, say) -> list[dict]:
+    """Replay of every outer fold's held-out runs through its calibrated model and its novelty score
+    (fitted on the fold's training runs only), saved and loaded as ``predict`` loads them."""
     out = []
     by_id = {str(t["run_id"].iloc[0]): t for t in tables if len(t)}
     for k, o in enumerate(sel.outer):
@@ -138,12 +144,16 @@ def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, s
         if not runs:
             out.append({"fold": k, "runs": 0, "moving_ticks": 0, "chosen": o["chosen"]})
             continue
-        model = sel.outer_models[k]
-        fitted = {o["chosen"].split("/")[1]: model}
+        model, name = sel.outer_models[k], o["chosen"].split("/")[1]
+        fitted = {name: model}
         if isinstance(model, ProbabilityAverage):
-            fitted = {**dict(zip(o["chosen"].split("/")[1].split("+"), model.members_)), **fitted}
+            fitted = {**dict(zip(name.split("+"), model.members_)), **fitted}
+        W = data[spec].windows
+        train_idx = np.flatnonzero(~np.isin(np.asarray(W.groups).astype(str), o["runs"])
+                                   & np.isin(W.y, sel.class_ids))
+        novelty = served_novelty(model, name, W.subset(train_idx), seed, say)  # the fold's training runs only
         with TemporaryDirectory() as tmp:
-            _save(Path(tmp) / "m", data[spec], fitted, o["chosen"].split("/")[1], o["temperature"], table)
+            _save(Path(tmp) / "m", data[spec], fitted, name, o["temperature"], table, novelty=novelty)
             course = make_course([by_id[r] for r in runs], runs, segment_s=segment_s)
             t0 = time.perf_counter()
             res = replay_course(Path(tmp) / "m", course)
@@ -194,7 +204,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     sel.infeasible = {**failed, **sel.infeasible}
     t_sel = time.perf_counter() - t0 - t_windows
     replay = replay and tables is not None
-    folds_replay = _replay_folds(sel, data, tables, table, segment_s, say) if replay else []
+    folds_replay = _replay_folds(sel, data, tables, table, segment_s, seed, say) if replay else []
     pooled = pooled_replay([f for f in folds_replay if f.get("moving_ticks")]) if folds_replay else {}
     refusal = replay_refusal(pooled, min_classified_share) if replay else ""
     t_replay = time.perf_counter() - t0 - t_windows - t_sel
@@ -220,7 +230,8 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
                                     "params": params if len(params) > 1 else next(iter(params.values()))}},
                      served, sel.class_ids, sel.class_names, len(sel.partition), seed, _summary(ds, sel), None,
                      fitted={served: cal})
-    _save(out, ds, fitted, served, sel.temperature, table,
+    novelty = served_novelty(fitted[served], served, ds.windows, seed, say)  # the windows it was fitted on
+    _save(out, ds, fitted, served, sel.temperature, table, novelty=novelty,
           extra={"folds": len(sel.partition), "seed": seed, "n_windows": len(ds.windows),
                  "latency_ms": {served: lat}, "selection": {"chosen": sel.chosen.name,
                                                            "nested_balanced_accuracy": sel.honest}},

@@ -54,7 +54,7 @@ from terrainml.pipeline.dataset import Dataset
 
 __all__ = ["MODEL_KINDS", "TABLE_FILE", "make_factory", "train", "evaluate", "TrainResult",
            "desired_slip_table_for", "served_table", "parse_models", "feature_family",
-           "MIN_RUNS_PER_CLASS", "ClassMismatchError", "parse_class_map"]
+           "MIN_RUNS_PER_CLASS", "ClassMismatchError", "parse_class_map", "served_novelty"]
 
 #: base model kinds; ``A+B`` averages the probabilities of A and B
 MODEL_KINDS = ("svm", "cnn", "hgb")
@@ -276,7 +276,7 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     summary = _dataset_summary(ds, plan)
     res = TrainResult(out, results, default, plan.classes.tolist(), plan.names, len(plan.folds), seed, summary,
                       abl, fitted=fitted)
-    novelty = _served_novelty(fitted[default], default, W, seed, say)
+    novelty = served_novelty(fitted[default], default, W, seed, say)
     if open_set and novelty is not None:
         res.open_set = _open_set(default, factories, plan, seed, n_jobs, say)
     metrics_summary = {k: r["cv"].summary for k, r in results.items()}
@@ -390,7 +390,7 @@ def _dataset_summary(ds: Dataset, plan: _CVPlan) -> dict:
             "fingerprint": ds.fingerprint, "rejections": ds.counts}
 
 
-def _served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], None]):
+def served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], None]):
     """(name, scorer, info) of the served model's novelty score, or None (named) without one."""
     say(f"{name}: novelty score (threshold from inner grouped folds)")
     try:

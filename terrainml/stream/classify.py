@@ -284,7 +284,7 @@ def _members(art: Any, robot: RobotSpec, class_ids: Sequence[int]) -> list[Servi
     out = []
     for entry, m in zip(entries, art.members):
         clf = WindowClassifier(m.model, robot, m.features, m.window_spec,
-                               class_ids=[int(c) for c in m.model.classes_])
+                               class_ids=[int(c) for c in m.model.classes_], novelty=m.novelty)
         if clf.class_ids != list(class_ids):
             raise ModelLoadError(f"{m.path}: member classes {clf.class_ids} differ from the model's {list(class_ids)}")
         out.append((-(entry.get("balanced_accuracy") or 0.0), len(out),
