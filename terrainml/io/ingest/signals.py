@@ -188,6 +188,22 @@ def last_hole_s(df: pd.DataFrame, before_s: float = -np.inf) -> float:
     return float(dead[-1]) if len(dead) else before_s
 
 
+def filled_columns(present: list[str], robot: RobotSpec, spec: dict) -> tuple[list[str], list[str]]:
+    """Columns a table gets without a signal: the steering of fixed wheels (known zero, valid) and
+    the required and always-present columns no source feeds (NaN, invalid)."""
+    zeros = [wheel_col("steer", i) for i, wh in enumerate(robot.wheels, start=1)
+             if not wh.steerable and wheel_col("steer", i) not in present]
+    absent = [c.name for c in spec.values() if (c.required or c.name in _ALWAYS) and c.name not in present
+              and c.name not in zeros]
+    return zeros, absent
+
+
+def validity_members(columns: list[str], spec: dict) -> dict[str, list[str]]:
+    """Per sensor group (``VALID_GROUPS`` order): which of ``columns`` make its ``{group}_valid``."""
+    return {g: [c for c in columns if c in spec and spec[c].group == g and c not in _NOT_IN_VALIDITY
+                and not c.endswith("_cmd_omega_radps")] for g in VALID_GROUPS}
+
+
 def assemble(signals: list[Signal], grid: np.ndarray, robot: RobotSpec,
              hole_before_s: float = -np.inf) -> pd.DataFrame:
     """Resample ``signals`` onto ``grid`` (m,) s: the canonical columns, each ``{group}_valid``.
@@ -218,18 +234,14 @@ def assemble(signals: list[Signal], grid: np.ndarray, robot: RobotSpec,
         data[s.column] = out
         col_valid[s.column] = valid
     m = len(grid)
-    for i, wh in enumerate(robot.wheels, start=1):   # fixed wheels: steering is known to be zero
-        c = wheel_col("steer", i)
-        if c not in data and not wh.steerable:
-            data[c] = np.zeros(m)
-            col_valid[c] = np.ones(m, bool)
-    for c in spec.values():
-        if (c.required or c.name in _ALWAYS) and c.name not in data:
-            data[c.name] = np.full(m, np.nan)
-            col_valid[c.name] = np.zeros(m, bool)
-    for g in VALID_GROUPS:  # every group gets its validity column (False when the group is absent)
-        members = [c for c in col_valid if c in spec and spec[c].group == g and c not in _NOT_IN_VALIDITY
-                   and not c.endswith("_cmd_omega_radps")]
+    zeros, absent = filled_columns(list(data), robot, spec)
+    for c in zeros:
+        data[c] = np.zeros(m)
+        col_valid[c] = np.ones(m, bool)
+    for c in absent:
+        data[c] = np.full(m, np.nan)
+        col_valid[c] = np.zeros(m, bool)
+    for g, members in validity_members(list(col_valid), spec).items():  # False when the group is absent
         data[valid_column(g).name] = (np.logical_and.reduce([col_valid[c] for c in members]) if members
                                       else np.zeros(m, bool))
     if "terrain" in data:
