@@ -10,6 +10,7 @@ onto a slice of the base-rate grid and adds the ``{group}_valid`` columns. The i
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,18 +74,31 @@ def joint_columns(src: Source, n_wheels: int) -> list[JointColumn]:
     return cols
 
 
-def imu_rotation(robot: RobotSpec, tmap: TopicMap) -> Rotation:
+@functools.lru_cache(maxsize=32)
+def _mount(roll_rad: float, pitch_rad: float, yaw_rad: float) -> tuple[Rotation, Rotation]:
+    """The IMU mount rotation and its inverse, made once per mount (live streams convert a message
+    or two per call, and making the rotation costs as much as applying it)."""
+    rot = Rotation.from_euler("xyz", [roll_rad, pitch_rad, yaw_rad])
+    return rot, rot.inv()
+
+
+def _imu_mount(robot: RobotSpec, tmap: TopicMap) -> tuple[Rotation, Rotation]:
     m = tmap.imu_mount
     if m == "robot":
         m = {"roll_rad": robot.imu.roll_rad, "pitch_rad": robot.imu.pitch_rad, "yaw_rad": robot.imu.yaw_rad}
-    return Rotation.from_euler("xyz", [m["roll_rad"], m["pitch_rad"], m["yaw_rad"]])
+    return _mount(float(m["roll_rad"]), float(m["pitch_rad"]), float(m["yaw_rad"]))
 
 
-def _yaw_of(q: np.ndarray, min_norm: float, rot: Rotation | None = None) -> np.ndarray:
-    """Yaw (ZYX) of quaternions (n, 4) xyzw; NaN where a quaternion is non-finite or ~zero."""
+def imu_rotation(robot: RobotSpec, tmap: TopicMap) -> Rotation:
+    return _imu_mount(robot, tmap)[0]
+
+
+def _yaw_of(q: np.ndarray, min_norm: float, rot_inv: Rotation | None = None) -> np.ndarray:
+    """Yaw (ZYX) of quaternions (n, 4) xyzw, in the frame of ``rot_inv``'s inverse when given; NaN
+    where a quaternion is non-finite or ~zero."""
     ok = np.isfinite(q).all(axis=1) & (np.linalg.norm(np.nan_to_num(q), axis=1) > min_norm)
     r = Rotation.from_quat(np.where(ok[:, None], q, [0.0, 0.0, 0.0, 1.0]))
-    return np.where(ok, (r if rot is None else r * rot.inv()).as_euler("ZYX")[:, 0], np.nan)
+    return np.where(ok, (r if rot_inv is None else r * rot_inv).as_euler("ZYX")[:, 0], np.nan)
 
 
 def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap: TopicMap,
@@ -97,7 +111,7 @@ def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap
 
     kind = src.kind
     if kind == "imu":
-        rot = imu_rotation(robot, tmap)
+        rot, rot_inv = _imu_mount(robot, tmap)
         acc = rot.apply(part["accel"])
         gyr = rot.apply(part["gyro"])
         for j, axis in enumerate("xyz"):
@@ -106,10 +120,10 @@ def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap
             add(f"imu_{name}_rate_radps", gyr[:, j])
         # an IMU without orientation publishes identity (or zeros) throughout: no yaw column then
         if src.options.get("yaw_from_orientation", True) and facts.imu_orientation:
-            add("imu_yaw_rad", _yaw_of(part["orientation"], 1e-6, rot), "angle")
+            add("imu_yaw_rad", _yaw_of(part["orientation"], 1e-6, rot_inv), "angle")
     elif kind == "t265_odometry":
         out = t265.t265_odometry_to_body(part["position"], part["orientation"], part["linear"],
-                                         part["angular"])
+                                         part["angular"], positions=False)
         conf = part["cov0"]
         min_conf = src.options.get("min_confidence", 2)
         low = None if min_conf is None else ~(conf >= float(min_conf))
