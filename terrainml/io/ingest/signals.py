@@ -89,6 +89,18 @@ def _imu_mount(robot: RobotSpec, tmap: TopicMap) -> tuple[Rotation, Rotation]:
     return _mount(float(m["roll_rad"]), float(m["pitch_rad"]), float(m["yaw_rad"]))
 
 
+def array_columns(src: Source, n_wheels: int) -> list[tuple[str, int, str]]:
+    """(column, index, method) of an ``array`` source in topic-map order (``{i}`` expanded per wheel:
+    wheel i at the entry's index + i - 1)."""
+    cols = []
+    for template, spec in src.columns.items():
+        for i in range(1, n_wheels + 1) if "{i}" in template else [None]:
+            col = template.replace("{i}", str(i)) if i else template
+            method = spec.get("resample", "previous" if col.endswith(PREVIOUS_COLUMNS) else "linear")
+            cols.append((col, int(spec["index"]) + (i - 1 if i else 0), method))
+    return cols
+
+
 def imu_rotation(robot: RobotSpec, tmap: TopicMap) -> Rotation:
     return _imu_mount(robot, tmap)[0]
 
@@ -157,6 +169,10 @@ def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap
         for col, fld in src.columns.items():
             grp, axis = fld.split(".")
             add(col, part[grp][:, "xyz".index(axis)])
+    elif kind == "array":   # a value the message does not have is NaN (the tick invalid)
+        data, width = part["data"], part["width"]
+        for col, idx, method in array_columns(src, robot.n_wheels):
+            add(col, np.where(width > idx, data[:, min(idx, data.shape[1] - 1)], np.nan), method)
     elif kind == "label":
         add("terrain", part["data"], "previous")
         # a regular label stream has holes of its own (a gap over its threshold); on change: none
