@@ -207,3 +207,33 @@ def test_float64_multiarray_decodes_alike_on_both_paths_and_maps_by_index(tmp_pa
                  " columns: {x: {index: -1}}}\n")
     with pytest.raises(TopicMapError, match="integer index"):
         load_topic_map(str(f))
+
+
+def test_a_tick_is_served_with_the_message_that_completes_its_bracket(sand_log):
+    """No wait beyond the data: after the warm-up, tick k comes out of the poll that follows the
+    last message it needs (on every topic, the first one stamped after the tick), not later. (A
+    topic published only on change, e.g. labels, is waited for ``reorder_s`` of the others' stamps
+    instead: the serving inputs here are periodic.)"""
+    tmap = load_topic_map(None)
+    inputs = ["/imu", "/camera/odom/sample", "/wheels/joint_states", "/wheels/motor_current", "/cmd_vel"]
+    msgs = [m for m in _messages(sand_log, tmap) if m[0] in inputs]
+    al = LiveAligner(tmap, load_robot(), name="test", warmup_wait_s=0.0, required=inputs)
+    served_at = {}
+    for i, (topic, part) in enumerate(msgs):
+        al.add(topic, part)
+        for s in al.poll():
+            served_at[round(s["t_s"] * 100)] = i
+    t0 = al.t0_ns
+    stamps: dict[str, list] = {}
+    for i, (topic, part) in enumerate(msgs):
+        if topic in al._prod.by_topic:
+            stamps.setdefault(topic, []).append(((int(part["t_ns"][0]) - t0) * 1e-9, i))
+    start = served_at[0]                       # the warm-up's ticks come out together
+    checked = 0
+    for k, i in served_at.items():
+        need = max(next(j for t, j in v if t > k / 100 + 1e-9) for v in stamps.values()
+                   if v[-1][0] > k / 100 + 1e-9)
+        if need > start:
+            assert i == need, k
+            checked += 1
+    assert checked > 500
