@@ -17,6 +17,8 @@ Decoded blocks are plain dicts of numpy arrays, keyed per message kind:
 ``joint_state`` t_ns, names (tuple), position/velocity/effort (n,k) (NaN where absent)
 ``twist``       t_ns, linear (n,3), angular (n,3)
 ``scalar``      t_ns, data (n,)
+``array``       t_ns, data (n, ARRAY_WIDTH) (a ``Float64MultiArray``'s data, zero-padded), width (n,)
+                (how many values the message had; longer messages are cut at ``ARRAY_WIDTH``)
 """
 
 from __future__ import annotations
@@ -53,7 +55,10 @@ KIND_OF_TYPE = {
     "std_msgs/msg/Int16": "scalar", "std_msgs/msg/UInt32": "scalar", "std_msgs/msg/Int32": "scalar",
     "std_msgs/msg/Int64": "scalar", "std_msgs/msg/UInt64": "scalar", "std_msgs/msg/Float32": "scalar",
     "std_msgs/msg/Float64": "scalar",
+    "std_msgs/msg/Float64MultiArray": "array",
 }
+#: values of an ``array`` part per message (a topic map indexes below it)
+ARRAY_WIDTH = 64
 _SCALAR_DTYPE = {"UInt8": "<u1", "Int8": "<i1", "UInt16": "<u2", "Int16": "<i2", "UInt32": "<u4",
                  "Int32": "<i4", "Int64": "<i8", "UInt64": "<u8", "Float32": "<f4", "Float64": "<f8"}
 
@@ -135,6 +140,23 @@ def layout(kind: str, buf: bytes, type_name: str = "") -> _Layout:
         if 4 + o + size > total:
             raise LayoutError("message shorter than its type")
         return _Layout({"data": (o + 4, dt, 1)}, checks, None)
+    if kind == "array":   # MultiArrayLayout (dims: label, size, stride; data_offset), sequence<double>
+        ndim = _u32(buf, 4)
+        if ndim > 64:
+            raise LayoutError("implausible dimension count")
+        p = 4
+        for _ in range(ndim):
+            p, _ = _string(buf, p)
+            p = _align(p, 4) + 8                 # size, stride
+        p = _align(p, 4) + 4                     # data_offset
+        p = _align(p, 4)
+        n = _u32(buf, p + 4)
+        p += 4
+        checks.append((4, p + 4))                # the layout and the data length: structural bytes
+        if not n:
+            return _Layout({}, checks, None)
+        o, _ = _f64(p, n, 0, total)
+        return _Layout({"data": (o + 4, "<f8", n)}, checks, None)
     if kind == "joint_state":
         p = _header(buf, checks)
         p = _align(p, 4)
@@ -312,7 +334,17 @@ def _finish(kind: str, part: dict) -> dict:
         part["cov0"] = part["cov0"].reshape(n)
     elif kind == "scalar":
         part["data"] = part["data"].reshape(n)
+    elif kind == "array":
+        part["data"], part["width"] = _array_rows(part.get("data", np.zeros((n, 0))).reshape(n, -1))
     return part
+
+
+def _array_rows(data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n, k) values -> (n, ARRAY_WIDTH) zero-padded or cut, and each row's width (n,)."""
+    n, k = data.shape
+    out = np.zeros((n, ARRAY_WIDTH))
+    out[:, :min(k, ARRAY_WIDTH)] = data[:, :ARRAY_WIDTH]
+    return out, np.full(n, min(k, ARRAY_WIDTH), np.int64)
 
 
 # ----------------------------------------------------------------------------- object path
@@ -363,6 +395,8 @@ def from_object(kind: str, msg, log_ns: int, use_header_stamp: bool = True) -> d
         part["angular"] = np.array([_xyz(tw.angular)])
     elif kind == "scalar":
         part["data"] = np.array([float(msg.data)])
+    elif kind == "array":
+        part["data"], part["width"] = _array_rows(np.asarray(msg.data, float).reshape(1, -1))
     elif kind == "joint_state":
         names = tuple(str(s) for s in msg.name)
         part["names"] = names

@@ -70,6 +70,7 @@ POSE_TO_BODY = Rotation.from_matrix(np.array([[0.0, 0.0, -1.0],    # x_b (fwd)  
                                               [0.0, 1.0, 0.0]]))   # z_b (up)   =  y_pose (up)
 # v_imu = Q_ALIGN.apply(v_body)  <=>  v_body = Q_ALIGN.inv().apply(v_imu); x_b = z_imu, y_b = x_imu, z_b = y_imu
 IMU_TO_BODY = Q_ALIGN.inv()
+_POSE_TO_BODY_M = POSE_TO_BODY.as_matrix()
 
 
 
@@ -95,7 +96,7 @@ def body_orientation(q_xyzw: np.ndarray, mount: Rotation | None = None) -> Rotat
 
 def t265_odometry_to_body(position_m: np.ndarray, q_xyzw: np.ndarray, linear_mps: np.ndarray,
                           angular_radps: np.ndarray, *, valid: np.ndarray | None = None,
-                          mount: Rotation | None = None) -> dict[str, np.ndarray]:
+                          mount: Rotation | None = None, positions: bool = True) -> dict[str, np.ndarray]:
     """Map T265 odometry (module docstring convention) to body axes, vectorised over n samples.
 
     Parameters
@@ -106,6 +107,8 @@ def t265_odometry_to_body(position_m: np.ndarray, q_xyzw: np.ndarray, linear_mps
     angular_radps : (n, 3) camera angular velocity in ``t265_odom`` axes, rad/s.
     valid : (n,) bool, samples usable for zeroing (first valid frame); all if None.
     mount : optional residual mount rotation (body-aligned camera -> body).
+    positions : False: no ``x_m``/``y_m`` (ingest uses velocities and yaw only; saves a third of
+        the time of a call on one or two messages, the live aligner's case).
 
     Returns
     -------
@@ -127,7 +130,7 @@ def t265_odometry_to_body(position_m: np.ndarray, q_xyzw: np.ndarray, linear_mps
     q_safe = np.where(qok[:, None], q, np.array([0.0, 0.0, 0.0, 1.0]))
     m_cw = _as_rot(q_safe).as_matrix()                      # R_cam^world, t265_pose -> t265_odom (eq. 5.3)
     a = POSE_TO_BODY if mount is None else mount * POSE_TO_BODY
-    am = a.as_matrix()
+    am = _POSE_TO_BODY_M if mount is None else a.as_matrix()
     # eq. 5.1-5.2 (v_local = R^T v_world), then the static alignment: v_body = A R^T v_world
     m_wc = np.swapaxes(m_cw, 1, 2)
     v_body = (m_wc @ lin[:, :, None])[:, :, 0] @ am.T
@@ -136,19 +139,20 @@ def t265_odometry_to_body(position_m: np.ndarray, q_xyzw: np.ndarray, linear_mps
     col0 = m_cw @ am[0]                                     # R A^T e0
     yaw_raw = np.where(qok, np.arctan2(col0 @ am[1], col0 @ am[0]), np.nan)
     ok = qok if valid is None else (qok & np.asarray(valid, bool))
-    p_world = a.apply(pos)                                  # world' axes (body convention)
     out = {"vx_mps": v_body[:, 0], "vy_mps": v_body[:, 1], "vz_mps": v_body[:, 2],
            "yaw_rate_radps": w_body[:, 2], "yaw_raw_rad": yaw_raw}
     if ok.any():
         k0 = int(np.argmax(ok))
         yaw0 = yaw_raw[k0]
-        rz0 = Rotation.from_euler("z", yaw0)
-        p_rel = rz0.inv().apply(p_world - p_world[k0])      # eq. 5.10, world fixed at the start pose
         out["yaw_rad"] = wrap_angle(yaw_raw - yaw0)
-        out["x_m"], out["y_m"] = p_rel[:, 0], p_rel[:, 1]
+        if positions:
+            p_world = a.apply(pos)                          # world' axes (body convention)
+            p_rel = Rotation.from_euler("z", yaw0).inv().apply(p_world - p_world[k0])   # eq. 5.10, start pose
+            out["x_m"], out["y_m"] = p_rel[:, 0], p_rel[:, 1]
     else:
-        nan = np.full(n, np.nan)
-        out["yaw_rad"], out["x_m"], out["y_m"] = nan, nan.copy(), nan.copy()
+        out["yaw_rad"] = np.full(n, np.nan)
+        if positions:
+            out["x_m"], out["y_m"] = np.full(n, np.nan), np.full(n, np.nan)
     return out
 
 

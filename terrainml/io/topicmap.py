@@ -24,7 +24,10 @@ Kinds: ``imu`` (IMU group, mount-rotated), ``t265_odometry`` (cam group, :mod:`t
 skid/differential robot from its body twist), ``body_odometry`` (a REP 105 odometry -- twist in the
 body frame, e.g. robot_localization's ``/odometry/filtered`` -- as the body-velocity reference: the
 camera group's ``cam_*`` columns, read through the robot spec's ``camera`` mount, which for a body
-frame odometry sits at the origin; a spec without ``camera`` does not use it). For CSV/Parquet inputs
+frame odometry sits at the origin; a spec without ``camera`` does not use it), ``array`` (any columns
+from a ``std_msgs/msg/Float64MultiArray``'s data by index: ``columns: {"wheel{i}_omega_radps":
+{index: 0}}`` puts wheel i at index i - 1; stamped with the log time, or on DDS the writer's source
+timestamp, since the message has no header). For CSV/Parquet inputs
 a map may instead give
 ``time_column``, ``time_scale`` (to seconds) and ``columns: {file_column: canonical_column}``.
 """
@@ -47,6 +50,7 @@ KINDS = {
     "joint_state": ("joint_state",),
     "twist": ("twist",),
     "label": ("scalar",),
+    "array": ("array",),
 }
 FIELDS = ("position", "velocity", "effort")
 TWIST_FIELDS = ("linear.x", "linear.y", "linear.z", "angular.x", "angular.y", "angular.z")
@@ -89,6 +93,19 @@ class TopicMap:
                 **self.table}
 
 
+def _check_array_columns(cols: dict, where: str) -> None:
+    """``array`` columns: ``{column: {index: I, resample: linear|previous}}`` (a ``{i}`` template: wheel
+    i at ``I + i - 1``)."""
+    if not cols:
+        raise TopicMapError(f"{where}: an array source needs 'columns'")
+    for col, spec in cols.items():
+        idx = spec.get("index") if isinstance(spec, dict) else None
+        if not isinstance(idx, int) or isinstance(idx, bool) or not 0 <= idx < cdr.ARRAY_WIDTH:
+            raise TopicMapError(f"{where}: column {col!r} needs an integer index (0..{cdr.ARRAY_WIDTH - 1})")
+        if spec.get("resample", "linear") not in ("linear", "previous"):
+            raise TopicMapError(f"{where}: column {col!r}: resample must be linear or previous")
+
+
 def _parse(data: Any, source: str) -> TopicMap:
     if not isinstance(data, dict):
         raise TopicMapError(f"{source}: a topic map must be a mapping")
@@ -125,6 +142,8 @@ def _parse(data: Any, source: str) -> TopicMap:
                                         f"({'|'.join(FIELDS)})")
                 if spec.get("resample", "linear") not in ("linear", "previous"):
                     raise TopicMapError(f"{where}: column {col!r}: resample must be linear or previous")
+        if kind == "array":
+            _check_array_columns(cols, where)
         if kind == "twist":
             cols = cols or {"cmd_vx_mps": "linear.x", "cmd_vy_mps": "linear.y",
                             "cmd_yaw_rate_radps": "angular.z"}

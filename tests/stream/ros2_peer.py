@@ -11,6 +11,9 @@ Fault injections: ``--stop-topic T --stop-at-s S`` (T goes silent S s into the l
 ``--wrong-type-topic T`` (T published as std_msgs/Float64 instead), ``--jump-at-s S --jump-s J``
 (every stamp after S s shifted by J s), ``--swap-every K`` (every K-th pair of IMU messages
 published in reverse order), ``--burst-every K`` (K ticks held, then sent at once).
+``--wheel-array T``: each JointState of ``/wheels/joint_states`` also published on T as a
+std_msgs/Float64MultiArray of the ``wheel{i}_drive`` velocities (wheel order), source timestamp = its
+header stamp (the array has no header).
 
 listen: subscribes to the four terrainml topics, writes one JSON line per message to ``--out``,
 exits after ``--idle-s`` without a message (or ``--max-s``).
@@ -218,6 +221,18 @@ def _convert(topic: str, m, shift_ns: int):
     return Twist(_vec(Vector3, m.linear), _vec(Vector3, m.angular))
 
 
+def _stamp_ns(h) -> int:
+    return h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
+
+
+def _wheel_array(js: JointState) -> Float64MultiArray:
+    """The drive joints' velocities, wheel 1..N, as a Float64MultiArray."""
+    by = dict(zip(js.name, js.velocity))
+    wheels = sorted((int(n[5:-6]), by[n]) for n in js.name if n.startswith("wheel") and n.endswith("_drive"))
+    return Float64MultiArray(MultiArrayLayout([MultiArrayDimension("wheels", len(wheels), len(wheels))], 0),
+                             [v for _, v in wheels])
+
+
 def _wait_matched(writers: dict, timeout_s: float) -> None:
     t_end = time.monotonic() + timeout_s
     while time.monotonic() < t_end:
@@ -235,6 +250,8 @@ def publish(a) -> None:
     types = dict(INPUTS)
     if a.wrong_type_topic:
         types[a.wrong_type_topic] = Float64
+    if a.wheel_array:
+        types[a.wheel_array] = Float64MultiArray
     writers = {tp: DataWriter(dp, Topic(dp, "rt" + tp, cls), qos=_qos(a.reliable)) for tp, cls in types.items()}
     print("peer: writers up", file=sys.stderr, flush=True)
     _wait_matched(writers, a.match_timeout_s)
@@ -271,6 +288,8 @@ def publish(a) -> None:
                 item = None
         if item is not None:
             held.append(item)
+        if a.wheel_array and topic == "/wheels/joint_states":
+            held.append((writers[a.wheel_array], _wheel_array(msg), _stamp_ns(msg.header)))
         burst = a.burst_every and (n % (a.burst_every * 6) != 0)
         if burst:
             n += 1
@@ -347,6 +366,7 @@ def main() -> None:
     ap.add_argument("--jump-s", type=float, default=0.0)
     ap.add_argument("--swap-every", type=int, default=0)
     ap.add_argument("--burst-every", type=int, default=0)
+    ap.add_argument("--wheel-array")
     ap.add_argument("--idle-s", type=float, default=5.0)
     ap.add_argument("--max-s", type=float, default=300.0)
     a = ap.parse_args()

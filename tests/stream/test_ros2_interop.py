@@ -101,9 +101,9 @@ class _Proc:
 
 
 def _predict(model_dir, domain: int, tmp: Path, source_opts: str = "qos=reliable", sinks=("stdout",),
-             idle_s: float = 4.0) -> _Proc:
+             idle_s: float = 4.0, topics: str | None = None) -> _Proc:
     args = PREDICT + ["--model", str(model_dir), "--source", f"ros2://{domain}?{source_opts}",
-                      "--idle-timeout-s", str(idle_s)]
+                      "--idle-timeout-s", str(idle_s)] + (["--topics", topics] if topics else [])
     for s in sinks:
         args += ["--sink", s]
     return _Proc(args, tmp, "predict")
@@ -114,10 +114,10 @@ def _publish(domain: int, log: Path, tmp: Path, *extra: str) -> _Proc:
                   *extra], tmp, "peer")
 
 
-def _serve(model_dir, sand_log, tmp, *peer_args, source_opts="qos=reliable", sinks=("stdout",)):
+def _serve(model_dir, sand_log, tmp, *peer_args, source_opts="qos=reliable", sinks=("stdout",), topics=None):
     """predict (ready first), then the peer; both to their end. Returns the predict process."""
     domain = _domain()
-    pred = _predict(model_dir, domain, tmp, source_opts, [s.format(domain=domain) for s in sinks])
+    pred = _predict(model_dir, domain, tmp, source_opts, [s.format(domain=domain) for s in sinks], topics=topics)
     pred.wait_for("ready")
     peer = _publish(domain, sand_log, tmp, *peer_args)
     assert peer.finish() == 0, peer.err.read_text()
@@ -234,3 +234,40 @@ def test_clock_jump_goes_through_the_clock_policy(model_dir, sand_log, tmp_path)
     after = [m for m in served if m["t_s"] > 30]
     assert after and after[-1]["t_s"] > 30 + DURATION_S - 0.5
     assert "re-anchored" in pred.err.read_text()
+
+
+ARRAY_MAP = """
+name: wheels_as_array
+stamp: header
+imu_mount: robot
+sources:
+  - {topic: /imu, type: sensor_msgs/msg/Imu, kind: imu}
+  - {topic: /camera/odom/sample, type: nav_msgs/msg/Odometry, kind: t265_odometry, min_confidence: 2}
+  - topic: /wheels/speeds
+    type: std_msgs/msg/Float64MultiArray
+    kind: array
+    columns: {"wheel{i}_omega_radps": {index: 0, resample: previous}}
+  - topic: /wheels/joint_states
+    type: sensor_msgs/msg/JointState
+    kind: joint_state
+    columns: {"wheel{i}_steer_rad": {joint: "wheel{i}_steer", field: position, resample: previous}}
+  - topic: /wheels/motor_current
+    type: sensor_msgs/msg/JointState
+    kind: joint_state
+    columns: {"wheel{i}_current_a": {joint: "wheel{i}_drive", field: effort}}
+  - {topic: /cmd_vel, optional: true, type: geometry_msgs/msg/Twist, kind: twist}
+"""
+
+
+def test_wheel_speeds_from_a_float64_multiarray_equal_offline_replay(model_dir, sand_log, offline, tmp_path):
+    """Wheel speeds published as std_msgs/Float64MultiArray (the peer's own IDL class, stamped with the
+    JointState's header stamp) through an ``array`` topic map entry: the same decisions as the offline
+    replay of the log's JointState wheel speeds."""
+    tmap = tmp_path / "array_map.yaml"
+    tmap.write_text(ARRAY_MAP)
+    pred = _serve(model_dir, sand_log, tmp_path, "--wheel-array", "/wheels/speeds",
+                  source_opts=EQUAL + "&discovery_s=5", sinks=("stdout",), topics=str(tmap))
+    served = pred.lines()
+    assert len(served) == len(offline)
+    for a, b in zip(offline, served):
+        assert {k: a[k] for k in DECISION} == {k: b[k] for k in DECISION}, a["t_s"]

@@ -323,7 +323,7 @@ class Scan:
         if ts.cam_best is not None and int(part["t_ns"].min()) >= ts.cam_best[0]:
             return  # nothing earlier than the pose already found
         yaw = t265.t265_odometry_to_body(part["position"], part["orientation"], part["linear"],
-                                         part["angular"])["yaw_raw_rad"]
+                                         part["angular"], positions=False)["yaw_raw_rad"]
         uniq, first = np.unique(part["t_ns"], return_index=True)
         ok = np.isfinite(yaw[first])
         fresh = ~np.isin(uniq, ts.cam_bad)

@@ -16,6 +16,8 @@ odometry) their own spacing is not a gap (documented departure).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 _EPS = 1e-9
@@ -92,3 +94,38 @@ def resample(t_src: np.ndarray, values: np.ndarray, grid: np.ndarray, *, method:
         raise ValueError(f"unknown resample method {method!r}")
     out = np.where(valid, out, np.nan)
     return (out[:, 0], valid[:, 0]) if squeeze else (out, valid)
+
+
+def at_tick(g: float, t_lo: float | None, v_lo: float, t_hi: float | None, v_hi: float, method: str,
+            max_gap_s: float) -> tuple[float, bool]:
+    """:func:`resample` at one tick ``g`` from its bracketing samples, in plain floats.
+
+    ``t_lo``/``v_lo``: the last sample at or before ``g + _EPS`` (None: there is none); ``t_hi``/``v_hi``:
+    the first one after it (None: none yet). Same rules and the same floating-point operations as
+    :func:`resample` (``angle``: the pair unwrapped as ``numpy.unwrap`` does it), so a tick served
+    live (:class:`terrainml.io.ingest.ticks.TickProducer`) equals the tick of the vectorised table:
+    one numpy call costs tens of microseconds on arrays this small, a tick has some 40 columns, and
+    the live budget is a fraction of a 10 ms base period. Returns (value, NaN where invalid; valid).
+    """
+    if t_lo is None or v_lo != v_lo or math.isinf(v_lo):
+        return math.nan, False
+    if method == "previous":
+        return (v_lo, True) if g - t_lo <= max_gap_s + _EPS else (math.nan, False)
+    if abs(g - t_lo) <= _EPS:
+        out = v_lo
+    else:
+        if t_hi is None or v_hi != v_hi or math.isinf(v_hi):
+            return math.nan, False
+        span = t_hi - t_lo
+        if not span <= max_gap_s + _EPS:
+            return math.nan, False
+        if method == "angle":   # numpy.unwrap of the pair (period 2 pi, discontinuity pi)
+            dd = v_hi - v_lo
+            ddmod = (dd + math.pi) % (2.0 * math.pi) - math.pi
+            if ddmod == -math.pi and dd > 0:
+                ddmod = math.pi
+            v_hi = v_hi + (0.0 if abs(dd) < math.pi else ddmod - dd)
+        out = v_lo + ((g - t_lo) / span) * (v_hi - v_lo)
+    if method == "angle":
+        out = math.pi - (math.pi - out) % (2.0 * math.pi)
+    return out, True

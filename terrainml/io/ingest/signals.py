@@ -10,6 +10,7 @@ onto a slice of the base-rate grid and adds the ``{group}_valid`` columns. The i
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,18 +74,43 @@ def joint_columns(src: Source, n_wheels: int) -> list[JointColumn]:
     return cols
 
 
-def imu_rotation(robot: RobotSpec, tmap: TopicMap) -> Rotation:
+@functools.lru_cache(maxsize=32)
+def _mount(roll_rad: float, pitch_rad: float, yaw_rad: float) -> tuple[Rotation, Rotation]:
+    """The IMU mount rotation and its inverse, made once per mount (live streams convert a message
+    or two per call, and making the rotation costs as much as applying it)."""
+    rot = Rotation.from_euler("xyz", [roll_rad, pitch_rad, yaw_rad])
+    return rot, rot.inv()
+
+
+def _imu_mount(robot: RobotSpec, tmap: TopicMap) -> tuple[Rotation, Rotation]:
     m = tmap.imu_mount
     if m == "robot":
         m = {"roll_rad": robot.imu.roll_rad, "pitch_rad": robot.imu.pitch_rad, "yaw_rad": robot.imu.yaw_rad}
-    return Rotation.from_euler("xyz", [m["roll_rad"], m["pitch_rad"], m["yaw_rad"]])
+    return _mount(float(m["roll_rad"]), float(m["pitch_rad"]), float(m["yaw_rad"]))
 
 
-def _yaw_of(q: np.ndarray, min_norm: float, rot: Rotation | None = None) -> np.ndarray:
-    """Yaw (ZYX) of quaternions (n, 4) xyzw; NaN where a quaternion is non-finite or ~zero."""
+def array_columns(src: Source, n_wheels: int) -> list[tuple[str, int, str]]:
+    """(column, index, method) of an ``array`` source in topic-map order (``{i}`` expanded per wheel:
+    wheel i at the entry's index + i - 1)."""
+    cols = []
+    for template, spec in src.columns.items():
+        for i in range(1, n_wheels + 1) if "{i}" in template else [None]:
+            col = template.replace("{i}", str(i)) if i else template
+            method = spec.get("resample", "previous" if col.endswith(PREVIOUS_COLUMNS) else "linear")
+            cols.append((col, int(spec["index"]) + (i - 1 if i else 0), method))
+    return cols
+
+
+def imu_rotation(robot: RobotSpec, tmap: TopicMap) -> Rotation:
+    return _imu_mount(robot, tmap)[0]
+
+
+def _yaw_of(q: np.ndarray, min_norm: float, rot_inv: Rotation | None = None) -> np.ndarray:
+    """Yaw (ZYX) of quaternions (n, 4) xyzw, in the frame of ``rot_inv``'s inverse when given; NaN
+    where a quaternion is non-finite or ~zero."""
     ok = np.isfinite(q).all(axis=1) & (np.linalg.norm(np.nan_to_num(q), axis=1) > min_norm)
     r = Rotation.from_quat(np.where(ok[:, None], q, [0.0, 0.0, 0.0, 1.0]))
-    return np.where(ok, (r if rot is None else r * rot.inv()).as_euler("ZYX")[:, 0], np.nan)
+    return np.where(ok, (r if rot_inv is None else r * rot_inv).as_euler("ZYX")[:, 0], np.nan)
 
 
 def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap: TopicMap,
@@ -97,7 +123,7 @@ def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap
 
     kind = src.kind
     if kind == "imu":
-        rot = imu_rotation(robot, tmap)
+        rot, rot_inv = _imu_mount(robot, tmap)
         acc = rot.apply(part["accel"])
         gyr = rot.apply(part["gyro"])
         for j, axis in enumerate("xyz"):
@@ -106,10 +132,10 @@ def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap
             add(f"imu_{name}_rate_radps", gyr[:, j])
         # an IMU without orientation publishes identity (or zeros) throughout: no yaw column then
         if src.options.get("yaw_from_orientation", True) and facts.imu_orientation:
-            add("imu_yaw_rad", _yaw_of(part["orientation"], 1e-6, rot), "angle")
+            add("imu_yaw_rad", _yaw_of(part["orientation"], 1e-6, rot_inv), "angle")
     elif kind == "t265_odometry":
         out = t265.t265_odometry_to_body(part["position"], part["orientation"], part["linear"],
-                                         part["angular"])
+                                         part["angular"], positions=False)
         conf = part["cov0"]
         min_conf = src.options.get("min_confidence", 2)
         low = None if min_conf is None else ~(conf >= float(min_conf))
@@ -143,6 +169,10 @@ def signals_for(src: Source, part: dict, t_s: np.ndarray, robot: RobotSpec, tmap
         for col, fld in src.columns.items():
             grp, axis = fld.split(".")
             add(col, part[grp][:, "xyz".index(axis)])
+    elif kind == "array":   # a value the message does not have is NaN (the tick invalid)
+        data, width = part["data"], part["width"]
+        for col, idx, method in array_columns(src, robot.n_wheels):
+            add(col, np.where(width > idx, data[:, min(idx, data.shape[1] - 1)], np.nan), method)
     elif kind == "label":
         add("terrain", part["data"], "previous")
         # a regular label stream has holes of its own (a gap over its threshold); on change: none
@@ -188,6 +218,22 @@ def last_hole_s(df: pd.DataFrame, before_s: float = -np.inf) -> float:
     return float(dead[-1]) if len(dead) else before_s
 
 
+def filled_columns(present: list[str], robot: RobotSpec, spec: dict) -> tuple[list[str], list[str]]:
+    """Columns a table gets without a signal: the steering of fixed wheels (known zero, valid) and
+    the required and always-present columns no source feeds (NaN, invalid)."""
+    zeros = [wheel_col("steer", i) for i, wh in enumerate(robot.wheels, start=1)
+             if not wh.steerable and wheel_col("steer", i) not in present]
+    absent = [c.name for c in spec.values() if (c.required or c.name in _ALWAYS) and c.name not in present
+              and c.name not in zeros]
+    return zeros, absent
+
+
+def validity_members(columns: list[str], spec: dict) -> dict[str, list[str]]:
+    """Per sensor group (``VALID_GROUPS`` order): which of ``columns`` make its ``{group}_valid``."""
+    return {g: [c for c in columns if c in spec and spec[c].group == g and c not in _NOT_IN_VALIDITY
+                and not c.endswith("_cmd_omega_radps")] for g in VALID_GROUPS}
+
+
 def assemble(signals: list[Signal], grid: np.ndarray, robot: RobotSpec,
              hole_before_s: float = -np.inf) -> pd.DataFrame:
     """Resample ``signals`` onto ``grid`` (m,) s: the canonical columns, each ``{group}_valid``.
@@ -218,18 +264,14 @@ def assemble(signals: list[Signal], grid: np.ndarray, robot: RobotSpec,
         data[s.column] = out
         col_valid[s.column] = valid
     m = len(grid)
-    for i, wh in enumerate(robot.wheels, start=1):   # fixed wheels: steering is known to be zero
-        c = wheel_col("steer", i)
-        if c not in data and not wh.steerable:
-            data[c] = np.zeros(m)
-            col_valid[c] = np.ones(m, bool)
-    for c in spec.values():
-        if (c.required or c.name in _ALWAYS) and c.name not in data:
-            data[c.name] = np.full(m, np.nan)
-            col_valid[c.name] = np.zeros(m, bool)
-    for g in VALID_GROUPS:  # every group gets its validity column (False when the group is absent)
-        members = [c for c in col_valid if c in spec and spec[c].group == g and c not in _NOT_IN_VALIDITY
-                   and not c.endswith("_cmd_omega_radps")]
+    zeros, absent = filled_columns(list(data), robot, spec)
+    for c in zeros:
+        data[c] = np.zeros(m)
+        col_valid[c] = np.ones(m, bool)
+    for c in absent:
+        data[c] = np.full(m, np.nan)
+        col_valid[c] = np.zeros(m, bool)
+    for g, members in validity_members(list(col_valid), spec).items():  # False when the group is absent
         data[valid_column(g).name] = (np.logical_and.reduce([col_valid[c] for c in members]) if members
                                       else np.zeros(m, bool))
     if "terrain" in data:
