@@ -261,3 +261,14 @@ def test_a_failed_write_is_counted_and_serving_goes_on(folders, drive, tmp_path,
     assert rec.written == [] and rec.failed == -(-n_unknown // 500)
     assert "No space left on device" in rec.summary() and str(tmp_path / "rec") in rec.errors[0]
     assert not list((tmp_path / "rec").glob("*.json"))
+
+
+def test_a_record_folder_that_cannot_be_created_is_refused_before_serving(folders, tmp_path, capsys):
+    from terrainml.stream.runner import run_predict
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    code = run_predict(model=folders["with"], source=str(tmp_path / "never_read.parquet"), sinks=["stdout"],
+                       record_unknown=blocker / "unknown")
+    err = capsys.readouterr().err
+    assert code == 2 and "--record-unknown" in err and "a_file" in err
