@@ -18,9 +18,11 @@ import sys
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 from stream_fakes import SLIP_OF
 
 from terrainml.classes import TERRAIN_CLASSES
+from terrainml.cli import app
 from terrainml.io.ingest import load_run
 from terrainml.estimation.run import estimate_run
 from terrainml.features.sets import FeatureSet
@@ -31,7 +33,7 @@ from terrainml.models.novelty import fit_model_novelty
 from terrainml.models.svm import SVMClassifier
 from terrainml.pipeline.dataset import build_dataset
 from terrainml.robot import load_robot
-from terrainml.schema import read_run_parquet, write_run_parquet
+from terrainml.schema import read_run_parquet
 from terrainml.stream.fusion import TerrainFilter
 from terrainml.stream.predictor import Predictor
 from terrainml.stream.recorder import UnknownGroundRecorder
@@ -238,14 +240,24 @@ def test_record_unknown_writes_exactly_the_unknown_stretch_as_a_run_that_dataset
     assert side["mean_novelty"] > 1.0 and side["label"] is None and side["model"] == str(folders["with"])
     assert run.attrs["terrainml"]["classes"] == list(Predictor.from_model_dir(folders["with"]).class_names)
     # a person labels it (docs/stream.md "Unknown ground"): then ingest and dataset build take it
-    labelled = tmp_path / "labelled"
-    labelled.mkdir()
-    run["terrain"] = 7
-    write_run_parquet(run, labelled / "far_slip_01.parquet")
-    ing = load_run(labelled / "far_slip_01.parquet", robot=ROBOT)
+    labelled = tmp_path / "labelled" / "far_slip_01.parquet"
+    runner = CliRunner()
+    r = runner.invoke(app, ["dataset", "label", str(path), "--terrain", "far_slip", "--out", str(labelled)])
+    assert r.exit_code == 0, r.output
+    classes = run.attrs["terrainml"]["classes"]
+    assert "far_slip" not in classes and "a new class" in r.output
+    ing = load_run(labelled, robot=ROBOT)
     assert ing.report.usable and len(ing.table) == len(served_t)
-    ds = build_dataset(labelled, ROBOT, spec=SPEC)
-    assert len(ds.windows) >= 10 and set(ds.windows.y.tolist()) == {7}
+    assert (ing.table["terrain"] == len(classes)).all()
+    assert json.loads(labelled.with_suffix(".json").read_text())["label"] == "far_slip"
+    ds = build_dataset(labelled.parent, ROBOT, spec=SPEC)
+    assert len(ds.windows) >= 10 and set(ds.windows.y.tolist()) == {len(classes)}
+    assert ds.class_names == ["far_slip"]
+    # a known name takes its id; an id outside the run's classes is refused, naming the file
+    r = runner.invoke(app, ["dataset", "label", str(path), "-t", classes[0], "-o", str(tmp_path / "k.parquet")])
+    assert r.exit_code == 0 and (read_run_parquet(tmp_path / "k.parquet")["terrain"] == 0).all()
+    r = runner.invoke(app, ["dataset", "label", str(path), "--terrain", "99"])
+    assert r.exit_code == 2 and path.name in r.output and "99" in r.output
 
 
 def test_a_failed_write_is_counted_and_serving_goes_on(folders, drive, tmp_path, monkeypatch):
