@@ -89,3 +89,19 @@ def test_train_open_set_flag_reaches_the_training(windows_file, tmp_path, monkey
                                  "--open-set", "--out", str(tmp_path / "m"), "-q"])
     assert r.exit_code == 2 and "stop after the call" in r.output
     assert seen.get("open_set") is True
+
+
+def test_train_open_set_flag_reaches_the_selecting_training(windows_file, tmp_path, monkeypatch):
+    from terrainml.pipeline import autotrain
+
+    seen = {}
+
+    def fake_train_auto(tables, robot, out, **kw):
+        seen.update(kw)
+        raise ValueError("stop after the call")
+
+    monkeypatch.setattr(autotrain, "train_auto", fake_train_auto)
+    r = CliRunner().invoke(app, ["train", "--data", str(windows_file), "--open-set", "--out", str(tmp_path / "m"),
+                                 "-q"])
+    assert r.exit_code == 2 and "stop after the call" in r.output
+    assert seen.get("open_set") is True
