@@ -105,3 +105,20 @@ def test_train_open_set_flag_reaches_the_selecting_training(windows_file, tmp_pa
                                  "-q"])
     assert r.exit_code == 2 and "stop after the call" in r.output
     assert seen.get("open_set") is True
+
+
+def test_evaluate_open_set_of_a_model_folder_uses_its_model_kind_and_window_spec(windows_file, tmp_path):
+    runner = CliRunner()
+    model = tmp_path / "m"
+    r = runner.invoke(app, ["train", "--data", str(windows_file), "--model", "hgb", "--folds", "3", "--no-members",
+                            "--no-ablation", "--out", str(model), "-q"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["evaluate", str(model), "--open-set", "--data", str(windows_file), "--folds", "3",
+                            "--out", str(tmp_path / "rep"), "-q"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads((tmp_path / "rep" / "open_set.json").read_text())
+    manifest = json.loads((model / "manifest.json").read_text())
+    assert doc["model"] == manifest["default_model"] == "hgb" and doc["model_dir"] == str(model)
+    assert doc["window_spec"] == manifest["window_spec"]["name"]
+    r = runner.invoke(app, ["evaluate", str(model), "--open-set", "--data", str(windows_file), "--windows", "state"])
+    assert r.exit_code == 2 and "--windows" in r.output
