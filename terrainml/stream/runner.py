@@ -129,6 +129,10 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
         console.print(f"[red]error:[/] --record-unknown {record_unknown}: cannot create the folder ({exc})")
         predictor.close()
         return 2
+    if recorder is not None and getattr(predictor.classifier, "novelty", None) is None:
+        console.print(f"[yellow]warning:[/] --record-unknown: model {model} has no novelty scorer (a CNN, or a "
+                      "folder without one): it never serves unknown_terrain, so nothing will be recorded",
+                      highlight=False)
 
     def ready(addr: Any) -> None:
         where = f"udp://{addr[0]}:{addr[1]}" if addr else source

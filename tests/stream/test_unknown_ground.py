@@ -284,3 +284,13 @@ def test_a_record_folder_that_cannot_be_created_is_refused_before_serving(folder
                        record_unknown=blocker / "unknown")
     err = capsys.readouterr().err
     assert code == 2 and "--record-unknown" in err and "a_file" in err
+
+
+def test_recording_with_a_model_without_novelty_warns_that_nothing_will_be_recorded(folders, tmp_path, capsys):
+    from terrainml.stream.runner import run_predict
+
+    for name, warned in (("without", True), ("with", False)):
+        run_predict(model=folders[name], source=str(tmp_path / "never_read.parquet"), sinks=["stdout"],
+                    record_unknown=tmp_path / name)
+        err = capsys.readouterr().err
+        assert ("has no novelty scorer" in err) is warned, err
