@@ -131,6 +131,8 @@ class UnknownGroundRecorder:
     def _flush(self) -> None:
         rows, self._rows = self._rows or [], None
         self._n += 1
+        while (self.folder / f"{self.prefix}_{self._n:03d}.parquet").exists():  # never overwrite a run
+            self._n += 1
         stem = f"{self.prefix}_{self._n:03d}"
         path = self.folder / f"{stem}.parquet"
         side = self._sidecar(stem, len(rows))

@@ -294,3 +294,14 @@ def test_recording_with_a_model_without_novelty_warns_that_nothing_will_be_recor
                     record_unknown=tmp_path / name)
         err = capsys.readouterr().err
         assert ("has no novelty scorer" in err) is warned, err
+
+
+def test_a_second_recording_into_the_same_folder_never_overwrites_the_first(folders, drive, tmp_path, monkeypatch):
+    import terrainml.stream.recorder as recorder
+
+    epoch = recorder.time.gmtime(0)
+    monkeypatch.setattr(recorder.time, "gmtime", lambda *a: epoch)  # both recordings start in the same second
+    first = _record(folders["with"], drive, tmp_path / "rec")[2].written
+    second = _record(folders["with"], drive, tmp_path / "rec")[2].written
+    assert len(first) == len(second) == 1 and first != second
+    assert len(list((tmp_path / "rec").glob("*.parquet"))) == len(list((tmp_path / "rec").glob("*.json"))) == 2
