@@ -1,4 +1,4 @@
-"""CLI commands of the dataset area: ``terrainml dataset build`` and ``terrainml dataset show``.
+"""CLI commands of the dataset area: ``terrainml dataset build``, ``show`` and ``label``.
 
 Exit codes: 0 on success, 2 when the input is unusable (message names the file); never a
 traceback.
@@ -200,8 +200,35 @@ def show(path: Path = typer.Argument(..., help="Windows file written by `dataset
                   f"fingerprint {ds.fingerprint}", highlight=False)
 
 
+def label(
+    run: Path = typer.Argument(..., help="Run table (Parquet), e.g. one written by `terrainml predict "
+                               "--record-unknown DIR` (DIR/unknown_*.parquet)."),
+    terrain: str = typer.Option(..., "--terrain", "-t", help="Its class: a name of the run's class list (the "
+                                "model's classes) or a new name (added as the next class id), or a class id."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Labelled run to write (default: replace RUN); "
+                                       "its JSON sidecar goes beside it."),
+) -> None:
+    """Give every row of a recorded run one terrain class, so `dataset build` takes it.
+
+    Example: ``terrainml dataset label runs/unknown/unknown_20261204T101500Z_001.parquet --terrain SNOW
+    --out logs/parquet/snow_field_01.parquet`` then ``terrainml dataset build logs/parquet --out w.parquet``
+    """
+    from terrainml.pipeline.labels import label_run
+
+    if out is not None:
+        check_output_writable(out)
+    try:
+        res = label_run(run, terrain, out)
+    except Exception as exc:  # noqa: BLE001 - a message naming the file, never a traceback
+        fail(failure_message(run, exc, out))
+    new = " (a new class)" if res.added else ""
+    console.print(f"[green]wrote[/] {res.path}: every row terrain {res.class_id} = {res.name}{new}; "
+                  f"classes {res.classes}" + (f"; sidecar {res.sidecar}" if res.sidecar else ""), highlight=False)
+
+
 dataset_app.command("build")(build)
 dataset_app.command("show")(show)
+dataset_app.command("label")(label)
 
 
 def register(app: typer.Typer) -> None:

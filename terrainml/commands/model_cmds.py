@@ -71,6 +71,10 @@ def train(
     members: bool = typer.Option(True, "--members/--no-members", help="Also train, the same way, members "
                                  "for the sensor subsets without IMU and without currents (members/NAME in "
                                  "the folder); serving uses the best one whose sensors are healthy."),
+    open_set: bool = typer.Option(False, "--open-set", help="Also evaluate unknown-ground detection: each class "
+                                  "in turn held out of training and scored as the unknown by the served "
+                                  "model's novelty (one more CV per class; report.md section, as "
+                                  "`terrainml evaluate --open-set`)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
     """Cross-validate (grouped by run), train, report and save a terrain classifier.
@@ -97,15 +101,17 @@ def train(
     if auto:
         _train_auto(data, out, model=model, windows=windows, sensors=sensors, folds=folds, seed=seed,
                     n_jobs=n_jobs, preset=preset, robot=robot, fmt=fmt, budget_min=budget_min,
-                    allow_unproven=allow_unproven, replay_s=replay_s, members=members, quiet=quiet)
+                    allow_unproven=allow_unproven, replay_s=replay_s, members=members, open_set=open_set,
+                    quiet=quiet)
         return
     _train_fixed(data, out, kinds, spec, sensors=sensors, folds=folds, seed=seed, n_jobs=n_jobs,
                  dask_address=dask_address, preset=preset, robot=robot, fmt=fmt, ablation=ablation,
-                 members=members, quiet=quiet)
+                 members=members, open_set=open_set, quiet=quiet)
 
 
 def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, seed: int, n_jobs: int,
-                 dask_address, preset: str, robot, fmt: str, ablation: bool, members: bool, quiet: bool) -> None:
+                 dask_address, preset: str, robot, fmt: str, ablation: bool, members: bool, open_set: bool,
+                 quiet: bool) -> None:
     """``train`` with the model kinds and window spec given (no selection)."""
     from terrainml.commands.dataset_cmds import parse_sensors
     from terrainml.pipeline.train import train as do_train
@@ -126,7 +132,7 @@ def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, see
                 progress.update(task, description=msg)
 
             res = do_train(ds, out, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=ablation,
-                           progress=say)
+                           progress=say, open_set=open_set)
             names = []
             if members and sensors is None:
                 names = _train_members(out, ds, data, kinds, folds=folds, seed=seed, n_jobs=n_jobs,
@@ -237,7 +243,7 @@ def _load_tables(data: Path, *, robot, fmt: str, quiet: bool):
 
 def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, folds: int, seed: int, n_jobs: int,
                 preset: str, robot, fmt: str, budget_min: float, allow_unproven: bool, replay_s: float,
-                members: bool, quiet: bool) -> None:
+                members: bool, open_set: bool, quiet: bool) -> None:
     """``train`` selecting the window spec and the model (``--windows auto`` / ``--model auto``)."""
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
@@ -265,7 +271,7 @@ def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, fol
             res = train_auto(tables, rb, out, specs=windows, models=model, folds=folds, seed=seed, n_jobs=n_jobs,
                              budget_min=budget_min, preset=preset, sensors=parse_sensors(sensors),
                              allow_unproven=allow_unproven, segment_s=replay_s, datasets=datasets,
-                             progress=say)
+                             open_set=open_set, progress=say)
             names = []
             if members and sensors is None and tables is not None:
                 names = _auto_members(out, res, tables, rb, folds=folds, seed=seed, n_jobs=n_jobs,
@@ -336,12 +342,33 @@ def _check_sensors(ds, sensors) -> None:
 
 
 def evaluate(
-    model_dir: Path = typer.Argument(..., help="Model folder written by `terrainml train`."),
+    model_dir: Optional[Path] = typer.Argument(None, help="Model folder written by `terrainml train` (with "
+                                               "--open-set optional: its window spec, robot, preset and "
+                                               "served model kind are used, retrained in every fold)."),
     data: Path = typer.Option(..., "--data", "-d", help="Windows Parquet or folder of logs to score on."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Write the metrics JSON here "
-                                       "(stdout when omitted)."),
-    model: Optional[str] = typer.Option(None, "--model", "-m", help="Model in the folder (default: the served one)."),
-    n_jobs: int = typer.Option(1, "--n-jobs", "-j", help="Parallel jobs when building from logs."),
+                                       "(stdout when omitted). With --open-set: a folder, gets open_set.md "
+                                       "and open_set.json."),
+    model: Optional[str] = typer.Option(None, "--model", "-m", help="Model in the folder (default: the served "
+                                        "one). With --open-set and no folder: the model kind, svm (default), "
+                                        "hgb or an average such as svm+hgb (not cnn: no feature space)."),
+    open_set: bool = typer.Option(False, "--open-set", help="Leave-one-class-out: each class in turn is held "
+                                  "out of training (grouped CV by run) and plays the unknown ground; prints "
+                                  "per held-out class the novelty AUROC (all and moving windows), the share "
+                                  "of the unknown's moving windows flagged, the false alarms on the known "
+                                  "classes' held-out runs and their balanced accuracy. Needs 3 classes with "
+                                  ">= 2 runs."),
+    windows: Optional[str] = typer.Option(None, "--windows", help="With --open-set, when --data is a folder and "
+                                          "no model folder is given: window spec (default short; chunks with "
+                                          "--format borealtc)."),
+    folds: int = typer.Option(5, "--folds", help="With --open-set: outer grouped CV folds (by run)."),
+    seed: int = typer.Option(0, "--seed", help="With --open-set: seed of folds, models and inner folds."),
+    robot: Optional[str] = typer.Option(None, "--robot", help="With --open-set: robot spec when building "
+                                        "from logs without a model folder."),
+    preset: str = typer.Option("robust", "--preset", help="With --open-set: estimation preset when building "
+                               "from logs without a model folder."),
+    n_jobs: int = typer.Option(1, "--n-jobs", "-j", help="Parallel jobs when building from logs (with "
+                               "--open-set: also over folds)."),
     dask_address: Optional[str] = typer.Option(None, "--dask-address", help="Dask scheduler for building."),
     fmt: str = typer.Option("auto", "--format", help="auto or borealtc (when --data is a folder)."),
     trusted_key: Optional[List[Path]] = typer.Option(None, "--trusted-key", help=_TRUSTED_KEY_HELP),
@@ -350,17 +377,35 @@ def evaluate(
                                             "the model lacks is refused unless mapped here."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
-    """Score a saved model (verified on load) on other data; classes matched by name.
+    """Score a saved model (verified on load) on other data; classes matched by name. With
+    ``--open-set``: how well the novelty score finds ground the model was never trained on.
 
     Example: ``terrainml evaluate runs/svm --data data/sim_seed2 --out runs/svm/eval_seed2.json``
 
     Example (signed models only): ``terrainml evaluate runs/svm --data data/sim_seed2 --trusted-key release.pub``
+
+    Example (unknown ground): ``terrainml evaluate --open-set --data ../shared/datasets/borealtc --format
+    borealtc --model hgb --out runs/open_set_boreal``
     """
+    check_n_jobs(n_jobs)
+    if open_set:
+        _evaluate_open_set(model_dir, data, out, model=model, windows=windows, folds=folds, seed=seed, robot=robot,
+                           preset=preset, n_jobs=n_jobs, dask_address=dask_address, fmt=fmt,
+                           trusted_key=trusted_key, quiet=quiet)
+        return
+    if model_dir is None:
+        fail("give the model folder (MODEL_DIR), or --open-set to evaluate unknown-ground detection")
+    _evaluate_model(model_dir, data, out, model=model, n_jobs=n_jobs, dask_address=dask_address, fmt=fmt,
+                    trusted_key=trusted_key, class_map=class_map, quiet=quiet)
+
+
+def _evaluate_model(model_dir: Path, data: Path, out: Optional[Path], *, model, n_jobs: int, dask_address, fmt: str,
+                    trusted_key, class_map, quiet: bool) -> None:
+    """``evaluate MODEL_DIR``: the saved model's metrics on other data."""
     from terrainml.models.artifacts import ArtifactError, read_manifest
     from terrainml.models.signing import SignatureError, verify_artifact_signature
     from terrainml.pipeline.train import evaluate as do_eval
 
-    check_n_jobs(n_jobs)
     if out is not None:
         check_output_writable(out)
     try:
@@ -397,6 +442,79 @@ def evaluate(
                       f"accuracy {m['accuracy']:.3f}, macro-F1 {m['macro_f1']:.3f}, desired-slip error "
                       f"{'n/a' if dse is None or dse != dse else f'{dse:.4f}'}"
                       + (f"; [green]wrote[/] {out}" if out else ""), highlight=False)
+
+
+def _open_set_inputs(model_dir: Optional[Path], *, model, windows, robot, preset: str, fmt: str, trusted_key):
+    """(model kind, window spec, robot, preset) of ``evaluate --open-set``: a model folder's (verified
+    on load), else the options'. Exits 2 naming the folder or the option."""
+    from terrainml.commands.dataset_cmds import window_spec_from_options
+    from terrainml.features.windows import WindowSpec
+    from terrainml.models.artifacts import ArtifactError, read_manifest
+    from terrainml.models.signing import SignatureError, verify_artifact_signature
+    from terrainml.robot import RobotSpec
+
+    if model_dir is None:
+        try:
+            return model or "svm", window_spec_from_options(windows or ("chunks" if fmt == "borealtc" else "short")), \
+                robot, preset
+        except ValueError as exc:
+            fail(f"--windows: {exc}")
+    if windows is not None or robot is not None:
+        fail("--windows and --robot come from the model folder; give them only without MODEL_DIR")
+    try:
+        if trusted_key:
+            verify_artifact_signature(model_dir, trusted_key)
+        manifest = read_manifest(model_dir)
+    except (ArtifactError, SignatureError) as exc:
+        fail(str(exc))
+    kind = model or manifest["default_model"]
+    if kind not in manifest.get("models", {}):
+        fail(f"{model_dir}: no model {kind!r} (has {', '.join(manifest.get('models', {}))})")
+    return (kind, WindowSpec.from_dict(manifest["window_spec"]), RobotSpec.from_dict(manifest["robot"]["spec"]),
+            manifest.get("preset", "robust"))
+
+
+def _evaluate_open_set(model_dir: Optional[Path], data: Path, out: Optional[Path], *, model, windows, folds: int,
+                       seed: int, robot, preset: str, n_jobs: int, dask_address, fmt: str, trusted_key,
+                       quiet: bool) -> None:
+    """``evaluate --open-set``: the leave-one-class-out table on stdout, the report in ``out``."""
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    from terrainml.evaluation.open_set import open_set_markdown
+    from terrainml.evaluation.report import OPEN_SET_FILES, write_open_set_report
+    from terrainml.pipeline.train import evaluate_open_set
+
+    if folds < 2:
+        fail("--folds must be >= 2")
+    if out is not None:
+        check_output_writable(out, folder=True)
+    kind, spec, rb, preset = _open_set_inputs(model_dir, model=model, windows=windows, robot=robot, preset=preset,
+                                              fmt=fmt, trusted_key=trusted_key)
+    try:
+        ds = _load_data(data, robot=rb, preset=preset, n_jobs=n_jobs, dask_address=dask_address, fmt=fmt,
+                        spec=spec, quiet=quiet)
+        with Progress(SpinnerColumn(), TextColumn("[bold]evaluate[/] {task.description}"), TimeElapsedColumn(),
+                      console=console, transient=True, disable=quiet) as progress:
+            task = progress.add_task("", total=None)
+            res = evaluate_open_set(ds, kind, folds=folds, seed=seed, n_jobs=n_jobs,
+                                    progress=lambda msg: progress.update(task, description=msg))
+        context = {"data": str(data), "model": kind, "window_spec": ds.spec.name, "robot": ds.robot.name,
+                   "windows": int(len(ds.windows)), "runs": int(len(set(ds.windows.groups.tolist()))),
+                   "model_dir": None if model_dir is None else str(model_dir)}
+        if out is not None:
+            write_open_set_report(out, res, context)
+    except typer.Exit:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
+        fail(failure_message(data, exc, out))
+    print("\n".join(open_set_markdown(res)))
+    if not quiet:
+        m = res.means()
+        console.print(f"{kind} ({ds.spec.name} windows), leave-one-class-out over {len(res.table)} classes: mean "
+                      f"AUROC {m['auroc']:.3f} (moving {m['auroc_moving']:.3f}), unknown's moving windows "
+                      f"flagged {100 * m['unknown_flagged']:.1f}%, false alarms {100 * m['false_alarm']:.1f}%"
+                      + (f"; [green]wrote[/] {out / OPEN_SET_FILES[0]}, {out / OPEN_SET_FILES[1]}" if out else ""),
+                      highlight=False)
 
 
 @model_app.command("keygen")

@@ -28,6 +28,8 @@ Examples:
 
   terrainml predict --model runs/boreal --source borealtc/ICE/pro_03.csv --format borealtc
 
+  terrainml predict --model runs/svm --source field.mcap --record-unknown runs/unknown_ground
+
   (live view: in Foxglove, open connection -> Foxglove WebSocket -> ws://127.0.0.1:8765)
 """
 
@@ -79,6 +81,13 @@ def register(app: typer.Typer) -> None:
                  "column names, units and scales (e.g. m/s wheel speeds -> rad/s) and side-to-wheel "
                  "mapping; the source is one file of a run, as for `terrainml ingest --format`."),
         allow_outside: bool = typer.Option(False, "--allow-outside-spec-dir", help=ALLOW_OUTSIDE_HELP),
+        record_unknown: Optional[Path] = typer.Option(
+            None, "--record-unknown",
+            help="Folder (created): write every stretch served unknown_terrain (ground unlike the model's "
+                 "training windows) as a run: its canonical rows (unknown_*.parquet, terrain -1) and a "
+                 "JSON sidecar (t_s span, distance, model, mean novelty). Label it (set the terrain "
+                 "column, docs/stream.md \"Unknown ground\") and `terrainml dataset build` takes it. A "
+                 "failed write is counted in the summary, never stops serving."),
     ) -> None:
         from terrainml.stream.config import ServingConfig
         from terrainml.stream.runner import CLASSIFY_LAG_TICKS, run_predict
@@ -90,6 +99,6 @@ def register(app: typer.Typer) -> None:
                            robot=open_robot(robot) if robot else None, config=config,
                            idle_timeout_s=idle_timeout_s, verbose=verbose,
                            trusted_keys=trusted_key or None, topics=topics,
-                           dataset=open_dataset_spec(fmt, allow_outside))
+                           dataset=open_dataset_spec(fmt, allow_outside), record_unknown=record_unknown)
         if code:
             raise typer.Exit(code)

@@ -27,7 +27,10 @@ from terrainml.atomic import atomic_output, write_text
 from terrainml.evaluation.open_set import open_set_markdown
 from terrainml.models.artifacts import json_safe
 
-__all__ = ["write_report", "plot_confusion", "markdown_table"]
+__all__ = ["write_report", "plot_confusion", "markdown_table", "write_open_set_report", "OPEN_SET_FILES"]
+
+#: the report files of ``terrainml evaluate --open-set`` (markdown, JSON)
+OPEN_SET_FILES = ("open_set.md", "open_set.json")
 
 METRIC_ROWS = (("balanced_accuracy", "balanced accuracy"), ("accuracy", "accuracy"),
                ("macro_f1", "macro-F1"), ("adjacent_accuracy", "adjacent-class accuracy"),
@@ -83,13 +86,35 @@ def _novelty_lines(result: Any, doc: dict) -> list[str]:
     md: list[str] = []
     if os_res is not None:
         doc["open_set"] = os_res.to_dict()
-        st = os_res.settings
         md += ["## Unknown ground: leave-one-class-out (served model)", "",
-               f"Each class in turn held out of training on the same folds; novelty `{st['method']}` (k = "
-               f"{st['k']}), threshold at {100 * st['false_alarm_target']:.0f} % false alarms in inner grouped "
-               f"folds of the training windows; moving: rim speed > {st['moving_mps']} m/s.", "",
-               *open_set_markdown(os_res), ""]
+               _open_set_settings(os_res.settings, "on the same folds"), "", *open_set_markdown(os_res), ""]
     return md
+
+
+def _open_set_settings(st: dict, folds: str) -> str:
+    return (f"Each class in turn held out of training {folds}; novelty `{st['method']}` (k = {st['k']}), "
+            f"threshold at {100 * st['false_alarm_target']:.0f} % false alarms in inner grouped folds of "
+            f"the training windows; moving: rim speed > {st['moving_mps']} m/s.")
+
+
+def write_open_set_report(out: str | Path, result: Any, context: dict) -> dict:
+    """Write ``open_set.md`` and ``open_set.json`` (:data:`OPEN_SET_FILES`) of a leave-one-class-out
+    :class:`~terrainml.evaluation.open_set.OpenSetResult` into folder ``out``; return the JSON's dict.
+
+    ``context``: what was evaluated (data, model, window spec, robot, windows, runs), written at
+    the top of both files.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = {**context, **result.to_dict()}
+    st = result.settings
+    md = [f"# Unknown ground: leave-one-class-out ({context.get('model', '?')} on {context.get('data', '?')})", "",
+          ", ".join(f"{k}: {v}" for k, v in context.items()), "",
+          _open_set_settings(st, f"in grouped {st['folds']}-fold CV by run (seed {st['seed']})"), "",
+          *open_set_markdown(result), ""]
+    write_text(out / OPEN_SET_FILES[0], "\n".join(md))
+    write_text(out / OPEN_SET_FILES[1], json.dumps(json_safe(doc), indent=2, sort_keys=True) + "\n")
+    return doc
 
 
 def write_report(out: str | Path, result: Any) -> dict:

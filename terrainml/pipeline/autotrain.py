@@ -168,7 +168,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
                preset: str = "robust", sensors: Sequence[str] | None = None, replay: bool = True,
                segment_s: float = REPLAY_SEGMENT_S, allow_unproven: bool = False,
                min_classified_share: float = MIN_CLASSIFIED_SHARE, datasets: dict | None = None,
-               progress: Callable[[str], None] | None = None) -> AutoResult:
+               open_set: bool = False, progress: Callable[[str], None] | None = None) -> AutoResult:
     """Select, validate on the served path, calibrate and save a model (see the module docstring).
 
     Parameters
@@ -184,6 +184,8 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     segment_s : s of every held-out run replayed. allow_unproven : save a model that the replay
     refuses (the report says so). min_classified_share : the refusal threshold.
     datasets : {spec: Dataset} already cut (then ``specs`` is not used).
+    open_set : also run the leave-one-class-out evaluation of the chosen model's novelty score on
+        the chosen windows (:func:`~terrainml.pipeline.train.evaluate_open_set`; report section).
     progress : callback with a short message per step.
 
     Returns
@@ -236,6 +238,8 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
                  "latency_ms": {served: lat}, "selection": {"chosen": sel.chosen.name,
                                                            "nested_balanced_accuracy": sel.honest}},
           metrics={served: cv.summary})
+    if open_set:
+        tr.open_set = train_lib.evaluate_open_set(ds, served, folds=folds, seed=seed, n_jobs=n_jobs, progress=say)
     res_doc["timing_s"] = timing
     _write_docs(out, tr, res_doc, sel)
     tr.manifest = write_manifest(out)

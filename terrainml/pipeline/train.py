@@ -37,7 +37,7 @@ from terrainml.classes import TERRAIN_CLASSES
 from terrainml.evaluation.cv import average_results, cross_validate
 from terrainml.evaluation.folds import grouped_folds
 from terrainml.evaluation.metrics import classification_metrics, is_ordered, latency_per_window_ms
-from terrainml.evaluation.open_set import leave_one_class_out
+from terrainml.evaluation.open_set import OpenSetResult, leave_one_class_out
 from terrainml.evaluation.report import write_report
 from terrainml.features.sets import FEATURE_SUBSETS, FeatureSet
 from terrainml.features.side_channel import SideChannelFeatures, track_of
@@ -54,7 +54,8 @@ from terrainml.pipeline.dataset import Dataset
 
 __all__ = ["MODEL_KINDS", "TABLE_FILE", "make_factory", "train", "evaluate", "TrainResult",
            "desired_slip_table_for", "served_table", "parse_models", "feature_family",
-           "MIN_RUNS_PER_CLASS", "ClassMismatchError", "parse_class_map", "served_novelty"]
+           "MIN_RUNS_PER_CLASS", "ClassMismatchError", "parse_class_map", "served_novelty",
+           "evaluate_open_set"]
 
 #: base model kinds; ``A+B`` averages the probabilities of A and B
 MODEL_KINDS = ("svm", "cnn", "hgb")
@@ -408,6 +409,34 @@ def _open_set(default: str, factories: dict, plan: _CVPlan, seed: int, n_jobs: i
     factory = members[0] if len(members) == 1 else (lambda: ProbabilityAverage([f() for f in members]))
     return leave_one_class_out(factory, plan.Wcv, folds=plan.folds, classes=plan.cv_classes.tolist(),
                                class_names=plan.cv_names, seed=seed, n_jobs=n_jobs, progress=say)
+
+
+def evaluate_open_set(ds: Dataset, model: str = "svm", folds: int = 5, seed: int = 0, n_jobs: int = 1,
+                      progress: Callable[[str], None] | None = None) -> OpenSetResult:
+    """Leave-one-class-out evaluation of a model kind's novelty score on a window dataset.
+
+    The same classes, grouped folds and factories as :func:`train` (``_cv_plan``,
+    :func:`make_factory`); each CV class in turn is held out of training and plays the unknown
+    (:func:`~terrainml.evaluation.open_set.leave_one_class_out`). ``model``: ``svm``, ``hgb``
+    or an average such as ``svm+hgb`` (a model with a feature space; not ``cnn``).
+
+    Raises ValueError naming the model for a kind without a feature space or several models,
+    and (from the plan) for a dataset with fewer than 3 classes that have 2 runs or more.
+    """
+    say = progress or (lambda msg: None)
+    kinds = parse_models(model)
+    if len(kinds) != 1:
+        raise ValueError(f"open-set evaluation takes one model, got {kinds}")
+    name = kinds[0]
+    if "cnn" in name.split("+"):
+        raise ValueError(f"model {name!r}: the CNN has no feature space for the novelty score; use svm or hgb")
+    plan = _cv_plan(ds, folds, seed, say)
+    if len(plan.cv_classes) < 3:
+        raise ValueError(f"open-set evaluation needs at least 3 classes with >= {MIN_RUNS_PER_CLASS} runs "
+                         f"(one held out, two known); the dataset has {plan.cv_names}")
+    inner_jobs = 1 if n_jobs != 1 else None
+    factories = {q: make_factory(q, ds, seed, n_jobs=inner_jobs) for q in name.split("+")}
+    return _open_set(name, factories, plan, seed, n_jobs, say)
 
 
 def parse_class_map(text: str | None) -> dict[str, str]:

@@ -24,6 +24,7 @@ from terrainml.robot import RobotSpec
 from terrainml.stream.classify import ModelLoadError
 from terrainml.stream.config import ServingConfig
 from terrainml.stream.predictor import Predictor
+from terrainml.stream.recorder import UnknownGroundRecorder
 from terrainml.stream.sample import InvalidSample
 from terrainml.stream.sinks import GuardedSink, SinkError, open_sink
 from terrainml.stream.sources import SourceCounters, SourceError, open_source
@@ -93,7 +94,7 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
                 robot: RobotSpec | None = None, config: ServingConfig | None = None,
                 idle_timeout_s: float | None = None, verbose: bool = False,
                 trusted_keys: Sequence[str | Path] | None = None, topics: Any = None,
-                dataset: Any = None) -> int:
+                dataset: Any = None, record_unknown: str | Path | None = None) -> int:
     """Run ``terrainml predict``; return the process exit code (0 ok, 2 unusable input).
 
     ``robot`` (default the model's) and ``config`` (default: the model's preset, classification
@@ -104,6 +105,10 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
 
     ``trusted_keys``: public keys (``KEY.pub``); the model must be signed by one of them, else it
     is refused (exit 2, the message names the folder and the reason) before anything is served.
+
+    ``record_unknown``: a folder; every stretch served ``unknown_terrain`` is written there as a
+    run for labelling (:class:`~terrainml.stream.recorder.UnknownGroundRecorder`); a folder that
+    cannot be created is refused (exit 2) before serving, a failed write later is only counted.
     """
     console = Console(stderr=True, soft_wrap=True)
     _setup_logging(verbose)
@@ -116,6 +121,18 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
         return 2
     opened: list[GuardedSink] = []
     counters = SourceCounters()
+    try:
+        recorder = None if record_unknown is None else UnknownGroundRecorder(
+            record_unknown, n_wheels=predictor.n, class_names=predictor.class_names, model=str(model),
+            distance=lambda: predictor.odometer_m)
+    except OSError as exc:
+        console.print(f"[red]error:[/] --record-unknown {record_unknown}: cannot create the folder ({exc})")
+        predictor.close()
+        return 2
+    if recorder is not None and getattr(predictor.classifier, "novelty", None) is None:
+        console.print(f"[yellow]warning:[/] --record-unknown: model {model} has no novelty scorer (a CNN, or a "
+                      "folder without one): it never serves unknown_terrain, so nothing will be recorded",
+                      highlight=False)
 
     def ready(addr: Any) -> None:
         where = f"udp://{addr[0]}:{addr[1]}" if addr else source
@@ -140,9 +157,11 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
     gc.collect()
     gc.freeze()
     t0 = time.perf_counter()
-    code = _serve_until_done(predictor, samples, opened, console,
+    code = _serve_until_done(predictor, samples, opened + ([recorder] if recorder is not None else []), console,
                              progress=None if realtime or not _is_log(source) else Path(source).name)
     _print_summary(console, predictor, opened, counters, source, time.perf_counter() - t0)
+    if recorder is not None:
+        console.print(f"terrainml predict: {recorder.summary()}", highlight=False)
     return code
 
 
@@ -150,7 +169,7 @@ def _is_log(source: str) -> bool:
     return not (source.strip() == "-" or source.strip().startswith(("udp", "ros2")))
 
 
-def _serve_until_done(predictor: Predictor, samples: Iterable[dict], opened: list[GuardedSink],
+def _serve_until_done(predictor: Predictor, samples: Iterable[dict], opened: list[Any],
                       console: Console, progress: str | None) -> int:
     """:func:`serve` until the source ends, SIGTERM or Ctrl-C; close everything; the exit code.
 

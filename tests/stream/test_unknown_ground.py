@@ -5,7 +5,9 @@ and 0.12, simulated kinematic runs) serves one drive whose true slip is 0.02, th
 from both: ground it never saw), then 0.02 again. Where the true slip is 0.45 the ticks must
 say ``unknown_terrain`` and serve the class-free safe cap; where it is 0.02 again the class 0
 must come back; the same model saved without its novelty entry must serve as before (never
-``unknown_terrain``).
+``unknown_terrain``). With ``--record-unknown`` exactly the served ``unknown_terrain`` ticks are
+written as one run (rows of the drive itself, inside the far-slip stretch) that, once labelled,
+the ingest and ``dataset build`` read like any run.
 """
 
 from __future__ import annotations
@@ -16,9 +18,12 @@ import sys
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 from stream_fakes import SLIP_OF
 
 from terrainml.classes import TERRAIN_CLASSES
+from terrainml.cli import app
+from terrainml.io.ingest import load_run
 from terrainml.estimation.run import estimate_run
 from terrainml.features.sets import FeatureSet
 from terrainml.features.windows import Windows, WindowSpec, cut_windows
@@ -26,9 +31,13 @@ from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import load_artifact, save_artifact
 from terrainml.models.novelty import fit_model_novelty
 from terrainml.models.svm import SVMClassifier
+from terrainml.pipeline.dataset import build_dataset
 from terrainml.robot import load_robot
+from terrainml.schema import read_run_parquet
 from terrainml.stream.fusion import TerrainFilter
 from terrainml.stream.predictor import Predictor
+from terrainml.stream.recorder import UnknownGroundRecorder
+from terrainml.stream.runner import serve
 from terrainml.stream.sources import iter_table_samples
 from terrainml.testing import kinematic_run, trapezoid_speed
 
@@ -169,15 +178,130 @@ def test_one_flagged_window_never_leaves_the_class_and_leaving_takes_confirmed_w
     assert not g.unknown and g.novelty == -1.0
 
 
-def test_predict_says_unknown_terrain_in_its_json_and_its_summary(folders, drive):
-    """``terrainml predict`` end to end (stdin JSON lines in, stdout JSON lines out)."""
+def test_predict_says_unknown_terrain_in_its_json_and_its_summary(folders, drive, tmp_path):
+    """``terrainml predict`` end to end (stdin JSON lines in, stdout JSON lines out), recording
+    the unknown stretch with ``--record-unknown``."""
     lines = "\n".join(json.dumps(s) for s in iter_table_samples(drive)) + "\n"
+    rec = tmp_path / "unknown"
     proc = subprocess.run([sys.executable, "-m", "terrainml.cli", "predict", "--model", str(folders["with"]),
-                           "--source", "-", "--sink", "stdout"], input=lines, capture_output=True,
-                          text=True, timeout=300)
+                           "--source", "-", "--sink", "stdout", "--record-unknown", str(rec)], input=lines,
+                          capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     out = [json.loads(x) for x in proc.stdout.splitlines()]
     unknown = [m for m in out if m["fallback_reason"] == "unknown_terrain"]
     assert unknown and all(ON_S <= m["t_s"] < OFF_S + 4.0 and m["terrain_class"] == -1 for m in unknown)
     assert max(m["novelty"] for m in unknown) > 1.0
     assert "unknown ground: 1 stretch" in proc.stderr
+    assert f"recorded unknown ground: 1 run(s) in {rec}" in proc.stderr
+    (side,) = [json.loads(p.read_text()) for p in rec.glob("*.json")]
+    assert side["t_start_s"] == unknown[0]["t_s"] and side["t_end_s"] == unknown[-1]["t_s"]
+    assert side["ticks"] == len(unknown)
+
+
+def _record(folder, drive, out_dir, **kw):
+    """Serve the drive with a recorder; (served messages, odometer per tick, recorder)."""
+    p = Predictor.from_model_dir(folder)
+    rec = UnknownGroundRecorder(out_dir, n_wheels=p.n, class_names=p.class_names, model=str(folder),
+                                distance=lambda: p.odometer_m, **kw)
+    msgs, odo = [], []
+
+    def keep(m):
+        msgs.append(m)
+        odo.append(p.odometer_m)
+
+    n = serve(p, iter_table_samples(drive), [rec], on_message=keep)
+    rec.close()
+    p.close()
+    assert n == len(drive)  # the recorder never drops a tick
+    return msgs, np.array(odo), rec
+
+
+def test_record_unknown_writes_exactly_the_unknown_stretch_as_a_run_that_dataset_build_takes(
+        folders, drive, tmp_path):
+    msgs, odo, rec = _record(folders["with"], drive, tmp_path / "rec")
+    served_t = np.array([m.t_s for m in msgs if m.fallback_reason == "unknown_terrain"])
+    assert rec.failed == 0 and len(rec.written) == 1
+    (path,) = rec.written
+    run = read_run_parquet(path)
+    # exactly the served unknown ticks, with the drive's own rows (its canonical columns)
+    np.testing.assert_array_equal(run["t_s"].to_numpy(), served_t)
+    rows = drive.set_index("t_s").loc[served_t]
+    for col in ("wheel1_omega_radps", "cam_vx_mps", "imu_ax_mps2"):
+        np.testing.assert_array_equal(run[col].to_numpy(), rows[col].to_numpy())
+    assert (run["terrain"] == -1).all() and (run["run_id"] == path.stem).all()
+    # the truth of the drive: the stretch lies on the far-slip ground (and the windows after it)
+    assert served_t[0] >= ON_S and served_t[-1] < OFF_S + 4.0
+    assert ((served_t >= ON_S) & (served_t < OFF_S)).mean() > 0.8
+    side = json.loads(path.with_suffix(".json").read_text())
+    assert (side["t_start_s"], side["t_end_s"], side["ticks"]) == (served_t[0], served_t[-1], len(served_t))
+    i0, i1 = (int(np.flatnonzero(np.array([m.t_s for m in msgs]) == t)[0]) for t in (served_t[0], served_t[-1]))
+    assert side["distance_m"] == pytest.approx(odo[i1] - odo[i0])
+    assert side["distance_m"] == pytest.approx(served_t[-1] - served_t[0], rel=0.2)  # about 1 m/s
+    assert side["mean_novelty"] > 1.0 and side["label"] is None and side["model"] == str(folders["with"])
+    assert run.attrs["terrainml"]["classes"] == list(Predictor.from_model_dir(folders["with"]).class_names)
+    # a person labels it (docs/stream.md "Unknown ground"): then ingest and dataset build take it
+    labelled = tmp_path / "labelled" / "far_slip_01.parquet"
+    runner = CliRunner()
+    r = runner.invoke(app, ["dataset", "label", str(path), "--terrain", "far_slip", "--out", str(labelled)])
+    assert r.exit_code == 0, r.output
+    classes = run.attrs["terrainml"]["classes"]
+    assert "far_slip" not in classes and "a new class" in r.output
+    ing = load_run(labelled, robot=ROBOT)
+    assert ing.report.usable and len(ing.table) == len(served_t)
+    assert (ing.table["terrain"] == len(classes)).all()
+    assert json.loads(labelled.with_suffix(".json").read_text())["label"] == "far_slip"
+    ds = build_dataset(labelled.parent, ROBOT, spec=SPEC)
+    assert len(ds.windows) >= 10 and set(ds.windows.y.tolist()) == {len(classes)}
+    assert ds.class_names == ["far_slip"]
+    # a known name takes its id; an id outside the run's classes is refused, naming the file
+    r = runner.invoke(app, ["dataset", "label", str(path), "-t", classes[0], "-o", str(tmp_path / "k.parquet")])
+    assert r.exit_code == 0 and (read_run_parquet(tmp_path / "k.parquet")["terrain"] == 0).all()
+    r = runner.invoke(app, ["dataset", "label", str(path), "--terrain", "99"])
+    assert r.exit_code == 2 and path.name in r.output and "99" in r.output
+
+
+def test_a_failed_write_is_counted_and_serving_goes_on(folders, drive, tmp_path, monkeypatch):
+    import terrainml.stream.recorder as recorder
+
+    def full_disk(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(recorder, "write_run_parquet", full_disk)
+    msgs, _, rec = _record(folders["with"], drive, tmp_path / "rec", max_rows=500)
+    n_unknown = sum(m.fallback_reason == "unknown_terrain" for m in msgs)
+    assert n_unknown > 1000  # so the stretch is cut into parts of 500 ticks
+    assert rec.written == [] and rec.failed == -(-n_unknown // 500)
+    assert "No space left on device" in rec.summary() and str(tmp_path / "rec") in rec.errors[0]
+    assert not list((tmp_path / "rec").glob("*.json"))
+
+
+def test_a_record_folder_that_cannot_be_created_is_refused_before_serving(folders, tmp_path, capsys):
+    from terrainml.stream.runner import run_predict
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    code = run_predict(model=folders["with"], source=str(tmp_path / "never_read.parquet"), sinks=["stdout"],
+                       record_unknown=blocker / "unknown")
+    err = capsys.readouterr().err
+    assert code == 2 and "--record-unknown" in err and "a_file" in err
+
+
+def test_recording_with_a_model_without_novelty_warns_that_nothing_will_be_recorded(folders, tmp_path, capsys):
+    from terrainml.stream.runner import run_predict
+
+    for name, warned in (("without", True), ("with", False)):
+        run_predict(model=folders[name], source=str(tmp_path / "never_read.parquet"), sinks=["stdout"],
+                    record_unknown=tmp_path / name)
+        err = capsys.readouterr().err
+        assert ("has no novelty scorer" in err) is warned, err
+
+
+def test_a_second_recording_into_the_same_folder_never_overwrites_the_first(folders, drive, tmp_path, monkeypatch):
+    import terrainml.stream.recorder as recorder
+
+    epoch = recorder.time.gmtime(0)
+    monkeypatch.setattr(recorder.time, "gmtime", lambda *a: epoch)  # both recordings start in the same second
+    first = _record(folders["with"], drive, tmp_path / "rec")[2].written
+    second = _record(folders["with"], drive, tmp_path / "rec")[2].written
+    assert len(first) == len(second) == 1 and first != second
+    assert len(list((tmp_path / "rec").glob("*.parquet"))) == len(list((tmp_path / "rec").glob("*.json"))) == 2

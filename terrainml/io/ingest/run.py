@@ -20,11 +20,13 @@ is refused (:func:`terrainml.robot.check_wheel_count`).
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import pyarrow.parquet as pq
 
 from terrainml.io.ingest.dataset_runs import load_dataset_file
 from terrainml.io.ingest.dataset_spec import DatasetSpec
@@ -36,7 +38,7 @@ from terrainml.io.ingest.tables import Binding, TableFile, tables_to_run
 from terrainml.io.readers import LogReadError, sniff_format
 from terrainml.io.topicmap import TopicMap, TopicMapError, load_topic_map
 from terrainml.robot import RobotSpec, RobotSpecError
-from terrainml.schema import DEFAULT_RATE_HZ, SchemaError, write_run_parquet
+from terrainml.schema import DEFAULT_RATE_HZ, METADATA_KEY, SchemaError, write_run_parquet
 
 __all__ = ["load_run", "ingest_to_parquet"]
 
@@ -60,6 +62,20 @@ def _from_tabular(path: Path, fmt: str, robot: RobotSpec, tmap: TopicMap | None,
     tf = TableFile(path, fmt, time_column=opts.get("time_column", "t_s"),
                    time_scale=float(opts.get("time_scale", 1.0)), bindings=bindings)
     return tables_to_run([tf], robot, rate_hz, rep)
+
+
+def _kept_metadata(path: Path, fmt: str) -> dict:
+    """What a Parquet run table's terrainml metadata says that the ingested table keeps: its class
+    names (``classes``: the name of each ``terrain`` id, e.g. a run labelled by ``terrainml
+    dataset label``). {} for any other file, or metadata that cannot be read."""
+    if fmt != "parquet":
+        return {}
+    try:
+        kv = pq.read_schema(path).metadata or {}
+        classes = json.loads(kv[METADATA_KEY]).get("classes") if METADATA_KEY in kv else None
+    except (OSError, ValueError, AttributeError):
+        return {}
+    return {"classes": [str(c) for c in classes]} if isinstance(classes, list) and classes else {}
 
 
 def _open_input(path: Path, rate_hz: float, rep: IngestReport) -> tuple[Path, bool]:
@@ -104,7 +120,8 @@ def load_run(path: str | Path, *, robot: RobotSpec | None = None,
     Returns
     -------
     IngestResult with ``table`` (n_ticks rows; ``t_s`` from the first message, ``run_id`` = file stem,
-    ``terrain`` from ``/terrain/label`` if present, ``gt_*`` from ``/sim/*``) and ``report``.
+    ``terrain`` from ``/terrain/label`` if present, ``gt_*`` from ``/sim/*``; a Parquet run
+    table's class names, ``attrs["terrainml"]["classes"]``, kept) and ``report``.
     """
     path = Path(path)
     if dataset is not None:
@@ -129,7 +146,7 @@ def load_run(path: str | Path, *, robot: RobotSpec | None = None,
     except (LogReadError, TopicMapError, RobotSpecError) as exc:
         return failed(rep, robot, str(exc))
     run_id = rep.topics.get("<table>", {}).get("run_id", path.stem)
-    return finish_run(df, rep, robot, path, run_id, tmap=tmap, rate_hz=rate_hz)
+    return finish_run(df, rep, robot, path, run_id, tmap=tmap, rate_hz=rate_hz, meta=_kept_metadata(path, fmt))
 
 
 def ingest_to_parquet(path: str | Path, out: str | Path, *, robot: RobotSpec | None = None,

@@ -1,0 +1,165 @@
+"""Unknown ground handed back for labelling (issue #30 §4): ``terrainml predict --record-unknown DIR``.
+
+:class:`UnknownGroundRecorder` takes every served message (with its sample, ``msg.extra["sample"]``,
+as :func:`terrainml.stream.runner.serve` attaches it) and writes each *stretch* of consecutive
+ticks served ``unknown_terrain`` as one run into ``DIR``:
+
+* ``unknown_<UTC start of serving>_<NNN>.parquet``: the canonical run-table rows (design §5) of
+  exactly those ticks, as the source gave them (the sample's canonical columns; extras dropped),
+  ``terrain`` = -1 (unlabelled) and ``run_id`` = the file's stem, written with
+  :func:`terrainml.schema.write_run_parquet` (whole or not at all). Its metadata carries the
+  model's class names (``classes``: the ids a label refers to) and the sidecar's facts.
+* ``unknown_<...>_<NNN>.json``: the sidecar: first and last ``t_s`` of the stretch, its duration,
+  ticks, the distance the odometer travelled over it, the model folder, the mean and max novelty
+  (score over the threshold) of its ticks, ``label``: null (for the person who labels it).
+
+A stretch ends at the first tick served otherwise (a class, or another fallback such as
+``stale``); one longer than ``max_rows`` ticks is written in parts, so memory stays bounded.
+Once a person sets the ``terrain`` column (docs/stream.md "Unknown ground"), ``terrainml dataset
+build`` takes the folder like any folder of Parquet runs.
+
+The recorder never stops the tick loop: :meth:`send` and :meth:`close` catch everything; a run
+that cannot be written (a full disk, rows the schema refuses) is counted in ``failed`` with its
+error in ``errors`` (the message names the file), for the end-of-stream summary.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from terrainml.atomic import write_text
+from terrainml.schema import column_map, validate_run_table, write_run_parquet
+
+__all__ = ["UnknownGroundRecorder", "UNKNOWN_REASON", "MAX_ROWS"]
+
+log = logging.getLogger("terrainml.stream")
+
+#: the fallback reason whose ticks are recorded
+UNKNOWN_REASON = "unknown_terrain"
+#: a stretch longer than this many ticks is written in parts (10 min at 100 Hz)
+MAX_ROWS = 60_000
+_LABELS = ("terrain", "run_id")
+
+
+class UnknownGroundRecorder:
+    """Write each stretch of ``unknown_terrain`` ticks as a run (module docstring).
+
+    Parameters
+    ----------
+    folder : the output folder, created (OSError when it cannot be).
+    n_wheels : the robot's wheels (the run table's columns). class_names : the model's class
+        names by class id (written as the run's ``classes``). model : the model folder (sidecar).
+    distance : callable returning the odometer's distance (m) after the latest tick.
+    max_rows : ticks per written part.
+
+    Attributes
+    ----------
+    written : list of the Parquet files written. failed : runs that could not be written.
+    errors : their messages (each names the file).
+    """
+
+    name = "record-unknown"
+
+    def __init__(self, folder: str | Path, *, n_wheels: int, class_names: Sequence[str], model: str,
+                 distance: Callable[[], float], max_rows: int = MAX_ROWS):
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.n_wheels = int(n_wheels)
+        self.class_names = [str(c) for c in class_names]
+        self.model = str(model)
+        self.distance = distance
+        self.max_rows = int(max_rows)
+        self.columns = set(column_map(self.n_wheels)) - set(_LABELS)
+        self.prefix = "unknown_" + time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+        self.written: list[Path] = []
+        self.failed = 0
+        self.errors: list[str] = []
+        self._n = 0
+        self._rows: list[dict] | None = None
+        self._novelty: list[float] = []
+        self._span: dict[str, float] = {}
+
+    def send(self, msg: Any) -> None:
+        """Take one served message (never raises)."""
+        try:
+            if msg.fallback_reason == UNKNOWN_REASON:
+                self._take(msg)
+            elif self._rows is not None:
+                self._flush()
+        except Exception as exc:  # noqa: BLE001 - the recorder must never stop serving
+            self._fail(f"{self.folder}: recording unknown ground failed at t={getattr(msg, 't_s', math.nan)} s: "
+                       f"{type(exc).__name__}: {exc}")
+            self._rows = None
+
+    def close(self) -> None:
+        """Write the stretch still open at the end of the stream (never raises)."""
+        try:
+            if self._rows is not None:
+                self._flush()
+        except Exception as exc:  # noqa: BLE001
+            self._fail(f"{self.folder}: {type(exc).__name__}: {exc}")
+
+    def summary(self) -> str:
+        """The end-of-stream summary line."""
+        text = f"recorded unknown ground: {len(self.written)} run(s) in {self.folder}"
+        if self.failed:
+            text += f"; {self.failed} failed write(s) (first: {self.errors[0]})"
+        return text
+
+    # ------------------------------------------------------------------ parts
+    def _take(self, msg: Any) -> None:
+        sample = msg.extra.get("sample") or {}
+        if self._rows is None:
+            self._rows, self._novelty = [], []
+            self._span = {"t_start_s": float(msg.t_s), "d_start_m": float(self.distance())}
+        self._rows.append({k: v for k, v in sample.items() if k in self.columns})
+        self._span["t_end_s"], self._span["d_end_m"] = float(msg.t_s), float(self.distance())
+        nov = float(getattr(msg, "novelty", -1.0))
+        if math.isfinite(nov) and nov >= 0:
+            self._novelty.append(nov)
+        if len(self._rows) >= self.max_rows:
+            self._flush()
+
+    def _flush(self) -> None:
+        rows, self._rows = self._rows or [], None
+        self._n += 1
+        while (self.folder / f"{self.prefix}_{self._n:03d}.parquet").exists():  # never overwrite a run
+            self._n += 1
+        stem = f"{self.prefix}_{self._n:03d}"
+        path = self.folder / f"{stem}.parquet"
+        side = self._sidecar(stem, len(rows))
+        try:
+            df = pd.DataFrame(rows)
+            df["terrain"] = np.full(len(df), -1, dtype=np.int64)
+            df["run_id"] = stem
+            df = validate_run_table(df, self.n_wheels, source=str(path))
+            write_run_parquet(df, path, metadata={"classes": self.class_names, "unknown_ground": side,
+                                                  "source_file": f"terrainml predict --model {self.model}"})
+            write_text(path.with_suffix(".json"), json.dumps(side, indent=2, sort_keys=True) + "\n")
+        except Exception as exc:  # noqa: BLE001 - counted and reported, serving goes on
+            self._fail(f"{path}: not written: {type(exc).__name__}: {exc}")
+            return
+        self.written.append(path)
+
+    def _sidecar(self, stem: str, n_rows: int) -> dict:
+        sp, nov = self._span, self._novelty
+        return {"run": f"{stem}.parquet", "run_id": stem, "t_start_s": sp["t_start_s"], "t_end_s": sp["t_end_s"],
+                "duration_s": sp["t_end_s"] - sp["t_start_s"], "ticks": int(n_rows),
+                "distance_m": sp["d_end_m"] - sp["d_start_m"], "model": self.model,
+                "mean_novelty": float(np.mean(nov)) if nov else None,
+                "max_novelty": float(np.max(nov)) if nov else None,
+                "fallback_reason": UNKNOWN_REASON, "classes": self.class_names, "label": None}
+
+    def _fail(self, text: str) -> None:
+        self.failed += 1
+        self.errors.append(text)
+        if self.failed == 1 or self.failed % 100 == 0:
+            log.warning("%s (%d failed so far; predictor continues)", text, self.failed)
