@@ -220,15 +220,31 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
         _write_docs(out, None, res_doc, sel)
         raise ReplayRefused(f"{refusal}; not saved (report: {out / 'report.md'}); "
                             "override with --allow-unproven")
+    tr, final_s = _fit_and_save(out, ds, sel, table, seed, say)
+    timing = {"windows_s": t_windows, "select_s": t_sel, "replay_s": t_replay, "final_fit_s": final_s,
+              "total_s": time.perf_counter() - t0}
+    if open_set:
+        tr.open_set = train_lib.evaluate_open_set(ds, sel.chosen.model, folds=folds, seed=seed, n_jobs=n_jobs,
+                                                  progress=say)
+    res_doc["timing_s"] = timing
+    _write_docs(out, tr, res_doc, sel)
+    tr.manifest = write_manifest(out)
+    return AutoResult(sel, folds_replay, pooled, refusal, tr, timing)
+
+
+def _fit_and_save(out: Path, ds: Dataset, sel: Selection, table: Any, seed: int, say) -> tuple[TrainResult, float]:
+    """The chosen candidate fitted on every window, calibrated, with its novelty score, saved.
+
+    Returns the TrainResult of the report and the seconds of the final fits.
+    """
     fitted, times, params = _fit_final(ds, sel.chosen.model, seed, sel.temperature, say)
     served = sel.chosen.model
     cal = CalibratedModel(fitted[served], Temperature(sel.temperature))
     lat = latency_per_window_ms(cal, ds.windows, n_calls=min(200, max(20, len(ds.windows))))
-    timing = {"windows_s": t_windows, "select_s": t_sel, "replay_s": t_replay,
-              "final_fit_s": float(sum(times.values())), "total_s": time.perf_counter() - t0}
     cv = sel.cv[sel.chosen.name]
     cv.name = served
-    tr = TrainResult(out, {served: {"cv": cv, "fit_time_s": float(sum(times.values())), "latency": lat,
+    fit_s = float(sum(times.values()))
+    tr = TrainResult(out, {served: {"cv": cv, "fit_time_s": fit_s, "latency": lat,
                                     "params": params if len(params) > 1 else next(iter(params.values()))}},
                      served, sel.class_ids, sel.class_names, len(sel.partition), seed, _summary(ds, sel), None,
                      fitted={served: cal})
@@ -238,12 +254,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
                  "latency_ms": {served: lat}, "selection": {"chosen": sel.chosen.name,
                                                            "nested_balanced_accuracy": sel.honest}},
           metrics={served: cv.summary})
-    if open_set:
-        tr.open_set = train_lib.evaluate_open_set(ds, served, folds=folds, seed=seed, n_jobs=n_jobs, progress=say)
-    res_doc["timing_s"] = timing
-    _write_docs(out, tr, res_doc, sel)
-    tr.manifest = write_manifest(out)
-    return AutoResult(sel, folds_replay, pooled, refusal, tr, timing)
+    return tr, fit_s
 
 
 def _candidate_data(tables, robot: RobotSpec, specs, preset: str, sensors, n_jobs: int,
