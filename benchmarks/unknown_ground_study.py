@@ -127,16 +127,23 @@ def _f(x, d=1, scale=100.0) -> str:
     return "n/a" if x is None or not np.isfinite(x) else f"{scale * x:.{d}f}"
 
 
+def _weighted(rows: list[dict], key: str) -> float:
+    """Moving-tick-weighted mean of ``key`` over segments that have moving ticks."""
+    use = [r for r in rows if r["moving"] > 0]
+    w = np.array([r["moving"] for r in use], dtype=float)
+    return float(np.sum(w * [r[key] for r in use]) / w.sum()) if w.sum() > 0 else float("nan")
+
+
 def markdown(m: dict) -> str:
     snow, known = m["snow"], m["known"]
     first = [r["first_unknown_m"] for r in snow]
     within = sum(f is not None and f <= 3.0 for f in first)
     reached = [f for f in first if f is not None]
     w = np.array([r["moving"] for r in known], dtype=float)
-    false_unknown = float(np.sum(w * [r["unknown_share"] for r in known]) / w.sum())
-    right_known = float(np.sum(w * [r["right_share"] for r in known]) / w.sum())
-    ws = np.array([r["moving"] for r in snow], dtype=float)
-    snow_unknown = float(np.sum(ws * [r["unknown_share"] for r in snow]) / ws.sum())
+    false_unknown = _weighted(known, "unknown_share")
+    right_known = _weighted(known, "right_share")
+    snow_unknown = _weighted(snow, "unknown_share")
+    still = sum(r["moving"] == 0 for r in snow)
     rows = [[r["run"], r["moving"], _f(r["unknown_share"]), _f(r["first_unknown_m"], 2, 1.0),
              ", ".join(f"{k or 'class'} {100 * v:.0f}%" for k, v in r["reasons"].items())] for r in snow]
     return "\n".join([
@@ -148,11 +155,18 @@ def markdown(m: dict) -> str:
         f"- SNOW segments with an `unknown_terrain` tick within 3 m of wheel travel from their start: "
         f"**{within} of {len(snow)}**; with one at all: {len(reached)}; median distance to the first "
         f"{_f(float(np.median(reached)), 2, 1.0) if reached else 'n/a'} m.",
-        f"- SNOW moving ticks served `unknown_terrain`: **{100 * snow_unknown:.1f}%**.",
+        f"- SNOW moving ticks served `unknown_terrain`: **{100 * snow_unknown:.1f}%** ({still} SNOW segments have "
+        f"no moving tick: rim speed at or under {MOVING_MPS} m/s).",
         f"- Known held-out segments ({int(w.sum())} moving ticks): `unknown_terrain` on "
         f"**{100 * false_unknown:.1f}%**, the labelled class on {100 * right_known:.1f}%.", "",
         markdown_table(["SNOW run", "moving ticks", "unknown_terrain %", "m to first unknown",
-                        "served on moving ticks (fallback reason)"], rows), ""])
+                        "served on moving ticks (fallback reason)"], rows), "",
+        "Known held-out runs (each served several times, after a SNOW segment; moving ticks pooled):", "",
+        markdown_table(["known run", "segments", "moving ticks", "unknown_terrain %", "labelled class %"],
+                       [[run, sum(r["run"] == run for r in known), sum(r["moving"] for r in known if r["run"] == run),
+                         _f(_weighted([r for r in known if r["run"] == run], "unknown_share")),
+                         _f(_weighted([r for r in known if r["run"] == run], "right_share"))]
+                        for run in m["held_known"]]), ""])
 
 
 def main() -> int:
