@@ -64,7 +64,13 @@ class ProbabilityAverage(ClassifierMixin, BaseEstimator):
     def predict_proba(self, X) -> np.ndarray:
         """Mean of the members' probabilities, shape (n, K), columns in ``classes_`` order."""
         check_is_fitted(self, "members_")
-        return np.mean([np.asarray(m.predict_proba(X), dtype=float) for m in self.members_], axis=0)
+        return self.mean_proba([m.predict_proba(X) for m in self.members_])
+
+    @staticmethod
+    def mean_proba(probas: Sequence[np.ndarray]) -> np.ndarray:
+        """The average of the members' probabilities: ``probas`` one (n, K) array per member, in
+        ``members_`` order; returns (n, K)."""
+        return np.mean([np.asarray(p, dtype=float) for p in probas], axis=0)
 
     def predict(self, X) -> np.ndarray:
         return self.classes_[np.argmax(self.predict_proba(X), axis=1)]

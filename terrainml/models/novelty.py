@@ -41,9 +41,11 @@ from sklearn.covariance import LedoitWolf
 from sklearn.neighbors import NearestNeighbors
 from sklearn.utils.validation import check_is_fitted
 
+from terrainml.models.calibration import CalibratedModel
 from terrainml.models.svm import inner_splits
 
 __all__ = ["NoveltyScorer", "NoveltyError", "OpenSetModel", "model_features", "model_feature_names",
+           "proba_and_features",
            "fit_novelty", "fit_model_novelty", "novelty_of", "METHODS", "DEFAULT_METHOD", "DEFAULT_K",
            "DEFAULT_FALSE_ALARM", "NOVELTY_FILE"]
 
@@ -74,10 +76,7 @@ def model_features(model: Any, X) -> np.ndarray:
     """
     members = getattr(model, "members_", None)
     if members is not None:
-        for m in members:
-            if hasattr(m, "transform_features") or hasattr(getattr(m, "features_", None), "transform"):
-                return model_features(m, X)
-        raise NoveltyError("no member of the average has a feature space for a novelty score")
+        return model_features(members[_feature_member(members)], X)
     if hasattr(model, "transform_features"):
         return np.asarray(model.transform_features(X), dtype=np.float64)
     feats = getattr(model, "features_", None)
@@ -87,13 +86,51 @@ def model_features(model: Any, X) -> np.ndarray:
                        "(use svm, hgb or an average with one of them)")
 
 
+def _has_feature_space(model: Any) -> bool:
+    return hasattr(model, "transform_features") or hasattr(getattr(model, "features_", None), "transform")
+
+
+def _feature_member(members: Any) -> int:
+    """Index of the first member of an average with a feature space (the novelty's)."""
+    for j, m in enumerate(members):
+        if _has_feature_space(m):
+            return j
+    raise NoveltyError("no member of the average has a feature space for a novelty score")
+
+
+def proba_and_features(model: Any, X) -> tuple[np.ndarray, np.ndarray]:
+    """``model.predict_proba(X)`` and the model's features of ``X``, the features computed once.
+
+    The serving path of a model with a novelty scorer: the same probabilities (n, K) as
+    ``predict_proba`` and the feature matrix (n, F) of :func:`model_features` (the one the
+    model's probabilities were computed from, handed on instead of computed again).
+    ``CalibratedModel``: its temperature on the wrapped model's probabilities;
+    ``ProbabilityAverage``: the features of the first member with a feature space (the other
+    members compute their own, another feature space); ``SVMClassifier``, ``BoostedTrees``:
+    their ``predict_proba_and_features``. A CNN has no feature space: NoveltyError.
+    """
+    if isinstance(model, CalibratedModel):
+        p, F = proba_and_features(model.model, X)
+        return model.calibrator.transform(p), F
+    members = getattr(model, "members_", None)
+    if members is not None:
+        j = _feature_member(members)
+        probas = [m.predict_proba(X) for m in members[:j]]
+        p, F = proba_and_features(members[j], X)
+        probas += [p] + [m.predict_proba(X) for m in members[j + 1:]]
+        return model.mean_proba(probas), F
+    if not _has_feature_space(model) or not hasattr(model, "predict_proba_and_features"):
+        raise NoveltyError(f"a {type(model).__name__} has no feature space for a novelty score "
+                           "(use svm, hgb or an average with one of them)")
+    p, F = model.predict_proba_and_features(X)
+    return p, np.asarray(F, dtype=np.float64)
+
+
 def model_feature_names(model: Any) -> list[str]:
     """Names of the features :func:`model_features` returns for ``model`` (same order)."""
     members = getattr(model, "members_", None)
     if members is not None:
-        for m in members:
-            if hasattr(m, "transform_features") or hasattr(getattr(m, "features_", None), "transform"):
-                return model_feature_names(m)
+        return model_feature_names(members[_feature_member(members)])
     if hasattr(model, "transform_features"):
         return list(model.feature_names_)
     feats = getattr(model, "features_", None)

@@ -392,13 +392,33 @@ class SVMClassifier(ClassifierMixin, BaseEstimator):
         module docstring): sklearn's generic path validates its input at every step and costs
         more than the SVM itself when the stream classifies one window at a time.
         """
+        return self.predict_proba_and_features(X)[0]
+
+    def predict_proba_and_features(self, X) -> tuple[np.ndarray, np.ndarray]:
+        """Probabilities (n, K) of windows X and the selected features (n, d) they came from.
+
+        The features are computed once, as :meth:`predict_proba` computes them: with the numpy
+        form of a model on a ``FeatureSet``, only the selected columns (the same numbers as
+        :meth:`transform_features`), otherwise :meth:`transform_features`. Serving hands the
+        features on to the novelty score (:func:`terrainml.models.novelty.proba_and_features`).
+        """
         c = self._compiled()
-        if c is None:  # no numpy form (other model shape, or it disagreed with sklearn)
-            return self.model_.predict_proba(self.transform_features(X))
-        if c.columns is not None:  # only the selected features are computed
+        if c is not None and c.columns is not None:  # only the selected features are computed
             F = self.features_._transform_columns(X, c.columns)
         else:
             F = self.transform_features(X)
+        return self.predict_proba_from_features(F), F
+
+    def predict_proba_from_features(self, F: np.ndarray) -> np.ndarray:
+        """Calibrated probabilities (n, K) of the selected features F (n, d) of n windows.
+
+        ``F`` is what :meth:`transform_features` returns (columns in ``feature_names_`` order);
+        the numpy form computes the probabilities when there is one and ``F`` is finite,
+        sklearn's pipeline otherwise.
+        """
+        c = self._compiled()
+        if c is None:  # no numpy form (other model shape, or it disagreed with sklearn)
+            return self.model_.predict_proba(F)
         if F.ndim != 2 or F.shape[1] != c.n_features:
             raise ValueError(f"SVMClassifier: expected {c.n_features} features per window, got "
                              f"shape {F.shape}")

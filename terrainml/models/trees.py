@@ -66,8 +66,20 @@ class BoostedTrees(ClassifierMixin, BaseEstimator):
 
     def predict_proba(self, X) -> np.ndarray:
         """Class probabilities (n, K), columns in ``classes_`` order."""
+        return self.predict_proba_and_features(X)[0]
+
+    def predict_proba_and_features(self, X) -> tuple[np.ndarray, np.ndarray]:
+        """Probabilities (n, K) of windows X and the features (n, F) they came from (computed
+        once: serving hands them on to the novelty score)."""
         check_is_fitted(self, "model_")
-        return self.model_.predict_proba(self.features_.transform(X))
+        F = self.features_.transform(X)
+        return self.predict_proba_from_features(F), F
+
+    def predict_proba_from_features(self, F: np.ndarray) -> np.ndarray:
+        """Class probabilities (n, K) of the feature matrix F (n, F) of n windows (the output of
+        ``features_.transform``)."""
+        check_is_fitted(self, "model_")
+        return self.model_.predict_proba(F)
 
     def predict(self, X) -> np.ndarray:
         return self.classes_[np.argmax(self.predict_proba(X), axis=1)]

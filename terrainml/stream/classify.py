@@ -11,8 +11,9 @@ rule and names them when the robot moves without a classification (:mod:`terrain
 With the model's novelty scorer (issue #30, :class:`~terrainml.models.novelty.NoveltyScorer`,
 saved with the model by ``train``), each classified window is also scored in the model's own
 feature space (:func:`~terrainml.models.novelty.model_features`, the features the scorer was
-fitted on): ``last_novelty`` holds its score over the threshold and whether it is over it, which
-the fusion filter turns into unknown ground (:mod:`terrainml.stream.fusion`).
+fitted on; :func:`~terrainml.models.novelty.proba_and_features` computes them once for the
+probabilities and the score): ``last_novelty`` holds its score over the threshold and whether
+it is over it, which the fusion filter turns into unknown ground (:mod:`terrainml.stream.fusion`).
 
 :func:`load_serving_model` opens a verified model folder (``runs/NAME``) through
 :mod:`terrainml.models.artifacts` (hashes checked on load) and returns what the predictor needs.
@@ -34,7 +35,7 @@ from terrainml.features.windows import RULES, Windows, WindowSpec, channel_colum
 from terrainml.lookup.catalogue import BUILTIN_CATALOGUES
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import load_artifact
-from terrainml.models.novelty import NoveltyScorer, model_features
+from terrainml.models.novelty import NoveltyScorer, proba_and_features
 from terrainml.robot import RobotSpec
 
 log = logging.getLogger("terrainml.stream")
@@ -180,13 +181,18 @@ class WindowClassifier:
         if len(wins) > 1:  # the latest window only
             wins = Windows(wins.X[-1:], wins.channels, None, wins.rate_hz)  # type: ignore[arg-type]
         x = self.features.transform(wins) if self.features is not None else wins
-        p = np.asarray(self.model.predict_proba(x), dtype=float)
-        self.last_novelty = None if self.novelty is None else self._novelty(x)
-        return p[-1]
+        if self.novelty is None:
+            p = self.model.predict_proba(x)
+            self.last_novelty = None
+        else:  # the model's features are computed once, for its probabilities and the score
+            p, F = proba_and_features(self.model, x)
+            self.last_novelty = self._novelty(F)
+        return np.asarray(p, dtype=float)[-1]
 
-    def _novelty(self, x: Any) -> tuple[float, bool]:
-        """(score / threshold, flagged) of the latest window ``x`` in the model's feature space."""
-        score = float(self.novelty.score(model_features(self.model, x))[-1])  # type: ignore[union-attr]
+    def _novelty(self, F: np.ndarray) -> tuple[float, bool]:
+        """(score / threshold, flagged) of the latest window, the last row of its features F
+        (n, F) in the model's feature space."""
+        score = float(self.novelty.score(F)[-1])  # type: ignore[union-attr]
         thr = float(self._threshold)  # type: ignore[arg-type]
         ratio = score / thr if thr > 0 else (math.inf if score > thr else 0.0)
         return (ratio if math.isfinite(ratio) else 1e6), bool(score > thr)
