@@ -18,9 +18,11 @@ A stretch ends at the first tick served otherwise (a class, or another fallback 
 Once a person sets the ``terrain`` column (docs/stream.md "Unknown ground"), ``terrainml dataset
 build`` takes the folder like any folder of Parquet runs.
 
-The recorder never stops the tick loop: :meth:`send` and :meth:`close` catch everything; a run
-that cannot be written (a full disk, rows the schema refuses) is counted in ``failed`` with its
-error in ``errors`` (the message names the file), for the end-of-stream summary.
+The recorder never stops or stalls the tick loop: a finished stretch is written by one background
+thread (a Parquet file of up to ``max_rows`` rows is too slow for a 10 ms tick), and :meth:`close`
+waits for the writes; :meth:`send` and :meth:`close` catch everything; a run that cannot be
+written (a full disk, rows the schema refuses) is counted in ``failed`` with its error in
+``errors`` (the message names the file), for the end-of-stream summary.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import json
 import logging
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -86,6 +89,7 @@ class UnknownGroundRecorder:
         self._rows: list[dict] | None = None
         self._novelty: list[float] = []
         self._span: dict[str, float] = {}
+        self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="record-unknown")
 
     def send(self, msg: Any) -> None:
         """Take one served message (never raises)."""
@@ -106,6 +110,7 @@ class UnknownGroundRecorder:
                 self._flush()
         except Exception as exc:  # noqa: BLE001
             self._fail(f"{self.folder}: {type(exc).__name__}: {exc}")
+        self._writer.shutdown(wait=True)
 
     def summary(self) -> str:
         """The end-of-stream summary line."""
@@ -136,6 +141,10 @@ class UnknownGroundRecorder:
         stem = f"{self.prefix}_{self._n:03d}"
         path = self.folder / f"{stem}.parquet"
         side = self._sidecar(stem, len(rows))
+        self._writer.submit(self._write, rows, stem, path, side)
+
+    def _write(self, rows: list[dict], stem: str, path: Path, side: dict) -> None:
+        """Write one run and its sidecar (the writer thread); a failure is counted, never raised."""
         try:
             df = pd.DataFrame(rows)
             df["terrain"] = np.full(len(df), -1, dtype=np.int64)
