@@ -214,14 +214,11 @@ def _load_tables(data: Path, *, robot, fmt: str, quiet: bool):
     from terrainml.commands._common import open_robot
 
     if fmt == "borealtc":
-        from terrainml.io.ingest import load_dataset
+        from terrainml.pipeline.dataset import borealtc_tables
 
         rb = open_robot(robot or "husky")
-        tables, rep = load_dataset("borealtc", data, robot=rb)
-        if not quiet:
-            console.print(f"BorealTC: {rep.runs} runs, classes {rep.classes}; runs without IMU: "
-                          f"{len(rep.runs_without('imu'))}; skipped: {len(rep.skipped)}", highlight=False)
-        return tables, rb
+        say = None if quiet else (lambda msg: console.print(msg, highlight=False))
+        return borealtc_tables(data, rb, say), rb
     if fmt != "auto":
         fail(f"unknown --format {fmt!r}; expected auto or borealtc")
     from terrainml.io.ingest import load_run

@@ -400,13 +400,21 @@ def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | 
 def _build_borealtc(source: Path, robot: RobotSpec, preset: str, spec: WindowSpec, n_jobs: int,
                     say: Callable[[str], None] | None) -> Dataset:
     """The dataset of a BorealTC folder (DatasetError when no run could be read)."""
+    return _from_tables(borealtc_tables(source, robot, say), robot, preset, spec, n_jobs)
+
+
+def borealtc_tables(source: Path, robot: RobotSpec, say: Callable[[str], None] | None = None) -> list[pd.DataFrame]:
+    """The ingested run tables of a BorealTC folder, with a one-line summary to ``say``.
+
+    Raises DatasetError when no run could be read.
+    """
     tables, rep = load_dataset("borealtc", source, robot=robot)
     if say is not None:
         say(f"BorealTC: {rep.runs} runs, classes {rep.classes}; runs without IMU (wheel channels "
             f"invalid, their windows rejected): {len(rep.runs_without('imu'))}; skipped: {len(rep.skipped)}")
     if not tables:
         raise DatasetError(f"{source}: no BorealTC runs read ({rep.skipped})")
-    return _from_tables(tables, robot, preset, spec, n_jobs)
+    return tables
 
 
 def build_from_tables(tables: Sequence[pd.DataFrame], robot: RobotSpec | str | None = None,
