@@ -67,6 +67,8 @@ def list_suites(
     "list (one row per mission: family, terrain, seed, parameters, success, time_s, distance_m, "
     "energy_j_per_m, spin_share, max_sinkage_m, demand_ratio, ...) and a `summary`.\n\n"
     "Policies: none, fixed (slip cap 0.1), terrain-aware (served by the predictor from --model), "
+    "terrain-aware-closed (the same without its novelty score: never unknown_terrain), "
+    "terrain-aware-refine-unknown (the safe cap on unknown ground refined online), "
     "oracle (true class), oracle-cap (true traction peak of the terrain draw under each wheel).\n\n"
     "Example: terrainml mission run --suite field --policy oracle-cap --n-jobs 2 --out field_cap.json"))
 def run(
@@ -75,6 +77,11 @@ def run(
     model: Optional[Path] = typer.Option(None, "--model", help="Trained model folder (terrain-aware)."),
     limit: Optional[int] = typer.Option(None, "--limit", help="Run only the first N missions."),
     seeds: str = typer.Option("eval", "--seeds", help="Seed set: eval (default) or tuning."),
+    held_out: Optional[str] = typer.Option(
+        None, "--held-out",
+        help="Open-set suite: only the missions whose ground has this class (base or patch), to drive a "
+             "model trained without it (e.g. --held-out wet_mud --policy terrain-aware-closed, then "
+             "terrain-aware, which serves the safe cap on ground its novelty score flags)."),
     n_jobs: int = typer.Option(1, "--n-jobs", "-j", help="Parallel missions (joblib; -1: all cores)."),
     traces: bool = typer.Option(False, "--traces", help="Also write a decimated trace per mission "
                                 "(10 Hz) to REPORT.traces.npz, for `mission plot`."),
@@ -84,7 +91,7 @@ def run(
 
     from terrainml.experiments.mission_metrics import summarise
     from terrainml.experiments.mission_policies import POLICIES
-    from terrainml.experiments.missions import SEED_SETS, run_suite, suite
+    from terrainml.experiments.missions import SEED_SETS, open_set_suite, run_suite, suite
 
     if policy not in POLICIES:
         fail(f"--policy {policy!r}: expected one of {', '.join(POLICIES)}")
@@ -92,16 +99,23 @@ def run(
         fail(f"--seeds {seeds!r}: expected one of {', '.join(SEED_SETS)}")
     if limit is not None and limit < 1:
         fail(f"--limit must be >= 1, got {limit}")
-    if policy == "terrain-aware" and model is None:
-        fail("--policy terrain-aware needs --model (a trained model folder); "
+    if policy.startswith("terrain-aware") and model is None:
+        fail(f"--policy {policy} needs --model (a trained model folder); "
              "--policy oracle is the same controller with the true class")
     if model is not None and not model.is_dir():
         fail(f"--model {model}: no such model folder")
     check_n_jobs(n_jobs)
     try:
-        specs = suite(suite_name, seeds, limit)
+        specs = suite(suite_name, seeds)
     except ValueError as exc:
         fail(f"--suite: {exc}")
+    if held_out is not None:
+        try:
+            on_it = set(open_set_suite(held_out, seeds))
+        except ValueError as exc:
+            fail(f"--held-out: {exc}")
+        specs = [m for m in specs if m in on_it]
+    specs = specs[:limit]
     check_output_writable(out)
     npz = out.with_name(out.name.removesuffix(".json") + ".traces.npz")
     if traces:
@@ -115,7 +129,7 @@ def run(
                                    progress=lambda k, n: bar.update(task, completed=k))
         except ValueError as exc:  # model refused, bad parameters
             fail(str(exc))
-    report: dict[str, Any] = {"suite": suite_name, "policy": policy, "seeds": seeds,
+    report: dict[str, Any] = {"suite": suite_name, "held_out": held_out, "policy": policy, "seeds": seeds,
                               "model": str(model) if model is not None else None,
                               "missions": rows, "summary": summarise(rows)}
     out.parent.mkdir(parents=True, exist_ok=True)

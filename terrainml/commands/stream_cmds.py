@@ -88,13 +88,19 @@ def register(app: typer.Typer) -> None:
                  "JSON sidecar (t_s span, distance, model, mean novelty). Label it (set the terrain "
                  "column, docs/stream.md \"Unknown ground\") and `terrainml dataset build` takes it. A "
                  "failed write is counted in the summary, never stops serving."),
+        closed_set: bool = typer.Option(
+            False, "--closed-set",
+            help="Serve without the model's novelty score: every window is served as one of the model's "
+                 "classes, never unknown_terrain (the behaviour before unknown-ground detection; for "
+                 "comparison, or a model whose training runs covered all the ground it will meet)."),
     ) -> None:
         from terrainml.stream.config import ServingConfig
         from terrainml.stream.runner import CLASSIFY_LAG_TICKS, run_predict
 
         # resolved here, once: the stream takes a RobotSpec and a ServingConfig
         config = ServingConfig(preset=preset, max_clock_gap_s=max_clock_gap_s,
-                               reanchor_after=reanchor_after, classify_lag_ticks=CLASSIFY_LAG_TICKS)
+                               reanchor_after=reanchor_after, classify_lag_ticks=CLASSIFY_LAG_TICKS,
+                               open_set=not closed_set)
         code = run_predict(model=model, source=source, sinks=list(sink), realtime=realtime,
                            robot=open_robot(robot) if robot else None, config=config,
                            idle_timeout_s=idle_timeout_s, verbose=verbose,

@@ -338,11 +338,14 @@ class ServedTargets:
         refined online (the controller's ``refine``; :func:`_unknown_ground_targets`), not while a
         stall escalation holds it (that serves the largest peak unrefined). Other fallbacks serve
         it unrefined (no class, no curve: design §12).
+    refine_classes : refine a served class's cap too (the controller's ``refine``); False: only
+        the safe cap on unknown ground is refined (:func:`terrain_aware` ``refine="unknown"``).
     """
 
     def __init__(self, stall_speed_mps: float = 0.1, stall_s: float = 0.5, hold_m: float = 2.0,
                  relearn: bool = True, lag_decel_mps2: float | None = 0.3, lag_s: float = 0.2,
-                 thrust_gate: float | None = 0.5, refine_unknown: bool = True):
+                 thrust_gate: float | None = 0.5, refine_unknown: bool = True,
+                 refine_classes: bool = True):
         for name, v in (("stall_speed_mps", stall_speed_mps), ("stall_s", stall_s), ("hold_m", hold_m),
                         ("lag_s", lag_s), ("lag_decel_mps2", 1.0 if lag_decel_mps2 is None else lag_decel_mps2)):
             if not (math.isfinite(v) and v > 0.0):
@@ -364,6 +367,7 @@ class ServedTargets:
         self.thrust_gate = None if thrust_gate is None else float(thrust_gate)
         self.weak_s = 0.0              # how long some wheel has been held at its cap on weak thrust
         self.refine_unknown = bool(refine_unknown)
+        self.refine_classes = bool(refine_classes)
 
     def _stale_after_unhealthy(self, msg: Any, dt: float) -> bool:
         """True while the served class predates the last estimator-unhealthy episode."""
@@ -436,7 +440,8 @@ class ServedTargets:
             if unknown and self.refine_unknown and self.hold_left_m <= 0.0:
                 return _unknown_ground_targets(ctrl)
             return _safe_cap_targets(ctrl)
-        return _class_targets(ctrl, msg.terrain_class)
+        s_t, s_b, cid = _class_targets(ctrl, msg.terrain_class)
+        return s_t, s_b, cid if self.refine_classes else None
 
 
 # ------------------------------------------------------------------ factories
@@ -459,18 +464,26 @@ def oracle(robot: RobotSpec, class_lookup: Callable[[float], int], *, refine: bo
 
 
 def terrain_aware(robot: RobotSpec, model: str | Path | None = None, *,
-                  predictor: Predictor | None = None, refine: bool = True,
-                  preset: str | None = None, escalation: dict | None = None,
+                  predictor: Predictor | None = None, refine: bool | str = True,
+                  preset: str | None = None, escalation: dict | None = None, open_set: bool = True,
                   **kw: Any) -> LimiterController:
     """The limiter at the target the online predictor serves from ``model`` (or ``predictor``),
     with the safe cap after a stall at the served cap (:class:`ServedTargets`; ``escalation``
-    its keyword arguments)."""
+    its keyword arguments).
+
+    ``refine``: True refines every served cap online, ``"unknown"`` only the safe cap served on
+    unknown ground (issue #30), False none. ``open_set``: :class:`ServingConfig` ``open_set``
+    (False: the model's novelty score is not used, never ``unknown_terrain``).
+    """
+    if refine not in (True, False, "unknown"):
+        raise ValueError(f"terrain_aware: refine must be True, False or 'unknown', got {refine!r}")
     if predictor is None:
         if model is None:
             raise ValueError("terrain_aware needs a model folder or a Predictor")
-        predictor = Predictor.from_model_dir(model, robot=robot, config=ServingConfig(preset=preset))
-    return LimiterController(robot, ServedTargets(**(escalation or {})), refine=refine,
-                             predictor=predictor, **kw)
+        predictor = Predictor.from_model_dir(model, robot=robot,
+                                             config=ServingConfig(preset=preset, open_set=open_set))
+    targets = ServedTargets(**{"refine_classes": refine is True, **(escalation or {})})
+    return LimiterController(robot, targets, refine=bool(refine), predictor=predictor, **kw)
 
 
 def oracle_cap(robot: RobotSpec, peak_per_wheel: Callable[[], Sequence[float]],

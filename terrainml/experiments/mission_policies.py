@@ -13,6 +13,10 @@ Registered here:
 ``none``          no traction control.
 ``fixed``         slip limiter at 0.1 (the "0.1 everywhere" baseline).
 ``terrain-aware`` the robot-side controller served by the online predictor from ``--model``.
+``terrain-aware-closed`` the same, served closed-set (the model's novelty score unused: never
+                  ``unknown_terrain``; issue #30's comparison).
+``terrain-aware-refine-unknown`` the same, with the safe cap served on ``unknown_terrain``
+                  refined online (:mod:`terrainml.control.cap_refiner`).
 ``oracle``        the same controller with the *true class* under the robot's origin and the
                   nominal desired-slip table (a perfect classifier).
 ``oracle-cap``    the same limiter capped, per wheel, at the slip of the *true* steady net-traction
@@ -184,10 +188,30 @@ def _current_limit(ctx: PolicyContext):
 
 @register_policy("terrain-aware")
 def _terrain_aware_limiter(ctx: PolicyContext):
+    return bl.terrain_aware(ctx.robot, _needs_model(ctx, "terrain-aware"), refine=False)
+
+
+@register_policy("terrain-aware-closed")
+def _terrain_aware_closed(ctx: PolicyContext):
+    """``terrain-aware`` served closed-set: the model's novelty score unused, every window one of
+    its classes (serving before issue #30; the open-set mission suite's comparison)."""
+    return bl.terrain_aware(ctx.robot, _needs_model(ctx, "terrain-aware-closed"), refine=False,
+                            open_set=False)
+
+
+@register_policy("terrain-aware-refine-unknown")
+def _terrain_aware_refine_unknown(ctx: PolicyContext):
+    """``terrain-aware`` with the safe cap served on ``unknown_terrain`` refined online from the
+    robot's thrust-slip data (:func:`terrainml.control.baselines.terrain_aware` ``refine="unknown"``;
+    issue #30 §3); a served class's cap stays unrefined."""
+    return bl.terrain_aware(ctx.robot, _needs_model(ctx, "terrain-aware-refine-unknown"), refine="unknown")
+
+
+def _needs_model(ctx: PolicyContext, name: str) -> str | Path:
     if ctx.model is None:
-        raise ValueError("policy 'terrain-aware' needs --model (a trained model folder); "
+        raise ValueError(f"policy {name!r} needs --model (a trained model folder); "
                          "'oracle' is the same controller with the true class")
-    return bl.terrain_aware(ctx.robot, ctx.model, refine=False)
+    return ctx.model
 
 
 @register_policy("oracle")

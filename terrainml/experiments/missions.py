@@ -58,8 +58,8 @@ from terrainml.sim.simulator import SimResult, Simulator
 from terrainml.sim.terrain import TerrainLayout
 
 __all__ = ["EVAL_SEEDS", "FAMILIES", "SEED_SETS", "TUNING_SEEDS", "Mission", "MissionSpec",
-           "build_mission", "demand_ratio", "mission_log", "route_peaks", "run_mission", "run_suite",
-           "suite", "suite_counts"]
+           "OPEN_SET_CLASSES", "build_mission", "demand_ratio", "mission_log", "open_set_suite",
+           "route_peaks", "run_mission", "run_suite", "suite", "suite_counts"]
 
 # ------------------------------------------------------------------ the suite (pre-registered)
 #: Evaluation seeds, fixed before any controller is tuned (issue 18); never used for tuning.
@@ -234,6 +234,23 @@ def suite(name: str, seeds: str = "eval", limit: int | None = None) -> list[Miss
     if seeds not in SEED_SETS:
         raise ValueError(f"seeds must be one of {', '.join(SEED_SETS)}, got {seeds!r}")
     specs = [MissionSpec(f, t, s) for f in names for s in SEED_SETS[seeds] for t in FAMILIES[f]]
+    return specs if limit is None else specs[:max(int(limit), 0)]
+
+
+#: classes the open-set suite holds out of the served model's training, one at a time (issue #30 §5)
+OPEN_SET_CLASSES: tuple[str, ...] = ("dry_sand", "wet_mud", "tilled_loam")
+
+
+def open_set_suite(held_out: str, seeds: str = "eval", limit: int | None = None) -> list[MissionSpec]:
+    """The open-set suite of ``held_out``: the missions of both families (:func:`suite` ``"all"``)
+    whose ground has that class, as the base or a patch, for a model trained without it.
+
+    The missions are the suite's own (same seeds, same draws), so a policy's open-set rows pair
+    with its closed-world rows. ``limit`` keeps the first N.
+    """
+    if held_out not in TERRAIN_CLASSES:
+        raise ValueError(f"unknown class {held_out!r}; expected one of {', '.join(TERRAIN_CLASSES)}")
+    specs = [s for s in suite("all", seeds) if held_out in build_mission(s).cells]
     return specs if limit is None else specs[:max(int(limit), 0)]
 
 

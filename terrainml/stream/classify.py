@@ -234,7 +234,8 @@ def robot_differences(trained: RobotSpec, served: RobotSpec, rel_tol: float = 1e
 
 def load_serving_model(model_dir: str | Path, robot: RobotSpec | None = None,
                        model_name: str | None = None,
-                       trusted_keys: Sequence[str | Path] | None = None) -> ServingModel:
+                       trusted_keys: Sequence[str | Path] | None = None,
+                       open_set: bool = True) -> ServingModel:
     """Open ``runs/NAME`` for serving, verified by :func:`terrainml.models.artifacts.load_artifact`.
 
     The desired-slip table stored with the model is used; if the folder has none, the table is
@@ -242,6 +243,8 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | None = None,
     of :data:`TERRAIN_CLASSES` (the message's ``class_probabilities`` has one entry per id),
     overridden by the artifact's own names. With ``trusted_keys`` (``KEY.pub`` paths) the folder
     must be signed by one of them (:mod:`terrainml.models.signing`); a refusal names the folder.
+    ``open_set`` False serves without the artifact's novelty scores (model and members; the
+    artifact is still verified whole): closed-set serving (:class:`ServingConfig`).
     """
     model_dir = Path(model_dir)
     if not model_dir.is_dir():
@@ -278,19 +281,23 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | None = None,
     for cid, name in zip(ids, own):
         names[cid] = name
     clf = WindowClassifier(art.model, rb, art.features, art.window_spec,
-                           class_ids=[int(c) for c in art.model.classes_], novelty=art.novelty)
+                           class_ids=[int(c) for c in art.model.classes_],
+                           novelty=art.novelty if open_set else None)
     return ServingModel(rb, table, clf, art.preset or "robust", names, art.window_spec,
                         sensors=None if art.sensors is None else list(art.sensors),
-                        members=_members(art, rb, clf.class_ids))
+                        members=_members(art, rb, clf.class_ids, open_set))
 
 
-def _members(art: Any, robot: RobotSpec, class_ids: Sequence[int]) -> list[ServingMember]:
-    """The folder's sensor members for serving, best first (ModelLoadError: other class ids)."""
+def _members(art: Any, robot: RobotSpec, class_ids: Sequence[int],
+             open_set: bool = True) -> list[ServingMember]:
+    """The folder's sensor members for serving, best first (ModelLoadError: other class ids);
+    ``open_set`` False: without their novelty scores."""
     entries = art.manifest.get("sensor_members") or []
     out = []
     for entry, m in zip(entries, art.members):
         clf = WindowClassifier(m.model, robot, m.features, m.window_spec,
-                               class_ids=[int(c) for c in m.model.classes_], novelty=m.novelty)
+                               class_ids=[int(c) for c in m.model.classes_],
+                               novelty=m.novelty if open_set else None)
         if clf.class_ids != list(class_ids):
             raise ModelLoadError(f"{m.path}: member classes {clf.class_ids} differ from the model's {list(class_ids)}")
         out.append((-(entry.get("balanced_accuracy") or 0.0), len(out),

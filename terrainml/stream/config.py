@@ -48,6 +48,10 @@ class ServingConfig:
         no classification while the window rules reject its windows, the ticks fall back with
         ``windows_rejected`` (the message's ``fallback_detail`` names the rule, and for
         ``channel_valid`` the channels) and a warning on stderr says the same (issue #28).
+    open_set : True (default): the model's novelty score (if it has one) flags windows unlike its
+        training windows, and ground that keeps being flagged is served as ``unknown_terrain``
+        (issue #30). False: the score is not used, every window is served as one of the model's
+        classes (closed-set serving, the behaviour before issue #30; ``predict --closed-set``).
     """
 
     preset: str | None = None
@@ -60,3 +64,4 @@ class ServingConfig:
     max_clock_gap_s: float = MAX_GAP_S
     reanchor_after: int = REANCHOR_AFTER
     warn_after_m: float = 5.0
+    open_set: bool = True

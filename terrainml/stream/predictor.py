@@ -164,8 +164,8 @@ class Predictor:
         ``preset`` None: the model's); ``trusted_keys``: public keys (``KEY.pub``) one of which
         must have signed the artifact.
         """
-        served = load_serving_model(model_dir, robot=robot, trusted_keys=trusted_keys)
         cfg = config or ServingConfig()
+        served = load_serving_model(model_dir, robot, trusted_keys=trusted_keys, open_set=cfg.open_set)
         return cls(served.robot, served.table, served.classifier,
                    window_spec=served.window_spec, class_names=served.class_names,
                    sensors=served.sensors, config=replace(cfg, preset=cfg.preset or served.preset),

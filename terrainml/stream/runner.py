@@ -131,7 +131,8 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
         return 2
     if recorder is not None and getattr(predictor.classifier, "novelty", None) is None:
         console.print(f"[yellow]warning:[/] --record-unknown: model {model} has no novelty scorer (a CNN, or a "
-                      "folder without one): it never serves unknown_terrain, so nothing will be recorded",
+                      "folder without one) or is served --closed-set: it never serves unknown_terrain, so "
+                      "nothing will be recorded",
                       highlight=False)
 
     def ready(addr: Any) -> None:

@@ -275,3 +275,25 @@ def test_unknown_ground_turns_on_refinement_of_the_safe_cap(robot):
     pred._msg = SimpleNamespace(terrain_class=-1, fallback=True, fallback_reason="unknown_terrain",
                                 classification_age_s=0.1)
     assert off(ctrl, _sample(robot, 0.02, 0.0, 0.0))[2] is None
+
+
+def test_refine_unknown_only_refines_the_safe_cap_on_unknown_ground(robot):
+    """``terrain_aware(refine="unknown")`` (the ``terrain-aware-refine-unknown`` policy): a served
+    class is capped at its table target with no curve to refine against; on ``unknown_terrain``
+    the safe cap gets the cap class's curve, as with ``refine=True``."""
+    from types import SimpleNamespace
+    pred = _FirmClassPredictor(robot, 1)
+    ctrl = bl.terrain_aware(robot, predictor=pred, refine="unknown")
+    assert ctrl.refiner is not None
+    ctrl(_sample(robot, 0.0, 0.0, 0.0))
+    s_t, _, cid = ctrl.targets(ctrl, _sample(robot, 0.01, 0.0, 0.0))
+    assert cid is None and np.allclose(s_t, pred.table.target(1, "traction"))
+    full = bl.terrain_aware(robot, predictor=_FirmClassPredictor(robot, 1), refine=True)
+    full(_sample(robot, 0.0, 0.0, 0.0))
+    assert full.targets(full, _sample(robot, 0.01, 0.0, 0.0))[2] == 1
+    pred._msg = SimpleNamespace(terrain_class=-1, fallback=True, fallback_reason="unknown_terrain",
+                                classification_age_s=0.1)
+    ctrl(_sample(robot, 0.02, 0.0, 0.0))
+    assert ctrl.targets(ctrl, _sample(robot, 0.03, 0.0, 0.0))[2] is not None
+    with pytest.raises(ValueError, match="refine must be"):
+        bl.terrain_aware(robot, predictor=pred, refine="sometimes")

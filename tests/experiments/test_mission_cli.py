@@ -44,6 +44,20 @@ def test_run_refusals(tmp_path):
     for args, needle in ((["--suite", "orchard", "--policy", "none"], "suite"),
                          (["--suite", "field", "--policy", "magic"], "--policy"),
                          (["--suite", "field", "--policy", "terrain-aware"], "--model"),
+                         (["--suite", "field", "--policy", "terrain-aware-closed"], "--model"),
+                         (["--suite", "field", "--policy", "none", "--held-out", "snow"], "--held-out"),
                          (["--suite", "field", "--policy", "none", "--seeds", "test"], "--seeds")):
         r = runner.invoke(app, ["mission", "run", *args, "--out", out])
         assert r.exit_code == 2 and needle in r.output, r.output
+
+
+def test_run_held_out_keeps_the_missions_on_that_class(tmp_path):
+    out = tmp_path / "none.json"
+    r = runner.invoke(app, ["mission", "run", "--suite", "greenhouse", "--held-out", "wet_mud", "--policy",
+                            "none", "--limit", "2", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(out.read_text())
+    assert rep["held_out"] == "wet_mud" and len(rep["missions"]) == 2
+    for row in rep["missions"]:   # a wet-mud floor, or a dry-sand floor with wet-mud patches
+        assert row["family"] == "greenhouse"
+        assert row["terrain"] == "wet_mud" or any(p[2] == "wet_mud" for p in row["patches"])

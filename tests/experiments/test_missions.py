@@ -47,6 +47,27 @@ def test_missions_are_deterministic_and_within_the_issue_ranges():
     assert {"ramp", "step"} == set(starts) and 0.0 in grades and max(grades) > 1.0
 
 
+def test_open_set_suite_is_every_mission_on_the_held_out_class_as_base_or_patch():
+    """By the suite's construction: a greenhouse floor of the class, a greenhouse floor whose
+    softer patch class it is (when it has patches), a field route with its patches."""
+    for held in ms.OPEN_SET_CLASSES:
+        want = set()
+        for spec in ms.suite("all"):
+            m = ms.build_mission(spec)
+            if spec.family == "greenhouse":
+                on = spec.terrain == held or (m.params["soft_class"] == held and m.params["n_patches"] > 0)
+            else:
+                on = spec.terrain == held
+            if on:
+                want.add(spec)
+        got = ms.open_set_suite(held)
+        assert set(got) == want and len(got) == len(want) > 24
+        assert [s for s in ms.suite("all") if s in want] == got     # the suite's own order
+    assert all(s.seed in ms.TUNING_SEEDS for s in ms.open_set_suite("wet_mud", "tuning"))
+    with pytest.raises(ValueError, match="unknown class 'snow'"):
+        ms.open_set_suite("snow")
+
+
 def test_demand_ratio_by_hand():
     rb = load_robot()
     m = ms.build_mission(ms.suite("field")[0])

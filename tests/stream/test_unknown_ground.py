@@ -34,6 +34,7 @@ from terrainml.models.svm import SVMClassifier
 from terrainml.pipeline.dataset import build_dataset
 from terrainml.robot import load_robot
 from terrainml.schema import read_run_parquet
+from terrainml.stream.config import ServingConfig
 from terrainml.stream.fusion import TerrainFilter
 from terrainml.stream.predictor import Predictor
 from terrainml.stream.recorder import UnknownGroundRecorder
@@ -155,6 +156,21 @@ def test_a_folder_without_novelty_serves_exactly_as_before(served, drive):
     t = drive["t_s"].to_numpy()
     far = (t > ON_S + 5.0) & (t < OFF_S)
     assert (np.array([m.terrain_class for m in old])[far] >= 0).mean() > 0.5
+
+
+def test_closed_set_serving_of_a_folder_with_novelty_equals_the_folder_saved_without_it(folders, drive, served):
+    """``ServingConfig(open_set=False)`` (``predict --closed-set``): the score is not used, so the
+    folder serves exactly what the same model saved without a novelty entry serves."""
+    p = Predictor.from_model_dir(folders["with"], config=ServingConfig(open_set=False))
+    assert p.classifier.novelty is None
+    closed = [p.step(s) for s in iter_table_samples(drive)]
+    p.close()
+    _, old, _ = served["without"]
+    assert len(closed) == len(old)
+    for a, b in zip(old, closed):
+        da, db = a.to_dict(), b.to_dict()
+        da.pop("processing_ms"), db.pop("processing_ms")
+        assert da == db
 
 
 def test_one_flagged_window_never_leaves_the_class_and_leaving_takes_confirmed_windows():
