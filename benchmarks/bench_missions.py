@@ -21,6 +21,7 @@ runs the first 2 seeds only. Same rows as ``terrainml mission run --suite NAME -
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import subprocess
@@ -35,18 +36,32 @@ MODEL_DATA_SEED = 20          # simulator dataset seed of the served model (not 
 DEFAULT_MODEL_DIR = Path("runs/mission_model")
 
 
-def ensure_model(model_dir: Path) -> Path:
+def ensure_model(model_dir: Path, held_out: str | None = None) -> Path:
     """The served model of ``terrain-aware``: trained with default options on simulator data
-    (seed :data:`MODEL_DATA_SEED`, 5 runs of 60 s per class) when ``model_dir`` has none."""
+    (seed :data:`MODEL_DATA_SEED`, 5 runs of 60 s per class) when ``model_dir`` has none.
+
+    ``held_out``: a class left out of the training runs (the open-set suite's models,
+    ``bench_open_set_missions``): the same logs, linked into ``<model_dir>_data`` without that
+    class's runs, so the models differ only by the class they never saw.
+    """
     if (model_dir / "manifest.json").exists():
         return model_dir
-    logs = model_dir.parent / f"{model_dir.name}_simdata"
+    logs = DEFAULT_MODEL_DIR.parent / f"{DEFAULT_MODEL_DIR.name}_simdata"
     cli = [str(Path(sys.executable).with_name("terrainml"))]     # the venv's console script
-    subprocess.run(cli + ["sim", "generate", "--runs-per-class", "5", "--duration-s", "60", "--seed",
-                          str(MODEL_DATA_SEED), "--out", str(logs), "--n-jobs", "2"], check=True)
-    subprocess.run(cli + ["train", "--data", str(logs), "--out", str(model_dir), "--seed", "0", "--windows", "short",
-                          "--model", "svm",
-                          "--n-jobs", "2"], check=True)
+    if not (logs / "index.csv").exists():
+        subprocess.run(cli + ["sim", "generate", "--runs-per-class", "5", "--duration-s", "60", "--seed",
+                              str(MODEL_DATA_SEED), "--out", str(logs), "--n-jobs", "2"], check=True)
+    data = logs
+    if held_out is not None:
+        data = model_dir.parent / f"{model_dir.name}_data"
+        data.mkdir(parents=True, exist_ok=True)
+        with (logs / "index.csv").open() as f:
+            for row in csv.DictReader(f):
+                link = data / row["file"]
+                if row["terrain"] != held_out and not link.exists():
+                    link.symlink_to((logs / row["file"]).resolve())
+    subprocess.run(cli + ["train", "--data", str(data), "--out", str(model_dir), "--seed", "0", "--windows", "short",
+                          "--model", "svm", "--n-jobs", "2"], check=True)
     return model_dir
 
 
