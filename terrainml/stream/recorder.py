@@ -25,7 +25,8 @@ ticks served ``unknown_terrain`` as one run into ``DIR``:
 A stretch ends at the first tick served otherwise (a class, or another fallback such as
 ``stale``); one longer than ``max_rows`` ticks is written in parts, so memory stays bounded.
 Once a person sets the ``terrain`` column (docs/stream.md "Unknown ground"), ``terrainml dataset
-build`` takes the folder like any folder of Parquet runs.
+build`` takes the folder like any folder of Parquet runs (an MCAP run is ingested to Parquet
+first, beside its sidecar, then labelled: :func:`terrainml.pipeline.labels.label_run`).
 
 The recorder never stops or stalls the tick loop: a finished stretch is written by one background
 thread (a Parquet or MCAP file of up to ``max_rows`` rows is too slow for a 10 ms tick), and

@@ -13,6 +13,8 @@ the ingest and ``dataset build`` read like any run.
 from __future__ import annotations
 
 import json
+import re
+import shlex
 import subprocess
 import sys
 
@@ -35,6 +37,7 @@ from terrainml.models.artifacts import load_artifact, save_artifact
 from terrainml.models.novelty import fit_model_novelty
 from terrainml.models.svm import SVMClassifier
 from terrainml.pipeline.dataset import build_dataset
+from terrainml.pipeline.labels import label_run
 from terrainml.robot import load_robot
 from terrainml.schema import read_run_parquet
 from terrainml.stream.fusion import TerrainFilter
@@ -388,6 +391,34 @@ def test_record_format_mcap_round_trips_through_ingest_to_the_served_samples(fol
         else:
             np.testing.assert_allclose(have, want, rtol=0, atol=1e-7, err_msg=c)
     assert "terrain" not in got or (got["terrain"] == -1).all()   # unlabelled: no /terrain/label messages
+
+
+def test_an_mcap_run_is_labelled_through_the_ingest_command_the_refusal_names(folders, drive, tmp_path):
+    """``dataset label RUN.mcap`` is refused (an MCAP's labels are bare ids of the built-in list)
+    with the two commands to run; run as printed, they give a labelled Parquet run with the
+    model's classes (from the sidecar) and the sidecar labelled, like a Parquet recording."""
+    _, _, rec = _record(folders["with"], drive, tmp_path / "rec", fmt="mcap", robot=ROBOT)
+    (path,) = rec.written
+    runner = CliRunner()
+    r = runner.invoke(app, ["dataset", "label", str(path), "--terrain", "far_slip"])
+    out = " ".join(r.output.split())
+    assert r.exit_code == 2 and "not a Parquet run table" in out and "terrainml ingest" in out
+    assert path.exists() and not path.with_suffix(".parquet").exists()   # nothing written
+    with pytest.raises(ValueError) as err:
+        label_run(path, "far_slip")
+    m = re.search(r"terrainml ingest (.+) && terrainml dataset label (.+)$", str(err.value))
+    assert m and f"--robot {ROBOT.name}" in m.group(1)
+    r = runner.invoke(app, ["ingest", *shlex.split(m.group(1)), "--quiet"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["dataset", "label", *shlex.split(m.group(2))])
+    assert r.exit_code == 0, r.output
+    classes = list(Predictor.from_model_dir(folders["with"]).class_names)
+    assert "a new class" in r.output
+    run = read_run_parquet(path.with_suffix(".parquet"))
+    assert (run["terrain"] == len(classes)).all() and run.attrs["terrainml"]["classes"] == [*classes, "far_slip"]
+    side = json.loads(path.with_suffix(".json").read_text())
+    assert (side["label"], side["label_id"], side["run"], side["format"]) == \
+        ("far_slip", len(classes), path.with_suffix(".parquet").name, "parquet")
 
 
 def test_an_unknown_record_format_is_refused_before_anything_is_created(folders, tmp_path):
