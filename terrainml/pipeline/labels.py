@@ -19,6 +19,7 @@ non-Parquet file) with the two commands to run instead: ``terrainml ingest RUN.m
 from __future__ import annotations
 
 import json
+import shlex
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -106,11 +107,11 @@ def _read_sidecar(path: Path) -> dict | None:
 def _not_parquet(path: Path, terrain: str, side: dict | None) -> str:
     """The refusal of a log that is not a Parquet run table, with the commands to run instead."""
     kind = "an MCAP log" if path.suffix.lower() == ".mcap" else f"a {path.suffix or 'suffix-less'} file"
-    robot = (side or {}).get("robot") or "ROBOT"
-    run = path.with_suffix(".parquet")
+    robot = shlex.quote(str((side or {}).get("robot") or "ROBOT"))
+    src, run, terrain = (shlex.quote(str(x)) for x in (path, path.with_suffix(".parquet"), terrain))
     return (f"{kind}, not a Parquet run table: dataset label sets the terrain of a run table (an MCAP's "
             f"/terrain/label holds bare class ids, no class names). Ingest it to Parquet beside its sidecar "
-            f"first, then label that: terrainml ingest {path} --robot {robot} --out {run} && "
+            f"first, then label that: terrainml ingest {src} --robot {robot} --out {run} && "
             f"terrainml dataset label {run} --terrain {terrain}")
 
 
