@@ -202,7 +202,8 @@ def show(path: Path = typer.Argument(..., help="Windows file written by `dataset
 
 def label(
     run: Path = typer.Argument(..., help="Run table (Parquet), e.g. one written by `terrainml predict "
-                               "--record-unknown DIR` (DIR/unknown_*.parquet)."),
+                               "--record-unknown DIR` (DIR/unknown_*.parquet). An MCAP run (--record-format "
+                               "mcap) is refused with the `terrainml ingest` command that turns it into one."),
     terrain: str = typer.Option(..., "--terrain", "-t", help="Its class: a name of the run's class list (the "
                                 "model's classes) or a new name (added as the next class id), or a class id."),
     out: Optional[Path] = typer.Option(None, "--out", "-o", help="Labelled run to write (default: replace RUN); "

@@ -7,7 +7,7 @@ from typing import List, Optional
 
 import typer
 
-from terrainml.commands._common import ALLOW_OUTSIDE_HELP, open_dataset_spec, open_robot
+from terrainml.commands._common import ALLOW_OUTSIDE_HELP, fail, open_dataset_spec, open_robot
 
 _EXAMPLE = """
 Examples:
@@ -29,6 +29,8 @@ Examples:
   terrainml predict --model runs/boreal --source borealtc/ICE/pro_03.csv --format borealtc
 
   terrainml predict --model runs/svm --source field.mcap --record-unknown runs/unknown_ground
+
+  terrainml predict --model runs/svm --source ros2://0 --record-unknown runs/unknown_ground --record-format mcap
 
   (live view: in Foxglove, open connection -> Foxglove WebSocket -> ws://127.0.0.1:8765)
 """
@@ -84,10 +86,17 @@ def register(app: typer.Typer) -> None:
         record_unknown: Optional[Path] = typer.Option(
             None, "--record-unknown",
             help="Folder (created): write every stretch served unknown_terrain (ground unlike the model's "
-                 "training windows) as a run: its canonical rows (unknown_*.parquet, terrain -1) and a "
-                 "JSON sidecar (t_s span, distance, model, mean novelty). Label it (set the terrain "
-                 "column, docs/stream.md \"Unknown ground\") and `terrainml dataset build` takes it. A "
-                 "failed write is counted in the summary, never stops serving."),
+                 "training windows) as a run: its canonical rows (unknown_*.parquet, terrain -1; or "
+                 "unknown_*.mcap with --record-format mcap) and a JSON sidecar (t_s span, distance, model, "
+                 "mean novelty). Label it (`terrainml dataset label`, docs/stream.md \"Unknown ground\") and "
+                 "`terrainml dataset build` takes it. A failed write is counted in the summary, never stops "
+                 "serving."),
+        record_format: Optional[str] = typer.Option(
+            None, "--record-format",
+            help="With --record-unknown: parquet (default; a run table that `terrainml dataset label` "
+                 "labels as is) or mcap (a ROS 2 MCAP log of the stretch with the default topic map's "
+                 "messages, stamped with the samples' ROS time, to open in Foxglove or replay; to label "
+                 "it, `terrainml ingest` it to Parquet beside its sidecar first)."),
         closed_set: bool = typer.Option(
             False, "--closed-set",
             help="Serve without the model's novelty score: every window is served as one of the model's "
@@ -95,8 +104,14 @@ def register(app: typer.Typer) -> None:
                  "comparison, or a model whose training runs covered all the ground it will meet)."),
     ) -> None:
         from terrainml.stream.config import ServingConfig
+        from terrainml.stream.recorder import RECORD_FORMATS
         from terrainml.stream.runner import CLASSIFY_LAG_TICKS, run_predict
 
+        if record_format is not None and record_unknown is None:
+            fail(f"--record-format {record_format}: needs --record-unknown DIR (the folder to record into)")
+        fmt_rec = (record_format or RECORD_FORMATS[0]).strip().lower()
+        if fmt_rec not in RECORD_FORMATS:
+            fail(f"--record-format {record_format!r}: expected one of {', '.join(RECORD_FORMATS)}")
         # resolved here, once: the stream takes a RobotSpec and a ServingConfig
         config = ServingConfig(preset=preset, max_clock_gap_s=max_clock_gap_s,
                                reanchor_after=reanchor_after, classify_lag_ticks=CLASSIFY_LAG_TICKS,
@@ -105,6 +120,7 @@ def register(app: typer.Typer) -> None:
                            robot=open_robot(robot) if robot else None, config=config,
                            idle_timeout_s=idle_timeout_s, verbose=verbose,
                            trusted_keys=trusted_key or None, topics=topics,
-                           dataset=open_dataset_spec(fmt, allow_outside), record_unknown=record_unknown)
+                           dataset=open_dataset_spec(fmt, allow_outside), record_unknown=record_unknown,
+                           record_format=fmt_rec)
         if code:
             raise typer.Exit(code)

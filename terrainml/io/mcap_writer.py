@@ -473,20 +473,39 @@ class RosMcapWriter:
 
 # ----------------------------------------------------------------------------- export
 def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec, *,
-                   start_time_ns: int = 1_700_000_000_000_000_000) -> Path:
+                   start_time_ns: int = 1_700_000_000_000_000_000, metadata: dict | None = None) -> Path:
     """Write a canonical run table to a ROS 2 MCAP with the default topic map's messages.
 
     One message per row and sensor group where that group is valid (rows that are invalid are not
     written, so gaps survive the round trip). IMU vectors are rotated back to the IMU's own axes
-    (inverse of the spec's mount rotation); camera rows are turned into T265 messages with
+    (inverse of the spec's mount rotation); ``imu_yaw_rad``, when the table has it, becomes the IMU
+    message's orientation (yaw about body z, then the mount: ingest reads the same yaw back; NaN
+    where the yaw is not finite), else the orientation is identity (ingest then makes no
+    ``imu_yaw_rad``); camera rows are turned into T265 messages with
     :func:`terrainml.io.t265.body_to_t265_odometry` (robot pose integrated from the camera yaw and
-    velocities); labels are written when they change and once a second. ``robot``: the spec the
-    table was recorded with (its IMU and camera mounts).
+    velocities); labels are written when they change and once a second. Columns the default topic
+    map has no topic for (``wheel{i}_cmd_omega_radps``) are not written.
+
+    Parameters
+    ----------
+    table : a canonical run table (design §5).
+    path : the MCAP to write (whole or not at all: a hidden ``.NAME.part`` renamed when complete).
+    robot : the spec the table was recorded with (its IMU and camera mounts).
+    start_time_ns : the log time (ns) of ``t_s`` = 0: a message's log time is
+        ``start_time_ns + round(t_s * 1e9)``.
+    metadata : optional ``{key: value}`` written as the MCAP metadata record ``terrainml``
+        (values as strings).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
     """
     n = robot.n_wheels
     df = validate_run_table(table, n)
     t = df["t_s"].to_numpy(float)
-    rot_inv = Rotation.from_euler("xyz", [robot.imu.roll_rad, robot.imu.pitch_rad, robot.imu.yaw_rad]).inv()
+    mount = Rotation.from_euler("xyz", [robot.imu.roll_rad, robot.imu.pitch_rad, robot.imu.yaw_rad])
+    rot_inv = mount.inv()
 
     def col(name, default=np.nan):
         return df[name].to_numpy(float) if name in df else np.full(len(df), default)
@@ -496,6 +515,8 @@ def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec, *,
         return df[c].to_numpy(bool) if c in df else np.zeros(len(df), bool)
 
     acc = rot_inv.apply(np.column_stack([col("imu_ax_mps2"), col("imu_ay_mps2"), col("imu_az_mps2")]))
+    imu_q = _imu_orientation(col("imu_yaw_rad"), mount) if "imu_yaw_rad" in df else \
+        np.tile([0.0, 0.0, 0.0, 1.0], (len(df), 1))
     gyr = rot_inv.apply(np.column_stack([col("imu_roll_rate_radps", 0.0), col("imu_pitch_rate_radps", 0.0),
                                          col("imu_yaw_rate_radps")]))
     has_cam = "cam_vx_mps" in df and valid("cam").any() and robot.camera is not None
@@ -518,11 +539,11 @@ def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec, *,
     has_slip = "gt_slip1" in df
     has_state = "gt_state1" in df
     last_label, last_label_t = None, -1e9
-    with RosMcapWriter(path, n, start_time_ns=start_time_ns) as w:
+    with RosMcapWriter(path, n, start_time_ns=start_time_ns, metadata=metadata) as w:
         for k in range(len(df)):
             tk = float(t[k])
             if iv[k]:
-                w.write_imu(tk, acc[k], gyr[k])
+                w.write_imu(tk, acc[k], gyr[k], imu_q[k])
             if has_cam and camv[k]:
                 w.write_camera_odom(tk, msg["position_m"][k], msg["orientation_xyzw"][k], msg["linear_mps"][k],
                                     msg["angular_radps"][k], confidence=float(np.nan_to_num(conf[k], nan=3.0)))
@@ -545,3 +566,12 @@ def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec, *,
                 w.write_wheel_state(tk, [topics.WHEEL_STATE_CODES.get(str(df[f"gt_state{i}"].iat[k]), -1)
                                          for i in range(1, n + 1)])
     return Path(path)
+
+
+def _imu_orientation(yaw_rad: np.ndarray, mount: Rotation) -> np.ndarray:
+    """(n, 4) xyzw orientations of the IMU whose body yaws ``yaw_rad`` (body = IMU after ``mount``);
+    NaN rows where the yaw is not finite (ingest reads no yaw there)."""
+    ok = np.isfinite(yaw_rad)
+    q = (Rotation.from_euler("z", np.where(ok, yaw_rad, 0.0)[:, None]) * mount).as_quat()
+    q[~ok] = np.nan
+    return q

@@ -24,7 +24,7 @@ from terrainml.robot import RobotSpec
 from terrainml.stream.classify import ModelLoadError
 from terrainml.stream.config import ServingConfig
 from terrainml.stream.predictor import Predictor
-from terrainml.stream.recorder import UnknownGroundRecorder
+from terrainml.stream.recorder import RECORD_FORMATS, UnknownGroundRecorder
 from terrainml.stream.sample import InvalidSample
 from terrainml.stream.sinks import GuardedSink, SinkError, open_sink
 from terrainml.stream.sources import SourceCounters, SourceError, open_source
@@ -94,7 +94,8 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
                 robot: RobotSpec | None = None, config: ServingConfig | None = None,
                 idle_timeout_s: float | None = None, verbose: bool = False,
                 trusted_keys: Sequence[str | Path] | None = None, topics: Any = None,
-                dataset: Any = None, record_unknown: str | Path | None = None) -> int:
+                dataset: Any = None, record_unknown: str | Path | None = None,
+                record_format: str = RECORD_FORMATS[0]) -> int:
     """Run ``terrainml predict``; return the process exit code (0 ok, 2 unusable input).
 
     ``robot`` (default the model's) and ``config`` (default: the model's preset, classification
@@ -107,8 +108,10 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
     is refused (exit 2, the message names the folder and the reason) before anything is served.
 
     ``record_unknown``: a folder; every stretch served ``unknown_terrain`` is written there as a
-    run for labelling (:class:`~terrainml.stream.recorder.UnknownGroundRecorder`); a folder that
-    cannot be created is refused (exit 2) before serving, a failed write later is only counted.
+    run for labelling (:class:`~terrainml.stream.recorder.UnknownGroundRecorder`), in
+    ``record_format`` (``parquet`` or ``mcap``: a ROS 2 MCAP of the served robot's messages); a
+    folder that cannot be created or an unknown format is refused (exit 2) before serving, a
+    failed write later is only counted.
     """
     console = Console(stderr=True, soft_wrap=True)
     _setup_logging(verbose)
@@ -124,9 +127,10 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
     try:
         recorder = None if record_unknown is None else UnknownGroundRecorder(
             record_unknown, n_wheels=predictor.n, class_names=predictor.class_names, model=str(model),
-            distance=lambda: predictor.odometer_m)
-    except OSError as exc:
-        console.print(f"[red]error:[/] --record-unknown {record_unknown}: cannot create the folder ({exc})")
+            distance=lambda: predictor.odometer_m, fmt=record_format, robot=predictor.robot)
+    except (OSError, ValueError) as exc:
+        what = "cannot create the folder" if isinstance(exc, OSError) else "--record-format"
+        console.print(f"[red]error:[/] --record-unknown {record_unknown}: {what} ({exc})", highlight=False)
         predictor.close()
         return 2
     if recorder is not None and getattr(predictor.classifier, "novelty", None) is None:

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pandas as pd
 import pytest
+from mcap.reader import make_reader
 from typer.testing import CliRunner
 
 from terrainml.cli import app
@@ -62,6 +64,31 @@ def test_handmade_table_round_trips_through_mcap(tmp_path):
     # gt truth columns exist with the contract names
     for c in ("gt_vx_mps", "gt_slip1", "gt_state3"):
         assert c in out
+
+
+def test_imu_yaw_and_metadata_round_trip_through_mcap_on_a_rotated_imu_mount(tmp_path):
+    """``imu_yaw_rad`` travels as the IMU orientation (through the mount and back, across +-pi);
+    a non-finite yaw is read back as none; the ``metadata`` dict is the MCAP's ``terrainml`` record."""
+    base = load_robot()
+    robot = dataclasses.replace(base, imu=dataclasses.replace(base.imu, roll_rad=0.1, pitch_rad=-0.05, yaw_rad=0.3))
+    df = handmade_table(300)
+    yaw = t265.wrap_angle(2.9 + 1.5 * df["t_s"].to_numpy())   # wraps through +pi at t ~ 0.26 s
+    yaw[100:110] = np.nan
+    df["imu_yaw_rad"] = yaw
+    path = write_run_mcap(df, tmp_path / "yaw.mcap", robot, metadata={"classes": json.dumps(["a", "b"]), "n": 3})
+    out = load_run(path, robot=robot).table
+    ok = np.isfinite(yaw)
+    np.testing.assert_allclose(t265.wrap_angle(out["imu_yaw_rad"].to_numpy()[ok] - yaw[ok]), 0.0, atol=1e-9)
+    assert np.isnan(out["imu_yaw_rad"].to_numpy()[103:107]).all()  # not bridged across the 0.1 s gap
+    for c in ("imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2", "imu_yaw_rate_radps"):  # the mount undone too
+        np.testing.assert_allclose(out[c], df[c], atol=1e-9, err_msg=c)
+    assert out["imu_valid"].all()
+    with open(path, "rb") as f:
+        (meta,) = list(make_reader(f).iter_metadata())
+    assert meta.name == "terrainml" and meta.metadata == {"classes": '["a", "b"]', "n": "3"}
+    # without the column the IMU has no orientation and ingest makes no yaw (as before)
+    plain = load_run(write_run_mcap(handmade_table(100), tmp_path / "plain.mcap", robot), robot=robot).table
+    assert "imu_yaw_rad" not in plain or plain["imu_yaw_rad"].isna().all()
 
 
 def test_parquet_and_csv_inputs(tmp_path):

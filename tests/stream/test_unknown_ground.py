@@ -13,17 +13,22 @@ the ingest and ``dataset build`` read like any run.
 from __future__ import annotations
 
 import json
+import re
+import shlex
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 from typer.testing import CliRunner
 from stream_fakes import SLIP_OF
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.cli import app
-from terrainml.io.ingest import load_run
+from terrainml.io import t265
+from terrainml.io.ingest import ingest_to_parquet, load_run
+from terrainml.io.mcap_writer import RosMcapWriter
 from terrainml.estimation.run import estimate_run
 from terrainml.features.sets import FeatureSet
 from terrainml.features.windows import Windows, WindowSpec, cut_windows
@@ -32,12 +37,14 @@ from terrainml.models.artifacts import load_artifact, save_artifact
 from terrainml.models.novelty import fit_model_novelty
 from terrainml.models.svm import SVMClassifier
 from terrainml.pipeline.dataset import build_dataset
+from terrainml.pipeline.labels import label_run
 from terrainml.robot import load_robot
 from terrainml.schema import read_run_parquet
 from terrainml.stream.config import ServingConfig
 from terrainml.stream.fusion import TerrainFilter
 from terrainml.stream.predictor import Predictor
-from terrainml.stream.recorder import UnknownGroundRecorder
+from terrainml.stream.recorder import RECORD_FORMATS, UnknownGroundRecorder
+from terrainml.stream.ros2.source import STAMP_ORIGIN_KEY
 from terrainml.stream.runner import serve
 from terrainml.stream.sources import iter_table_samples
 from terrainml.testing import kinematic_run, trapezoid_speed
@@ -214,8 +221,9 @@ def test_predict_says_unknown_terrain_in_its_json_and_its_summary(folders, drive
     assert side["ticks"] == len(unknown)
 
 
-def _record(folder, drive, out_dir, **kw):
-    """Serve the drive with a recorder; (served messages, odometer per tick, recorder)."""
+def _record(folder, drive, out_dir, origin_ns=None, **kw):
+    """Serve the drive with a recorder; (served messages, odometer per tick, recorder). ``origin_ns``:
+    every sample carries it as its ROS time origin, as the ROS 2 source's samples do."""
     p = Predictor.from_model_dir(folder)
     rec = UnknownGroundRecorder(out_dir, n_wheels=p.n, class_names=p.class_names, model=str(folder),
                                 distance=lambda: p.odometer_m, **kw)
@@ -225,7 +233,10 @@ def _record(folder, drive, out_dir, **kw):
         msgs.append(m)
         odo.append(p.odometer_m)
 
-    n = serve(p, iter_table_samples(drive), [rec], on_message=keep)
+    samples = iter_table_samples(drive)
+    if origin_ns is not None:
+        samples = ({**s, STAMP_ORIGIN_KEY: origin_ns} for s in samples)
+    n = serve(p, samples, [rec], on_message=keep)
     rec.close()
     p.close()
     assert n == len(drive)  # the recorder never drops a tick
@@ -276,19 +287,39 @@ def test_record_unknown_writes_exactly_the_unknown_stretch_as_a_run_that_dataset
     assert r.exit_code == 2 and path.name in r.output and "99" in r.output
 
 
-def test_a_failed_write_is_counted_and_serving_goes_on(folders, drive, tmp_path, monkeypatch):
+@pytest.mark.parametrize("fmt", ["parquet", "mcap"])
+def test_a_failed_write_is_counted_and_serving_goes_on(folders, drive, tmp_path, monkeypatch, fmt):
     import terrainml.stream.recorder as recorder
 
     def full_disk(*a, **k):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(recorder, "write_run_parquet", full_disk)
-    msgs, _, rec = _record(folders["with"], drive, tmp_path / "rec", max_rows=500)
+    if fmt == "parquet":
+        monkeypatch.setattr(recorder, "write_run_parquet", full_disk)
+    else:  # the disk fills in the middle of the MCAP: the writer's own abort must leave nothing
+        write_imu = RosMcapWriter.write_imu
+
+        def fills_up(self, *a, **k):  # at the 300th IMU message of each log
+            self.n_imu = getattr(self, "n_imu", 0) + 1
+            if self.n_imu == 300:
+                full_disk()
+            return write_imu(self, *a, **k)
+
+        monkeypatch.setattr(RosMcapWriter, "write_imu", fills_up)
+    msgs, _, rec = _record(folders["with"], drive, tmp_path / "rec", max_rows=500, fmt=fmt, robot=ROBOT)
     n_unknown = sum(m.fallback_reason == "unknown_terrain" for m in msgs)
     assert n_unknown > 1000  # so the stretch is cut into parts of 500 ticks
-    assert rec.written == [] and rec.failed == -(-n_unknown // 500)
+    n_parts = -(-n_unknown // 500)
+    if fmt == "mcap":  # the last, short part may end before its 300th IMU message: that one is written
+        n_parts = n_unknown // 500 + (n_unknown % 500 >= 300)
+        assert len(rec.written) == -(-n_unknown // 500) - n_parts
+    else:
+        assert rec.written == []
+    assert rec.failed == n_parts
     assert "No space left on device" in rec.summary() and str(tmp_path / "rec") in rec.errors[0]
-    assert not list((tmp_path / "rec").glob("*.json"))
+    assert len(list((tmp_path / "rec").glob("*.json"))) == len(rec.written)
+    assert sorted((tmp_path / "rec").glob(f"*.{fmt}")) == sorted(rec.written)
+    assert not list((tmp_path / "rec").glob(".*.part"))  # no partial file left behind
 
 
 def test_a_record_folder_that_cannot_be_created_is_refused_before_serving(folders, tmp_path, capsys):
@@ -321,3 +352,103 @@ def test_a_second_recording_into_the_same_folder_never_overwrites_the_first(fold
     second = _record(folders["with"], drive, tmp_path / "rec")[2].written
     assert len(first) == len(second) == 1 and first != second
     assert len(list((tmp_path / "rec").glob("*.parquet"))) == len(list((tmp_path / "rec").glob("*.json"))) == 2
+
+
+def test_record_format_mcap_round_trips_through_ingest_to_the_served_samples(folders, drive, tmp_path):
+    """``--record-format mcap``: the stretch as a ROS 2 MCAP that ``terrainml ingest``'s
+    ``ingest_to_parquet`` reads back to the drive's own rows (the samples fed in, not the writer's
+    output), stamped with the samples' ROS time; the sidecar as for Parquet.
+
+    Tolerances: the writer stamps each row at ``origin + round(t_s * 1e9)`` ns and ingest puts the
+    rows on a 100 Hz grid from the first stamp, so grid and samples coincide to 1 ns (the stamp
+    rounding: the time bound, 1e-9 s) and resampling moves a value by at most |dv/dt| x 1 ns;
+    the fastest of these signals changes by ~0.1 per 10 ms tick (sample noise), 10 units/s, so
+    1e-8, and 1e-7 leaves a decade of margin. CDR float64 is exact, and the IMU mount and the
+    T265 frame conversion (rotation, lever arm, pose integration) add float rounding only (seen:
+    < 1e-15). Ingest zeroes the T265 yaw at its first confident pose (the camera's odom frame
+    starts where it boots), so ``cam_yaw_rad`` is compared as the change from the stretch's
+    first tick."""
+    origin = 1_750_000_000_000_000_000   # a ROS 2 source's time origin (ns)
+    msgs, _, rec = _record(folders["with"], drive, tmp_path / "rec", origin_ns=origin, fmt="mcap", robot=ROBOT)
+    served_t = np.array([m.t_s for m in msgs if m.fallback_reason == "unknown_terrain"])
+    assert rec.failed == 0 and len(rec.written) == 1
+    (path,) = rec.written
+    assert path.suffix == ".mcap" and not list(path.parent.glob("*.parquet"))
+    assert not list(path.parent.glob(".*.part"))
+    side = json.loads(path.with_suffix(".json").read_text())
+    assert (side["format"], side["run"], side["robot"], side["log_time_origin_ns"]) == \
+        ("mcap", path.name, ROBOT.name, origin)
+    assert (side["t_start_s"], side["t_end_s"], side["ticks"]) == (served_t[0], served_t[-1], len(served_t))
+    with open(path, "rb") as f:   # Foxglove's time line: the samples' ROS time
+        reader = make_reader(f)
+        stats = reader.get_summary().statistics
+        (meta,) = list(reader.iter_metadata())
+    assert stats.message_start_time == origin + round(served_t[0] * 1e9)
+    assert stats.message_end_time == origin + round(served_t[-1] * 1e9)
+    assert json.loads(meta.metadata["classes"]) == list(Predictor.from_model_dir(folders["with"]).class_names)
+    assert json.loads(meta.metadata["unknown_ground"])["run_id"] == path.stem
+    # ingest, as `terrainml ingest` does, and compare with the drive's rows of the served ticks
+    rep = ingest_to_parquet(path, tmp_path / "ingested.parquet", robot=ROBOT)
+    assert rep.usable and not rep.errors
+    got = read_run_parquet(tmp_path / "ingested.parquet")
+    truth = drive.set_index("t_s").loc[served_t].reset_index()
+    assert len(got) == len(truth)
+    np.testing.assert_allclose(got["t_s"].to_numpy() + side["t_start_s"], served_t, rtol=0, atol=1e-9)
+    columns = [c for c in truth.columns if c != "t_s"]
+    assert set(columns) <= set(got.columns), set(columns) - set(got.columns)   # nothing lost
+    for c in columns:
+        want, have = truth[c].to_numpy(), got[c].to_numpy()
+        if c.endswith("_valid"):
+            np.testing.assert_array_equal(have, want, err_msg=c)
+        elif c == "cam_yaw_rad":
+            np.testing.assert_allclose(t265.wrap_angle(have - (want - want[0])), 0.0, atol=1e-7, err_msg=c)
+        elif c.endswith("yaw_rad"):
+            np.testing.assert_allclose(t265.wrap_angle(have - want), 0.0, atol=1e-7, err_msg=c)
+        else:
+            np.testing.assert_allclose(have, want, rtol=0, atol=1e-7, err_msg=c)
+    assert "terrain" not in got or (got["terrain"] == -1).all()   # unlabelled: no /terrain/label messages
+
+
+def test_an_mcap_run_is_labelled_through_the_ingest_command_the_refusal_names(folders, drive, tmp_path):
+    """``dataset label RUN.mcap`` is refused (an MCAP's labels are bare ids of the built-in list)
+    with the two commands to run; run as printed, they give a labelled Parquet run with the
+    model's classes (from the sidecar) and the sidecar labelled, like a Parquet recording."""
+    _, _, rec = _record(folders["with"], drive, tmp_path / "rec", fmt="mcap", robot=ROBOT)
+    (path,) = rec.written
+    runner = CliRunner()
+    r = runner.invoke(app, ["dataset", "label", str(path), "--terrain", "far_slip"])
+    out = " ".join(r.output.split())
+    assert r.exit_code == 2 and "not a Parquet run table" in out and "terrainml ingest" in out
+    assert path.exists() and not path.with_suffix(".parquet").exists()   # nothing written
+    with pytest.raises(ValueError) as err:
+        label_run(path, "far_slip")
+    m = re.search(r"terrainml ingest (.+) && terrainml dataset label (.+)$", str(err.value))
+    assert m and f"--robot {ROBOT.name}" in m.group(1)
+    r = runner.invoke(app, ["ingest", *shlex.split(m.group(1)), "--quiet"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(app, ["dataset", "label", *shlex.split(m.group(2))])
+    assert r.exit_code == 0, r.output
+    classes = list(Predictor.from_model_dir(folders["with"]).class_names)
+    assert "a new class" in r.output
+    run = read_run_parquet(path.with_suffix(".parquet"))
+    assert (run["terrain"] == len(classes)).all() and run.attrs["terrainml"]["classes"] == [*classes, "far_slip"]
+    side = json.loads(path.with_suffix(".json").read_text())
+    assert (side["label"], side["label_id"], side["run"], side["format"]) == \
+        ("far_slip", len(classes), path.with_suffix(".parquet").name, "parquet")
+
+
+def test_an_unknown_record_format_is_refused_before_anything_is_created(folders, tmp_path):
+    with pytest.raises(ValueError, match="expected one of parquet, mcap"):
+        UnknownGroundRecorder(tmp_path / "a", n_wheels=3, class_names=["x"], model="m", distance=float,
+                              fmt="csv")
+    with pytest.raises(ValueError, match="needs the robot"):
+        UnknownGroundRecorder(tmp_path / "b", n_wheels=3, class_names=["x"], model="m", distance=float, fmt="mcap")
+    assert UnknownGroundRecorder(tmp_path / "c", n_wheels=3, class_names=["x"], model="m", distance=float,
+                                 fmt=" MCAP ", robot=ROBOT).fmt == "mcap" and RECORD_FORMATS[0] == "parquet"
+    r = CliRunner().invoke(app, ["predict", "--model", str(folders["with"]), "--source", str(tmp_path / "none.mcap"),
+                                 "--record-unknown", str(tmp_path / "d"), "--record-format", "rosbag"])
+    assert r.exit_code == 2 and "--record-format 'rosbag': expected one of parquet, mcap" in " ".join(r.output.split())
+    r = CliRunner().invoke(app, ["predict", "--model", str(folders["with"]), "--source", str(tmp_path / "none.mcap"),
+                                 "--record-format", "mcap"])
+    assert r.exit_code == 2 and "needs --record-unknown" in " ".join(r.output.split())
+    assert not any((tmp_path / x).exists() for x in "abd")
