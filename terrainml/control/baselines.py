@@ -265,8 +265,10 @@ def _unknown_ground_targets(ctrl: LimiterController) -> tuple[np.ndarray, np.nda
 
     No class names the ground, so the cap refiner reads the shift of the measured thrust-slip
     rise against the nominal curve of the class that sets the safe cap (its traction peak is the
-    cap): the served cap stays within the refiner's band around the safe cap. Not yet measured
-    on missions (issue #30 item 5).
+    cap): the served cap stays within the refiner's band around the safe cap. Off in the served
+    mission policy: on the open-set suite's tuning seeds it did worse than the unrefined safe cap
+    (one wet-mud mission lost, a dry-sand mission +3.6% energy per metre over the oracle cap;
+    docs/control.md "Online cap refinement").
     """
     s_t, s_b, _ = _safe_cap_targets(ctrl)
     return s_t, s_b, _cap_class(ctrl, float(s_t[0]))
