@@ -12,6 +12,9 @@ features), standardised per feature on the training windows:
   (a window is known when it is typical of at least one class at that class's own scale);
 * ``mahalanobis``: Mahalanobis distance to the training mean, Ledoit-Wolf shrunk covariance.
 
+The k-NN distances are exact: a batch goes through sklearn's exact index, the few windows of
+serving through :class:`_BoundedSearch` (the same distances, from far fewer references read).
+
 Which one is the default (:data:`DEFAULT_METHOD`) was chosen by measurement (docs/models.md,
 "Unknown ground"; ``benchmarks/bench_open_set.py``), as was every fixed setting here; nothing was
 chosen on the evaluation's held-out runs.
@@ -58,9 +61,17 @@ DEFAULT_FALSE_ALARM = 0.03
 MAX_REFERENCE_PER_CLASS = 2000
 NOVELTY_FILE = "novelty.safetensors"
 _CLIP = 20.0  # standardised features beyond +-20 sd are clipped (heavy-tailed features)
-#: up to this many windows are scored by a numpy brute-force search (serving scores one window
-#: per hop: sklearn's search measured ~120 ms per window on the shared 2-core machine, numpy < 1 ms)
-_BRUTE_MAX = 64
+#: up to this many windows are scored one by one by :class:`_BoundedSearch` (serving scores one
+#: window per hop: sklearn's search measured ~120 ms per window on the shared 2-core machine, and
+#: 2.7 ms per window for its brute force called per class; larger batches go through sklearn)
+_SERVED_MAX = 64
+#: dimensions of the projection that bounds the served search (:class:`_BoundedSearch`). Measured
+#: on the serving benchmark's model (8 classes x 2000 references x 71 features; 987 windows of a
+#: held-out stop-and-go course, thread CPU on the loaded 2-core machine): 8 / 12 / 16 dimensions
+#: -> median 0.14 / 0.14 / 0.16 ms, p99 0.49 / 0.24 / 0.34 ms per window (full search 0.45 / 0.81)
+_BOUND_DIMS = 12
+#: relative slack of the bounded search's comparisons: rounding can only add candidates
+_SLACK = 1e-9
 
 
 class NoveltyError(ValueError):
@@ -145,6 +156,83 @@ def _evenly(idx: np.ndarray, n_max: int) -> np.ndarray:
     return idx[np.linspace(0, len(idx) - 1, n_max).round().astype(int)]
 
 
+def _principal_axes(R: np.ndarray, dims: int) -> np.ndarray:
+    """Orthonormal (F, d) basis of the ``d = min(dims, F)`` leading principal axes of the rows of
+    ``R`` (eigenvectors of ``R^T R``, largest eigenvalue first)."""
+    _, vecs = np.linalg.eigh(R.T @ R)
+    return np.ascontiguousarray(vecs[:, ::-1][:, :min(dims, R.shape[1])])
+
+
+class _BoundedSearch:
+    """Exact smallest k-th neighbour distance of one query over several reference sets.
+
+    For reference set ``j`` (``refs[j]``, (n_j, F)) and its query ``Q[j]`` (F,), :meth:`min_kth`
+    returns min over j of the k-th smallest ``|Q[j] - r|`` over the rows r of ``refs[j]``:
+    exactly what a brute-force search of every reference computes (each distance from the
+    difference, as :meth:`kth` computes it), but the distances only of the few references that
+    can be among the k nearest (branch and bound):
+
+    1. at build time the references of each set are projected onto the set's leading principal
+       axes (:func:`_principal_axes`, orthonormal ``P_j``, :data:`_BOUND_DIMS` of them):
+       ``|P_j^T (q - r)| <= |q - r|`` bounds every distance from below, and one batched product
+       gives the bounds of all references of all sets;
+    2. the set with the smallest bound is searched first: the k-th exact distance among its 2k
+       references of smallest bound is an upper bound ``u`` of its k-th distance, so only its
+       references whose bound is ``<= u`` can be among its k nearest;
+    3. another set is searched on its references whose bound is ``<= best`` (the smallest k-th
+       distance so far), and not at all with fewer than k of them (its k-th distance is larger).
+
+    The comparisons carry a slack of :data:`_SLACK` times the squared norms involved (larger
+    than the rounding of the bounds by orders of magnitude): rounding can only add candidates,
+    never drop a neighbour. On the serving benchmark's model a window reads about 10 of the
+    16,000 references in full (median), the projected 12 columns of all of them once.
+    """
+
+    def __init__(self, refs: list[np.ndarray], k: int, dims: int = _BOUND_DIMS):
+        self.refs = [np.ascontiguousarray(r, dtype=np.float64) for r in refs]
+        self.k = int(k)
+        n_max = max(len(r) for r in self.refs)
+        self.axes = np.stack([_principal_axes(r, dims) for r in self.refs])  # (K, F, d)
+        self.proj = np.zeros((len(self.refs), n_max, self.axes.shape[2]))
+        # squared projected norm less the slack; +inf pads a set shorter than the longest
+        self.proj_sq = np.full((len(self.refs), n_max), np.inf)
+        for j, r in enumerate(self.refs):
+            p = r @ self.axes[j]
+            self.proj[j, :len(r)] = p
+            self.proj_sq[j, :len(r)] = (p * p).sum(axis=1) - _SLACK * (r * r).sum(axis=1)
+
+    def bounds(self, Q: np.ndarray) -> np.ndarray:
+        """Squared lower bounds (K, n_max) of the distances of ``Q[j]`` to the references of set
+        j, less the slack (``inf`` past the end of a shorter set)."""
+        qp = np.matmul(Q[:, None, :], self.axes)[:, 0]  # (K, d)
+        q_sq = (qp * qp).sum(axis=1) - _SLACK * (Q * Q).sum(axis=1)
+        return self.proj_sq - 2.0 * np.matmul(self.proj, qp[:, :, None])[:, :, 0] + q_sq[:, None]
+
+    def kth(self, j: int, q: np.ndarray, idx: np.ndarray) -> float:
+        """The k-th smallest distance of ``q`` to the references ``idx`` of set ``j``."""
+        d = np.sqrt(((self.refs[j][idx] - q) ** 2).sum(axis=1))
+        return float(np.partition(d, self.k - 1)[self.k - 1])
+
+    def min_kth(self, Q: np.ndarray) -> float:
+        """min over j of the k-th smallest distance of ``Q[j]`` (row j of (K, F)) to set j."""
+        lb = self.bounds(Q)
+        first = lb.min(axis=1)
+        j0 = int(np.argmin(first))
+        m = min(2 * self.k, len(self.refs[j0]))
+        u = self.kth(j0, Q[j0], np.argpartition(lb[j0], m - 1)[:m])
+        best = self.kth(j0, Q[j0], np.flatnonzero(lb[j0] <= u * u * (1.0 + _SLACK)))
+        for j in np.argsort(first).tolist():
+            b2 = best * best * (1.0 + _SLACK)
+            if first[j] > b2:  # sets in increasing order of their smallest bound: none left
+                break
+            if j == j0:
+                continue
+            cand = np.flatnonzero(lb[j] <= b2)
+            if len(cand) >= self.k:  # fewer: its k-th distance is above best
+                best = min(best, self.kth(j, Q[j], cand))
+        return best
+
+
 class NoveltyScorer:
     """Distance of windows to the training windows in a model's feature space.
 
@@ -190,7 +278,7 @@ class NoveltyScorer:
         if self.method == "mahalanobis":
             lw = LedoitWolf().fit(Z)
             self.mean_, self.precision_ = lw.location_, lw.precision_
-        self._index = self._brute = None
+        self._index = self._bounded = None
         return self
 
     def _standardise(self, F: np.ndarray) -> np.ndarray:
@@ -204,35 +292,46 @@ class NoveltyScorer:
             raise NoveltyError(f"novelty: expected {len(self.center_)} features per window, got {F.shape[1]}")
         return np.nan_to_num(F, nan=0.0, posinf=0.0, neginf=0.0)
 
-    def _kth(self, j: int, Z: np.ndarray) -> np.ndarray:
-        """Distance (n,) of each row of ``Z`` to its k-th nearest reference of index ``j``."""
-        if len(Z) <= _BRUTE_MAX:  # a few windows (serving): brute force, no search overhead
-            ref, ref_sq = self._brute_reference()[j]
-            # |z - r|^2 = |z|^2 - 2 z.r + |r|^2: one matrix product instead of an (n, R, F) array of
-            # differences (measured 2.6 -> ~0.7 ms per served window with 8 classes of 2000 references)
-            d2 = np.maximum((Z * Z).sum(axis=1)[:, None] - 2.0 * (Z @ ref.T) + ref_sq[None, :], 0.0)
-            return np.sqrt(np.partition(d2, self.k - 1, axis=1)[:, self.k - 1])
-        return self._neighbours()[j].kneighbors(Z)[0][:, -1]
+    def _reference_sets(self) -> list[np.ndarray]:
+        """The references of each search, in its scale: per class (``class_knn``), or all."""
+        if self.method == "class_knn":
+            return [(self.reference_[self.reference_y_ == c] - self.class_center_[j]) / self.class_scale_[j]
+                    for j, c in enumerate(self.classes_)]
+        return [self.reference_]
 
-    def _brute_reference(self) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Per index j: the references (R, F) in its scale and their squared norms (R,)."""
-        if getattr(self, "_brute", None) is None:
-            if self.method == "class_knn":
-                refs = [(self.reference_[self.reference_y_ == c] - self.class_center_[j]) / self.class_scale_[j]
-                        for j, c in enumerate(self.classes_)]
-            else:
-                refs = [self.reference_]
-            self._brute = [(np.ascontiguousarray(r), (r * r).sum(axis=1)) for r in refs]
-        return self._brute
+    def _queries(self, Z: np.ndarray, j: int) -> np.ndarray:
+        """Standardised windows ``Z`` (n, F) in the scale of search ``j`` (class j's for
+        ``class_knn``; ``Z`` itself for ``knn``'s one search)."""
+        if self.method == "class_knn":
+            return (Z - self.class_center_[j]) / self.class_scale_[j]
+        return Z
+
+    def _window_queries(self, z: np.ndarray) -> np.ndarray:
+        """One standardised window ``z`` (F,) in the scale of every search: (K, F)."""
+        if self.method == "class_knn":
+            return (z - self.class_center_) / self.class_scale_
+        return z[None]
+
+    def _search(self) -> _BoundedSearch:
+        """The exact bounded search of a few windows (serving), built on first use."""
+        if getattr(self, "_bounded", None) is None:
+            self._bounded = _BoundedSearch(self._reference_sets(), self.k)
+        return self._bounded
+
+    def prepare_serving(self) -> "NoveltyScorer":
+        """Build the search that scores a few windows at a time now (else the first
+        :meth:`score` of up to :data:`_SERVED_MAX` windows builds it: 50-130 ms on the serving
+        benchmark's model, which serving keeps out of its first classification tick)."""
+        if getattr(self, "center_", None) is None:
+            raise NoveltyError("novelty: the scorer is not fitted (fit or load it first)")
+        if self.method != "mahalanobis":
+            self._search()
+        return self
 
     def _neighbours(self) -> list:
+        """sklearn's exact index of each search (batches of more than :data:`_SERVED_MAX`)."""
         if getattr(self, "_index", None) is None:
-            if self.method == "class_knn":
-                self._index = [NearestNeighbors(n_neighbors=self.k).fit(
-                    (self.reference_[self.reference_y_ == c] - self.class_center_[j]) / self.class_scale_[j])
-                    for j, c in enumerate(self.classes_)]
-            else:
-                self._index = [NearestNeighbors(n_neighbors=self.k).fit(self.reference_)]
+            self._index = [NearestNeighbors(n_neighbors=self.k).fit(r) for r in self._reference_sets()]
         return self._index
 
     def score(self, F: np.ndarray) -> np.ndarray:
@@ -241,12 +340,12 @@ class NoveltyScorer:
         if self.method == "mahalanobis":
             d = Z - self.mean_
             return np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", d, self.precision_, d), 0.0))
-        if self.method == "knn":
-            return self._kth(0, Z)
-        out = np.full(len(Z), np.inf)
-        for j in range(len(self.classes_)):
-            out = np.minimum(out, self._kth(j, (Z - self.class_center_[j]) / self.class_scale_[j]))
-        return out
+        # knn: one search; class_knn: one per class in its scale, the score is the smallest
+        if len(Z) <= _SERVED_MAX:  # a few windows (serving): exact bounded search, window by window
+            search = self._search()
+            return np.array([search.min_kth(self._window_queries(z)) for z in Z])
+        return np.min([nn.kneighbors(self._queries(Z, j))[0][:, -1] for j, nn in enumerate(self._neighbours())],
+                      axis=0)
 
     def is_unknown(self, F: np.ndarray) -> np.ndarray:
         """Boolean (n,): score above the threshold."""
@@ -307,7 +406,7 @@ class NoveltyScorer:
             s.class_center_, s.class_scale_ = a["class_center"], a["class_scale"]
         if s.method == "mahalanobis":
             s.mean_, s.precision_ = a["mean"], a["precision"]
-        s._index = s._brute = None
+        s._index = s._bounded = None
         return s
 
     def _arrays_names(self) -> list[str]:

@@ -154,7 +154,7 @@ class WindowClassifier:
         self.last_rejection: Rejection | None = None
         if novelty is not None and novelty.threshold is None:
             raise ModelLoadError("the model's novelty scorer has no threshold")
-        self.novelty = novelty
+        self.novelty = novelty.prepare_serving() if novelty is not None else None
         self._threshold = None if novelty is None else float(novelty.threshold)  # type: ignore[arg-type]
         #: (score over the threshold, over it) of the latest classified window; None without a scorer
         self.last_novelty: tuple[float, bool] | None = None

@@ -71,3 +71,69 @@ def test_one_window_is_scored_as_in_a_batch_the_k_th_neighbour_by_brute_force(me
         R = (F - F.mean(0)) / F.std(0)
         d = np.sort(np.linalg.norm(Z[:, None] - R[None], axis=2), axis=1)[:, 4]
         assert np.allclose(one, d, atol=1e-9)
+
+
+def _hard_reference_case(rng, n_features):
+    """Classes of unequal sizes (the served search pads the shorter ones), heavy-tailed features,
+    one feature constant within a class (its class scale is the 1e-3 floor), duplicate windows
+    (tied neighbours), and two classes around the same centre, one of full rank (loose projected
+    bounds: often searched first) and one of rank 2 (tight bounds: often the nearest); queries:
+    training windows themselves (distance 0), near ones, ones near both overlapping classes, far
+    ones (every class far, the search's worst case) and ones beyond the +-20 sd clip."""
+    sizes = (12, 150, 600, 40, 1500)
+    F, y = [], []
+    for c, n in enumerate(sizes):
+        x = rng.standard_t(1.5, size=(n, n_features)) + 4.0 * rng.normal(size=n_features)
+        if c == 2:
+            x[:, 1] = 0.5
+        if c == 4:
+            x[500:520] = x[:20]
+        F.append(x)
+        y += [c] * n
+    F.append(rng.normal(size=(300, n_features)))
+    F.append(rng.normal(size=(300, 2)) @ rng.normal(size=(2, n_features)) + 0.01 * rng.normal(size=(300, n_features)))
+    y += [5] * 300 + [6] * 300
+    F, y = np.vstack(F), np.asarray(y)
+    Q = np.vstack([F[rng.choice(len(F), 15)], F[rng.choice(len(F), 15)] + 0.05 * rng.normal(size=(15, n_features)),
+                   F[-300:][rng.choice(300, 10)] + 0.3 * rng.normal(size=(10, n_features)),
+                   rng.normal(size=(5, n_features)), rng.normal(size=(10, n_features)) * 30.0,
+                   np.full((4, n_features), 1e6)])
+    return F, y, Q
+
+
+def _exact_reference(F, y, Q, method, k):
+    """The score written out here with sklearn's exact k-d tree search (distances from the
+    differences, as the served search computes them) as the neighbour search."""
+    from sklearn.neighbors import NearestNeighbors
+
+    center, sd = F.mean(0), F.std(0)
+    scale = np.where(sd > 1e-12, sd, 1.0)
+    Z, Zq = ((np.clip((A - center) / scale, -20, 20)) for A in (F, Q))
+    if method == "knn":
+        return NearestNeighbors(n_neighbors=k, algorithm="kd_tree").fit(Z).kneighbors(Zq)[0][:, -1]
+    out = np.full(len(Q), np.inf)
+    for c in np.unique(y):
+        cc, cs = Z[y == c].mean(0), np.maximum(Z[y == c].std(0), 1e-3)
+        nn = NearestNeighbors(n_neighbors=k, algorithm="kd_tree").fit((Z[y == c] - cc) / cs)
+        out = np.minimum(out, nn.kneighbors((Zq - cc) / cs)[0][:, -1])
+    return out
+
+
+@pytest.mark.parametrize("method,n_features,k", [("class_knn", 6, 5), ("class_knn", 40, 1),
+                                                 ("class_knn", 40, 5), ("knn", 40, 3)])
+def test_served_scores_are_an_exact_k_nearest_neighbour_search(method, n_features, k):
+    """The served search (a few windows: bounded by projections, branch and bound) returns the
+    k-th neighbour distance of an exact search, on data made to stress its bounds."""
+    F, y, Q = _hard_reference_case(np.random.default_rng(7), n_features)
+    scorer = NoveltyScorer(method, k=k).fit(F, y).prepare_serving()
+    truth = _exact_reference(F, y, Q, method, k)
+    one = np.array([scorer.score(Q[i:i + 1])[0] for i in range(len(Q))])
+    assert np.allclose(one, truth, rtol=1e-12, atol=1e-12)
+    assert np.allclose(scorer.score(Q), truth, rtol=1e-12, atol=1e-12)  # 59 windows: the same search
+    if k == 1:  # a training window is its own nearest neighbour, at distance 0 exactly
+        assert (one[:15] == 0.0).all()
+
+
+def test_prepare_serving_needs_a_fitted_scorer():
+    with pytest.raises(NoveltyError, match="not fitted"):
+        NoveltyScorer().prepare_serving()
