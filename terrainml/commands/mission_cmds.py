@@ -99,7 +99,7 @@ def run(
         fail(f"--seeds {seeds!r}: expected one of {', '.join(SEED_SETS)}")
     if limit is not None and limit < 1:
         fail(f"--limit must be >= 1, got {limit}")
-    if policy.startswith("terrain-aware") and model is None:
+    if policy in ("terrain-aware", "terrain-aware-closed", "terrain-aware-refine-unknown") and model is None:
         fail(f"--policy {policy} needs --model (a trained model folder); "
              "--policy oracle is the same controller with the true class")
     if model is not None and not model.is_dir():
