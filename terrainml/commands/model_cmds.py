@@ -509,8 +509,10 @@ def _evaluate_open_set(model_dir: Optional[Path], data: Path, out: Optional[Path
         m = res.means()
         console.print(f"{kind} ({ds.spec.name} windows), leave-one-class-out over {len(res.table)} classes: mean "
                       f"AUROC {m['auroc']:.3f} (moving {m['auroc_moving']:.3f}), unknown's moving windows "
-                      f"flagged {100 * m['unknown_flagged']:.1f}%, false alarms {100 * m['false_alarm']:.1f}%"
-                      + (f"; [green]wrote[/] {out / OPEN_SET_FILES[0]}, {out / OPEN_SET_FILES[1]}" if out else ""),
+                      f"flagged {100 * m['unknown_flagged']:.1f}%, false alarms {100 * m['false_alarm']:.1f}% "
+                      f"(reach at {100 * res.settings['reach_false_alarm']:.0f}% false alarms: "
+                      f"{100 * m['unknown_flagged_reach']:.1f}%)"
+                      + (f"; [green]wrote[/] {', '.join(str(out / f) for f in OPEN_SET_FILES)}" if out else ""),
                       highlight=False)
 
 

@@ -13,7 +13,13 @@ against the known classes' held-out windows), on all windows and on *moving* win
 (:func:`moving_windows`: mean wheel rim speed above ``MOVING_MPS``, the line of the served
 course scores; a robot standing still feels the same on any ground); the share of the unknown
 class's windows flagged at the chosen threshold; the share of the known classes' held-out
-windows flagged (false alarms); the known classes' balanced accuracy of the same models.
+windows flagged (false alarms); the known classes' balanced accuracy of the same models; and the
+*reach* of the score (:func:`flagged_at_false_alarm`): the share of the unknown's moving windows
+that the one threshold flagging :data:`REACH_FALSE_ALARM` of the known held-out windows would
+flag. That threshold is read off the evaluated windows themselves, so it is an upper bound for any
+threshold of this score (the point of its ROC curve at the issue's false-alarm line), never a
+deployable setting: it tells a score that cannot separate the unknown (low reach) from a threshold
+that is merely cautious (reach far above the flagged share).
 """
 
 from __future__ import annotations
@@ -28,10 +34,13 @@ from sklearn.metrics import balanced_accuracy_score, roc_auc_score
 from terrainml.evaluation.cv import cross_validate
 from terrainml.models.novelty import DEFAULT_FALSE_ALARM, DEFAULT_K, DEFAULT_METHOD, OpenSetModel
 
-__all__ = ["leave_one_class_out", "OpenSetResult", "moving_windows", "MOVING_MPS", "open_set_markdown"]
+__all__ = ["leave_one_class_out", "OpenSetResult", "moving_windows", "MOVING_MPS", "open_set_markdown",
+           "flagged_at_false_alarm", "REACH_FALSE_ALARM"]
 
 #: a window is moving when its mean wheel rim speed exceeds this (m/s), as in the course scores
 MOVING_MPS = 0.2
+#: the false-alarm line of issue #30 at which the score's reach is read (share of known windows)
+REACH_FALSE_ALARM = 0.05
 _SPEED_CHANNELS = (("speed_left_mps", "speed_right_mps"), ("vx",))
 
 
@@ -58,26 +67,39 @@ class OpenSetResult:
     table : DataFrame, one row per held-out class: ``unknown``, ``n_unknown``, ``n_known``,
         ``auroc``, ``auroc_moving``, ``unknown_flagged`` (share of the unknown's moving windows
         flagged), ``unknown_flagged_all`` (all its windows), ``false_alarm`` (share of the known
-        classes' held-out windows flagged), ``false_alarm_moving``, ``known_balanced_accuracy``.
-    scores : {class name: ndarray (n,)} out-of-fold novelty scores of every window.
+        classes' held-out windows flagged), ``false_alarm_moving``, ``known_balanced_accuracy``,
+        ``unknown_flagged_reach`` (share of the unknown's moving windows over the threshold that
+        flags :data:`REACH_FALSE_ALARM` of the known held-out windows, read off them: an upper bound).
+    scores : {class name: ndarray (n,)} out-of-fold novelty scores of every window (NaN: never tested).
     flagged : {class name: ndarray (n,) bool}.
-    settings : dict (method, k, false-alarm target, inner folds, folds, seed).
+    settings : dict (method, k, false-alarm target, inner folds, folds, seed, reach false alarm).
+    windows : DataFrame (n rows, window order): ``run``, ``label`` (class name), ``moving``.
     """
 
     table: pd.DataFrame
     scores: dict = field(default_factory=dict)
     flagged: dict = field(default_factory=dict)
     settings: dict = field(default_factory=dict)
+    windows: pd.DataFrame | None = None
 
     def means(self) -> dict:
         """Unweighted means over the held-out classes of the table's figures."""
         cols = ["auroc", "auroc_moving", "unknown_flagged", "unknown_flagged_all", "false_alarm",
-                "false_alarm_moving", "known_balanced_accuracy"]
+                "false_alarm_moving", "known_balanced_accuracy", "unknown_flagged_reach"]
         return {c: float(self.table[c].mean()) for c in cols}
 
     def to_dict(self) -> dict:
         return {"per_class": self.table.to_dict(orient="records"), "mean": self.means(),
                 "settings": self.settings}
+
+    def window_table(self) -> pd.DataFrame:
+        """One row per window: run, label, moving, and per held-out class C ``score_without_C``
+        and ``flagged_without_C`` (what ``evaluate --open-set`` writes for a closer look)."""
+        cols = {} if self.windows is None else {c: self.windows[c].to_numpy() for c in self.windows.columns}
+        for name, sc in self.scores.items():
+            cols[f"score_without_{name}"] = np.asarray(sc, dtype=np.float64)
+            cols[f"flagged_without_{name}"] = np.asarray(self.flagged[name], dtype=bool)
+        return pd.DataFrame(cols)
 
 
 def _auroc(labels: np.ndarray, scores: np.ndarray) -> float:
@@ -86,6 +108,23 @@ def _auroc(labels: np.ndarray, scores: np.ndarray) -> float:
 
 def _share(mask: np.ndarray) -> float:
     return float(mask.mean()) if len(mask) else float("nan")
+
+
+def flagged_at_false_alarm(known: np.ndarray, unknown: np.ndarray, false_alarm: float = REACH_FALSE_ALARM) -> float:
+    """Share of ``unknown`` scores over the lowest threshold that flags at most ``false_alarm`` of
+    ``known`` scores (a window is flagged when its score is strictly above the threshold).
+
+    The threshold is the smallest known score with at most ``false_alarm * len(known)`` known
+    scores above it. Read off the evaluated windows, it is the best any threshold of the score can
+    do at that false-alarm share: an upper bound, not a setting (thresholds are set in inner folds).
+    NaN when either side is empty.
+    """
+    known, unknown = np.sort(np.asarray(known, dtype=np.float64)), np.asarray(unknown, dtype=np.float64)
+    if not len(known) or not len(unknown):
+        return float("nan")
+    allowed = int(np.floor(float(false_alarm) * len(known)))  # known scores that may lie above
+    threshold = known[len(known) - 1 - allowed]
+    return float((unknown > threshold).mean())
 
 
 def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequence, class_names: Sequence[str],
@@ -135,24 +174,31 @@ def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequen
             "unknown_flagged": _share(flag[unk & moving]), "unknown_flagged_all": _share(flag[unk]),
             "false_alarm": _share(flag[known]), "false_alarm_moving": _share(flag[known & moving]),
             "known_balanced_accuracy": float(balanced_accuracy_score(y[known], res.y_pred[known])),
+            "unknown_flagged_reach": flagged_at_false_alarm(res.novelty[known], res.novelty[unk & moving]),
         })
-        scores[name], flagged[name] = res.novelty, flag
+        scores[name], flagged[name] = np.where(done, res.novelty, np.nan), flag
     settings = {"method": method, "k": int(k), "false_alarm_target": float(false_alarm),
                 "inner_folds": int(inner_folds), "folds": len(folds), "seed": int(seed),
-                "moving_mps": MOVING_MPS}
-    return OpenSetResult(pd.DataFrame(rows), scores, flagged, settings)
+                "moving_mps": MOVING_MPS, "reach_false_alarm": REACH_FALSE_ALARM}
+    names = dict(zip(classes, class_names))
+    windows = pd.DataFrame({"run": np.asarray(groups).astype(str), "label": [names.get(c, str(c)) for c in y],
+                            "moving": moving})
+    return OpenSetResult(pd.DataFrame(rows), scores, flagged, settings, windows)
 
 
 def open_set_markdown(result: OpenSetResult) -> list[str]:
     """Markdown lines of the leave-one-class-out table (percent), with the mean row."""
     pct = lambda x: f"{100 * x:.1f}" if np.isfinite(x) else "n/a"  # noqa: E731
+    reach = f"reach: flagged % at {100 * REACH_FALSE_ALARM:.0f} % false alarms (upper bound)"
     header = ["unknown class", "windows (moving)", "AUROC", "AUROC moving", "unknown flagged % (moving)",
-              "false alarms % (known held-out)", "known bal. acc. %"]
+              "false alarms % (known held-out)", "known bal. acc. %", reach]
     rows = [[r.unknown, f"{r.n_unknown} ({r.n_unknown_moving})", f"{r.auroc:.3f}", f"{r.auroc_moving:.3f}",
-             pct(r.unknown_flagged), pct(r.false_alarm), pct(r.known_balanced_accuracy)]
+             pct(r.unknown_flagged), pct(r.false_alarm), pct(r.known_balanced_accuracy),
+             pct(r.unknown_flagged_reach)]
             for r in result.table.itertuples()]
     m = result.means()
     rows.append(["**mean**", "", f"**{m['auroc']:.3f}**", f"**{m['auroc_moving']:.3f}**",
-                 pct(m["unknown_flagged"]), pct(m["false_alarm"]), pct(m["known_balanced_accuracy"])])
+                 pct(m["unknown_flagged"]), pct(m["false_alarm"]), pct(m["known_balanced_accuracy"]),
+                 pct(m["unknown_flagged_reach"])])
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     return out + ["| " + " | ".join(map(str, r)) + " |" for r in rows]

@@ -10,6 +10,9 @@ the model folder:
 * ``report.md``: the same as readable tables (models side by side);
 * ``confusion_<model>.png`` (matplotlib, Agg backend; row-normalised, counts annotated);
 * ``folds_<model>.csv`` (one row per fold) and ``ablation.csv``;
+* ``evaluate --open-set`` (:func:`write_open_set_report`): ``open_set.md`` / ``.json``, every
+  window's out-of-fold novelty score per held-out class (``open_set_scores.parquet``) and the ROC
+  curves (``open_set_roc.png``);
 * with ``train(..., open_set=True)``, the leave-one-class-out table of the served model's novelty
   score (:mod:`terrainml.evaluation.open_set`; ``report.json``: ``open_set``).
 """
@@ -22,6 +25,7 @@ from typing import Any, Sequence
 
 import numpy as np
 from matplotlib.figure import Figure  # no pyplot: no global backend or figure registry
+from sklearn.metrics import roc_curve
 
 from terrainml.atomic import atomic_output, write_text
 from terrainml.evaluation.open_set import open_set_markdown
@@ -29,8 +33,9 @@ from terrainml.models.artifacts import json_safe
 
 __all__ = ["write_report", "plot_confusion", "markdown_table", "write_open_set_report", "OPEN_SET_FILES"]
 
-#: the report files of ``terrainml evaluate --open-set`` (markdown, JSON)
-OPEN_SET_FILES = ("open_set.md", "open_set.json")
+#: the report files of ``terrainml evaluate --open-set``: markdown, JSON, every window's out-of-fold
+#: score per held-out class (Parquet), and the ROC curves on moving windows (PNG)
+OPEN_SET_FILES = ("open_set.md", "open_set.json", "open_set_scores.parquet", "open_set_roc.png")
 
 METRIC_ROWS = (("balanced_accuracy", "balanced accuracy"), ("accuracy", "accuracy"),
                ("macro_f1", "macro-F1"), ("adjacent_accuracy", "adjacent-class accuracy"),
@@ -98,8 +103,9 @@ def _open_set_settings(st: dict, folds: str) -> str:
 
 
 def write_open_set_report(out: str | Path, result: Any, context: dict) -> dict:
-    """Write ``open_set.md`` and ``open_set.json`` (:data:`OPEN_SET_FILES`) of a leave-one-class-out
-    :class:`~terrainml.evaluation.open_set.OpenSetResult` into folder ``out``; return the JSON's dict.
+    """Write the files of :data:`OPEN_SET_FILES` (table, JSON, per-window scores, ROC curves) of a
+    leave-one-class-out :class:`~terrainml.evaluation.open_set.OpenSetResult` into folder ``out``;
+    return the JSON's dict.
 
     ``context``: what was evaluated (data, model, window spec, robot, windows, runs), written at
     the top of both files.
@@ -114,7 +120,37 @@ def write_open_set_report(out: str | Path, result: Any, context: dict) -> dict:
           *open_set_markdown(result), ""]
     write_text(out / OPEN_SET_FILES[0], "\n".join(md))
     write_text(out / OPEN_SET_FILES[1], json.dumps(json_safe(doc), indent=2, sort_keys=True) + "\n")
+    with atomic_output(out / OPEN_SET_FILES[2]) as tmp:
+        result.window_table().to_parquet(tmp, index=False)
+    plot_open_set_roc(result, out / OPEN_SET_FILES[3])
     return doc
+
+
+def plot_open_set_roc(result: Any, path: Path) -> Path:
+    """ROC curve of the novelty score per held-out class on moving windows (the unknown's against
+    the known classes' held-out ones), with the issue's false-alarm line and each class's
+    operating point at its inner-fold threshold; saved as PNG."""
+    fig = Figure(figsize=(5.5, 4.5), dpi=100)
+    ax = fig.add_subplot()
+    w = result.windows
+    for row in result.table.itertuples():
+        score = np.asarray(result.scores[row.unknown])
+        keep = w["moving"].to_numpy() & np.isfinite(score)
+        unknown = (w["label"].to_numpy() == row.unknown)[keep]
+        if 0 < unknown.sum() < len(unknown):
+            fpr, tpr, _ = roc_curve(unknown, score[keep])
+            line, = ax.plot(fpr, tpr, lw=1.2, label=f"{row.unknown} (AUROC {row.auroc_moving:.2f})")
+            ax.plot([row.false_alarm_moving], [row.unknown_flagged], "o", color=line.get_color(), ms=4)
+    ax.axvline(result.settings.get("reach_false_alarm", 0.05), color="grey", ls="--", lw=0.8)
+    ax.plot([0, 1], [0, 1], color="lightgrey", lw=0.8)
+    ax.set_xlabel("known held-out moving windows flagged (false alarms)")
+    ax.set_ylabel("unknown moving windows flagged")
+    ax.set_title("novelty score, each class held out (dot: inner-fold threshold)", fontsize=9)
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format="png", metadata={"Software": None})
+    return path
 
 
 def write_report(out: str | Path, result: Any) -> dict:

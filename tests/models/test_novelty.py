@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from terrainml.evaluation.open_set import flagged_at_false_alarm
 from terrainml.models.novelty import NoveltyError, NoveltyScorer, fit_novelty
 
 
@@ -137,3 +138,13 @@ def test_served_scores_are_an_exact_k_nearest_neighbour_search(method, n_feature
 def test_prepare_serving_needs_a_fitted_scorer():
     with pytest.raises(NoveltyError, match="not fitted"):
         NoveltyScorer().prepare_serving()
+
+
+def test_reach_is_the_unknown_share_over_the_threshold_that_flags_the_false_alarm_share():
+    """Hand-worked: known scores 0..99, 5 % false alarms -> threshold 94 (95..99 above it, 5 of 100)."""
+    known = np.arange(100.0)
+    assert flagged_at_false_alarm(known, np.array([93.5, 94.0, 94.5, 200.0]), 0.05) == 0.5
+    assert flagged_at_false_alarm(known, np.array([10.0]), 0.05) == 0.0
+    # ties at the threshold are not flagged: a flag is strictly above it
+    assert flagged_at_false_alarm(np.ones(100), np.array([1.0, 2.0]), 0.05) == 0.5
+    assert np.isnan(flagged_at_false_alarm(known, np.array([]), 0.05))

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -16,9 +17,11 @@ from logs_synth import write_logs
 from synthetic_runs import CLASS_SLIP
 
 COLUMNS = ["unknown class", "windows (moving)", "AUROC", "AUROC moving", "unknown flagged % (moving)",
-           "false alarms % (known held-out)", "known bal. acc. %"]
+           "false alarms % (known held-out)", "known bal. acc. %",
+           "reach: flagged % at 5 % false alarms (upper bound)"]
 JSON_COLUMNS = {"unknown", "n_unknown", "n_unknown_moving", "n_known", "auroc", "auroc_moving", "unknown_flagged",
-                "unknown_flagged_all", "false_alarm", "false_alarm_moving", "known_balanced_accuracy"}
+                "unknown_flagged_all", "false_alarm", "false_alarm_moving", "known_balanced_accuracy",
+                "unknown_flagged_reach"}
 
 
 def _farthest_slip_class() -> int:
@@ -62,6 +65,13 @@ def test_evaluate_open_set_writes_the_table_and_finds_the_far_slip_class(windows
     assert rows[far]["auroc_moving"] > 0.9
     assert rows[far]["unknown_flagged"] > rows[far]["false_alarm"]
     assert doc["model"] == "svm" and doc["settings"]["folds"] == 3
+    # every window's score is written: the far class's windows score above the others' when it is unknown
+    table = pd.read_parquet(out / "open_set_scores.parquet")
+    assert len(table) == len(y) and list(table["label"]) == [names[c] for c in y]
+    assert list(table["run"]) == [str(g) for g in ds.windows.groups]
+    score = table[f"score_without_{far}"]
+    assert score[table["label"] == far].median() > score[table["label"] != far].quantile(0.9)
+    assert (out / "open_set_roc.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_evaluate_open_set_refusals_name_the_option(windows_file, tmp_path):
