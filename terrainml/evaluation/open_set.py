@@ -32,30 +32,21 @@ import pandas as pd
 from sklearn.metrics import balanced_accuracy_score, roc_auc_score
 
 from terrainml.evaluation.cv import cross_validate
-from terrainml.models.novelty import DEFAULT_FALSE_ALARM, DEFAULT_K, DEFAULT_METHOD, OpenSetModel
+from terrainml.models.novelty import (
+    DEFAULT_FALSE_ALARM,
+    DEFAULT_K,
+    DEFAULT_METHOD,
+    MOVING_MPS,
+    OpenSetModel,
+    moving_mask,
+    moving_windows,
+)
 
-__all__ = ["leave_one_class_out", "OpenSetResult", "moving_windows", "MOVING_MPS", "open_set_markdown",
-           "flagged_at_false_alarm", "REACH_FALSE_ALARM"]
+__all__ = ["leave_one_class_out", "OpenSetResult", "open_set_markdown", "flagged_at_false_alarm",
+           "REACH_FALSE_ALARM"]
 
-#: a window is moving when its mean wheel rim speed exceeds this (m/s), as in the course scores
-MOVING_MPS = 0.2
 #: the false-alarm line of issue #30 at which the score's reach is read (share of known windows)
 REACH_FALSE_ALARM = 0.05
-_SPEED_CHANNELS = (("speed_left_mps", "speed_right_mps"), ("vx",))
-
-
-def moving_windows(W, min_speed_mps: float = MOVING_MPS) -> np.ndarray:
-    """Boolean (n,): windows whose mean rim speed (side channels; else |vx|) exceeds the line.
-
-    Raises ValueError naming the channels looked for when the windows have no speed channel.
-    """
-    channels = list(W.channels)
-    for names in _SPEED_CHANNELS:
-        if all(c in channels for c in names):
-            X = np.asarray(W.X)
-            speed = np.mean([np.abs(X[:, channels.index(c)]).mean(axis=1) for c in names], axis=0)
-            return speed > float(min_speed_mps)
-    raise ValueError(f"windows have none of the speed channels {_SPEED_CHANNELS} (channels: {channels})")
 
 
 @dataclass
@@ -152,6 +143,7 @@ def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequen
     """
     y, groups = W.y, W.groups
     moving = moving_windows(W) if moving is None else np.asarray(moving, dtype=bool)
+    gate = moving_mask(W)  # what OpenSetModel gates on (the same windows' wheel speeds)
     rows, scores, flagged = [], {}, {}
     for u, name in zip(classes, class_names):
         if progress:
@@ -165,7 +157,11 @@ def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequen
         thr = np.array([m["novelty_threshold"] for m in res.fold_metrics])
         flag = np.zeros(len(y), dtype=bool)
         flag[done] = res.novelty[done] > thr[res.fold_of[done]]
+        if gate is not None:  # the models judge moving windows only (their scorers' gate)
+            flag &= gate
         unk, known = done & (y == u), done & (y != u)
+        # a window the gate never flags counts below every threshold (the reach of what can be flagged)
+        judged = res.novelty if gate is None else np.where(gate, res.novelty, -np.inf)
         rows.append({
             "unknown": name, "n_unknown": int(unk.sum()), "n_unknown_moving": int((unk & moving).sum()),
             "n_known": int(known.sum()),
@@ -174,7 +170,7 @@ def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequen
             "unknown_flagged": _share(flag[unk & moving]), "unknown_flagged_all": _share(flag[unk]),
             "false_alarm": _share(flag[known]), "false_alarm_moving": _share(flag[known & moving]),
             "known_balanced_accuracy": float(balanced_accuracy_score(y[known], res.y_pred[known])),
-            "unknown_flagged_reach": flagged_at_false_alarm(res.novelty[known], res.novelty[unk & moving]),
+            "unknown_flagged_reach": flagged_at_false_alarm(judged[known], judged[unk & moving]),
         })
         scores[name], flagged[name] = np.where(done, res.novelty, np.nan), flag
     settings = {"method": method, "k": int(k), "false_alarm_target": float(false_alarm),

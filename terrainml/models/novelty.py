@@ -19,13 +19,21 @@ Which one is the default (:data:`DEFAULT_METHOD`) was chosen by measurement (doc
 "Unknown ground"; ``benchmarks/bench_open_set.py``), as was every fixed setting here; nothing was
 chosen on the evaluation's held-out runs.
 
+Only *moving* windows are judged (:data:`MOVING_MPS`, when the windows carry wheel speeds): a
+robot standing still or creeping feels the same on any ground, and its windows lie far from every
+class (on BorealTC's known held-out runs, 40-48 % of windows are not moving, and they hold most of
+the high scores). Serving classifies no window standing still either (the scheduler's
+``MIN_MOVE_M``), so a threshold set over all windows was set by windows serving never sees, and
+was needlessly high for the moving ones. ``moving_mps`` on the scorer records the gate: a window
+is flagged when it moves and its score is over the threshold.
+
 The threshold (:func:`fit_novelty`) is set in inner grouped folds of the training windows only:
 the scorer is refit on the training runs of every inner fold and scores the windows of its
 held-out runs (known ground, never seen by that scorer); the threshold is the ``1 -
-false_alarm`` quantile of those out-of-fold scores, so about ``false_alarm`` of a new run on
-known ground is flagged. The final scorer is fitted on all training windows (a little closer to
-new known windows than the inner scorers were, so the false-alarm share on new runs is at most
-about the target).
+false_alarm`` quantile of those out-of-fold scores (of the moving ones, with the gate), so about
+``false_alarm`` of a new run on known ground is flagged. The final scorer is fitted on all
+training windows (a little closer to new known windows than the inner scorers were, so the
+false-alarm share on new runs is at most about the target).
 
 Persistence (:meth:`NoveltyScorer.save` / :meth:`NoveltyScorer.load`): arrays in one safetensors
 file, settings in the model manifest's ``novelty`` entry (:mod:`terrainml.models.artifacts`),
@@ -50,7 +58,7 @@ from terrainml.models.svm import inner_splits
 __all__ = ["NoveltyScorer", "NoveltyError", "OpenSetModel", "model_features", "model_feature_names",
            "proba_and_features",
            "fit_novelty", "fit_model_novelty", "novelty_of", "METHODS", "DEFAULT_METHOD", "DEFAULT_K",
-           "DEFAULT_FALSE_ALARM", "NOVELTY_FILE"]
+           "DEFAULT_FALSE_ALARM", "NOVELTY_FILE", "MOVING_MPS", "moving_windows", "moving_mask"]
 
 METHODS = ("knn", "class_knn", "mahalanobis")
 DEFAULT_METHOD = "class_knn"
@@ -60,6 +68,9 @@ DEFAULT_FALSE_ALARM = 0.03
 #: at most this many reference windows per class are kept (evenly spaced, deterministic)
 MAX_REFERENCE_PER_CLASS = 2000
 NOVELTY_FILE = "novelty.safetensors"
+#: a window is moving when its mean wheel rim speed exceeds this (m/s), as in the course scores
+MOVING_MPS = 0.2
+_SPEED_CHANNELS = (("speed_left_mps", "speed_right_mps"), ("vx",))
 _CLIP = 20.0  # standardised features beyond +-20 sd are clipped (heavy-tailed features)
 #: up to this many windows are scored one by one by :class:`_BoundedSearch` (serving scores one
 #: window per hop: sklearn's search measured ~120 ms per window on the shared 2-core machine, and
@@ -76,6 +87,29 @@ _SLACK = 1e-9
 
 class NoveltyError(ValueError):
     """A novelty scorer cannot be fitted, loaded or applied (the message says why)."""
+
+
+def moving_windows(W, min_speed_mps: float = MOVING_MPS) -> np.ndarray:
+    """Boolean (n,): windows whose mean rim speed (side channels; else |vx|) exceeds the line.
+
+    Raises ValueError naming the channels looked for when the windows have no speed channel.
+    """
+    mask = moving_mask(W, min_speed_mps)
+    if mask is None:
+        raise ValueError(f"windows have none of the speed channels {_SPEED_CHANNELS} "
+                         f"(channels: {list(getattr(W, 'channels', []))})")
+    return mask
+
+
+def moving_mask(W, min_speed_mps: float = MOVING_MPS) -> np.ndarray | None:
+    """:func:`moving_windows`, or None when ``W`` has no speed channel (then no window is gated)."""
+    channels = list(getattr(W, "channels", None) or [])
+    for names in _SPEED_CHANNELS:
+        if all(c in channels for c in names):
+            X = np.asarray(W.X)
+            speed = np.mean([np.abs(X[:, channels.index(c)]).mean(axis=1) for c in names], axis=0)
+            return speed > float(min_speed_mps)
+    return None
 
 
 def model_features(model: Any, X) -> np.ndarray:
@@ -241,6 +275,8 @@ class NoveltyScorer:
     method : one of :data:`METHODS`.
     k : int >= 1, neighbour rank of the ``knn`` / ``class_knn`` distance.
     threshold : float or None, scores above it are flagged unknown (set by :func:`fit_novelty`).
+    moving_mps : float or None, only windows whose mean rim speed exceeds it are flagged (set by
+        :func:`fit_novelty` when the windows carry wheel speeds; None: every window can be).
 
     Attributes (after :meth:`fit`)
     ------------------------------
@@ -250,12 +286,14 @@ class NoveltyScorer:
     precision_, mean_ : Mahalanobis precision (F, F) and mean (F,) (``mahalanobis``).
     """
 
-    def __init__(self, method: str = DEFAULT_METHOD, k: int = DEFAULT_K, threshold: float | None = None):
+    def __init__(self, method: str = DEFAULT_METHOD, k: int = DEFAULT_K, threshold: float | None = None,
+                 moving_mps: float | None = None):
         if method not in METHODS:
             raise NoveltyError(f"unknown novelty method {method!r}; expected one of {METHODS}")
         if int(k) < 1:
             raise NoveltyError("novelty k must be >= 1")
         self.method, self.k, self.threshold = method, int(k), threshold
+        self.moving_mps = None if moving_mps is None else float(moving_mps)
 
     # ------------------------------------------------------------------ fit / score
     def fit(self, F: np.ndarray, y: np.ndarray) -> "NoveltyScorer":
@@ -347,11 +385,25 @@ class NoveltyScorer:
         return np.min([nn.kneighbors(self._queries(Z, j))[0][:, -1] for j, nn in enumerate(self._neighbours())],
                       axis=0)
 
-    def is_unknown(self, F: np.ndarray) -> np.ndarray:
-        """Boolean (n,): score above the threshold."""
+    def is_unknown(self, F: np.ndarray, moving: np.ndarray | None = None) -> np.ndarray:
+        """Boolean (n,): score above the threshold, and, with the moving gate (``moving_mps``),
+        the window moving (``moving``, bool (n,), from :func:`moving_windows` at ``moving_mps``)."""
         if self.threshold is None:
             raise NoveltyError("novelty: no threshold set (fit it with fit_novelty)")
-        return self.score(F) > self.threshold
+        return self.flag(self.score(F), moving)
+
+    def flag(self, scores: np.ndarray, moving: np.ndarray | None = None) -> np.ndarray:
+        """Boolean (n,) flags of scores (n,): over the threshold and, when gated, moving.
+
+        NoveltyError when the scorer is gated and ``moving`` is not given (a window's speed
+        decides whether it can be flagged)."""
+        over = np.asarray(scores, dtype=np.float64) > float(self.threshold)  # type: ignore[arg-type]
+        if self.moving_mps is None:
+            return over
+        if moving is None:
+            raise NoveltyError(f"novelty: the score is gated on moving windows (rim speed > {self.moving_mps} "
+                               "m/s); pass each window's moving flag")
+        return over & np.asarray(moving, dtype=bool)
 
     # ------------------------------------------------------------------ persistence
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -366,7 +418,7 @@ class NoveltyScorer:
 
     def config(self) -> dict:
         """JSON-able settings (the manifest's ``novelty`` entry, with the caller's fields)."""
-        return {"method": self.method, "k": self.k, "threshold": self.threshold,
+        return {"method": self.method, "k": self.k, "threshold": self.threshold, "moving_mps": self.moving_mps,
                 "n_features": int(len(self.center_)), "n_reference": int(len(self.reference_)),
                 "classes": [int(c) for c in self.classes_]}
 
@@ -384,7 +436,7 @@ class NoveltyScorer:
         path = Path(path)
         try:
             a = load_file(str(path))
-            s = cls(str(config["method"]), int(config["k"]), config.get("threshold"))
+            s = cls(str(config["method"]), int(config["k"]), config.get("threshold"), config.get("moving_mps"))
         except (KeyError, TypeError) as exc:
             raise NoveltyError(f"{path}: novelty entry of the manifest lacks {exc}") from None
         except Exception as exc:  # noqa: BLE001 - safetensors raises its own error types
@@ -414,8 +466,8 @@ class NoveltyScorer:
         return ["center", "scale", "reference", "reference_y", "classes", *extra.get(self.method, [])]
 
 
-def fit_novelty(F: np.ndarray, y, groups, *, method: str = DEFAULT_METHOD, k: int = DEFAULT_K,
-                false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int = 3,
+def fit_novelty(F: np.ndarray, y, groups, *, moving: np.ndarray | None = None, method: str = DEFAULT_METHOD,
+                k: int = DEFAULT_K, false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int = 3,
                 seed: int = 0) -> tuple[NoveltyScorer, dict]:
     """Fit a scorer on training features and set its threshold in inner grouped folds.
 
@@ -423,6 +475,8 @@ def fit_novelty(F: np.ndarray, y, groups, *, method: str = DEFAULT_METHOD, k: in
     ----------
     F : ndarray (n, F), the model's features of the training windows (:func:`model_features`).
     y : array (n,), labels. groups : array (n,), run ids (an inner fold never splits a run).
+    moving : bool (n,) or None, the moving windows (:func:`moving_mask`): given, the threshold is
+        set on the moving held-out windows only and the scorer gets the gate ``moving_mps``.
     method, k : see :class:`NoveltyScorer`.
     false_alarm : target share of held-out known windows above the threshold, in (0, 0.5).
     inner_folds : grouped folds of the training windows. seed : their seed.
@@ -436,15 +490,18 @@ def fit_novelty(F: np.ndarray, y, groups, *, method: str = DEFAULT_METHOD, k: in
         raise NoveltyError(f"novelty false_alarm must be in (0, 0.5), got {false_alarm}")
     F = np.asarray(F, dtype=np.float64)
     y, groups = np.asarray(y), np.asarray(groups)
+    judged = np.ones(len(y), dtype=bool) if moving is None else np.asarray(moving, dtype=bool)
     oof = []
     for tr, te in inner_splits(y, groups, inner_folds, seed):
-        known = np.isin(y[te], np.unique(y[tr]))  # a class absent from the inner training is not "known"
+        # a class absent from the inner training is not "known"; a window standing still is not judged
+        known = np.isin(y[te], np.unique(y[tr])) & judged[te]
         if known.any():
             oof.append(NoveltyScorer(method, k).fit(F[tr], y[tr]).score(F[te][known]))
     if not oof:
-        raise NoveltyError("novelty: no inner fold tests a known class (too few runs per class)")
+        raise NoveltyError("novelty: no inner fold tests a known class" + ("" if moving is None else " moving")
+                           + " (too few runs per class)")
     oof = np.concatenate(oof)
-    scorer = NoveltyScorer(method, k).fit(F, y)
+    scorer = NoveltyScorer(method, k, moving_mps=None if moving is None else MOVING_MPS).fit(F, y)
     scorer.threshold = float(np.quantile(oof, 1.0 - float(false_alarm)))
     return scorer, {"false_alarm_target": float(false_alarm), "inner_folds": int(inner_folds),
                     "inner_scores_n": int(len(oof)), "seed": int(seed)}
@@ -491,7 +548,7 @@ class OpenSetModel(ClassifierMixin, BaseEstimator):
         self.model_ = clone(self.base)
         self.model_.fit(X, y, groups=groups)
         self.scorer_, self.novelty_info_ = fit_novelty(
-            model_features(self.model_, X), y, groups, method=self.method, k=self.k,
+            model_features(self.model_, X), y, groups, moving=moving_mask(X), method=self.method, k=self.k,
             false_alarm=self.false_alarm, inner_folds=self.inner_folds, seed=self.random_state)
         self.novelty_threshold_ = float(self.scorer_.threshold)
         self.classes_ = np.asarray(self.model_.classes_)
@@ -512,6 +569,6 @@ class OpenSetModel(ClassifierMixin, BaseEstimator):
 
 def fit_model_novelty(model: Any, W, seed: int = 0, **kwargs: Any) -> tuple[NoveltyScorer, dict]:
     """:func:`fit_novelty` on a fitted model's features of its training windows ``W`` (labels
-    ``W.y``, runs ``W.groups``); ``kwargs`` as there. NoveltyError for a model without a feature
-    space (a CNN)."""
-    return fit_novelty(model_features(model, W), W.y, W.groups, seed=seed, **kwargs)
+    ``W.y``, runs ``W.groups``, moving windows :func:`moving_mask` of its wheel speeds);
+    ``kwargs`` as there. NoveltyError for a model without a feature space (a CNN)."""
+    return fit_novelty(model_features(model, W), W.y, W.groups, moving=moving_mask(W), seed=seed, **kwargs)

@@ -35,7 +35,7 @@ from terrainml.features.windows import RULES, Windows, WindowSpec, channel_colum
 from terrainml.lookup.catalogue import BUILTIN_CATALOGUES
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import load_artifact
-from terrainml.models.novelty import NoveltyScorer, proba_and_features
+from terrainml.models.novelty import NoveltyScorer, moving_windows, proba_and_features
 from terrainml.robot import RobotSpec
 
 log = logging.getLogger("terrainml.stream")
@@ -186,16 +186,20 @@ class WindowClassifier:
             self.last_novelty = None
         else:  # the model's features are computed once, for its probabilities and the score
             p, F = proba_and_features(self.model, x)
-            self.last_novelty = self._novelty(F)
+            self.last_novelty = self._novelty(F, wins)
         return np.asarray(p, dtype=float)[-1]
 
-    def _novelty(self, F: np.ndarray) -> tuple[float, bool]:
+    def _novelty(self, F: np.ndarray, wins: Windows) -> tuple[float, bool]:
         """(score / threshold, flagged) of the latest window, the last row of its features F
-        (n, F) in the model's feature space."""
-        score = float(self.novelty.score(F)[-1])  # type: ignore[union-attr]
+        (n, F) in the model's feature space; with the scorer's moving gate, a window at or under
+        its rim speed (``wins``, the cut windows) is never flagged, as in training."""
+        scorer = self.novelty
+        score = float(scorer.score(F)[-1])  # type: ignore[union-attr]
         thr = float(self._threshold)  # type: ignore[arg-type]
         ratio = score / thr if thr > 0 else (math.inf if score > thr else 0.0)
-        return (ratio if math.isfinite(ratio) else 1e6), bool(score > thr)
+        moving = None if scorer.moving_mps is None else moving_windows(wins, scorer.moving_mps)[-1:]  # type: ignore[union-attr]
+        flagged = bool(scorer.flag(np.array([score]), moving)[0])  # type: ignore[union-attr]
+        return (ratio if math.isfinite(ratio) else 1e6), flagged
 
 
 def _leaves(d: Any, prefix: str = "") -> dict[str, Any]:

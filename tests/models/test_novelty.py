@@ -148,3 +148,28 @@ def test_reach_is_the_unknown_share_over_the_threshold_that_flags_the_false_alar
     # ties at the threshold are not flagged: a flag is strictly above it
     assert flagged_at_false_alarm(np.ones(100), np.array([1.0, 2.0]), 0.05) == 0.5
     assert np.isnan(flagged_at_false_alarm(known, np.array([]), 0.05))
+
+
+def test_moving_gate_sets_the_threshold_on_moving_windows_and_never_flags_standing_still(tmp_path):
+    """Standing-still windows (a third of each run, moved 6 sd off along an axis) are judged by no
+    one: with the gate the threshold is the moving windows' own (about the target share of new
+    moving known windows flagged), and a standing-still window is never flagged."""
+    rng = np.random.default_rng(4)
+    F, y, g = _clusters(rng, n_per_run=60)
+    still = np.arange(len(y)) % 3 == 0
+    F[still, 2] += 6.0
+    ungated, _ = fit_novelty(F, y, g, k=5, false_alarm=0.05, inner_folds=4, seed=0)
+    gated, _ = fit_novelty(F, y, g, moving=~still, k=5, false_alarm=0.05, inner_folds=4, seed=0)
+    assert ungated.moving_mps is None and gated.moving_mps is not None
+    fresh, _, _ = _clusters(np.random.default_rng(5), n_per_run=60)  # new runs, all moving
+    moving = np.ones(len(fresh), dtype=bool)
+    # over all windows the far standing-still ones set the line: almost no moving window reaches it
+    assert gated.threshold < ungated.threshold
+    assert gated.is_unknown(fresh, moving).mean() <= 0.10
+    shifted = fresh + np.array([0.0, 2.5, 0, 0, 0, 0])  # new ground: 2.5 sd off on an axis no class varies on
+    assert gated.is_unknown(shifted, moving).mean() > ungated.is_unknown(shifted).mean()
+    assert not gated.is_unknown(shifted, ~moving).any()
+    with pytest.raises(NoveltyError, match="moving"):
+        gated.is_unknown(shifted)
+    back = NoveltyScorer.load(gated.save(tmp_path), gated.config())
+    assert back.moving_mps == gated.moving_mps
