@@ -36,6 +36,47 @@ Examples:
 """
 
 
+# --help texts of `predict`'s longer options
+_TRUSTED_KEY_HELP = (
+    'Public key (KEY.pub from `terrainml model keygen`); the model must be signed by it (`terrainml model'
+    ' sign`), else it is refused. Repeat for several.')
+_TOPICS_HELP = (
+    'Log or ros2:// source: topic map YAML (or built-in name: default, husky_robot_localization, '
+    'husky_ros2) saying which topics feed which columns, as for `terrainml ingest`.')
+_FORMAT_HELP = (
+    'CSV/Parquet source: dataset spec (built-in name: borealtc, or SPEC.yaml) giving its column names, '
+    'units and scales (e.g. m/s wheel speeds -> rad/s) and side-to-wheel mapping; the source is one file '
+    'of a run, as for `terrainml ingest --format`.')
+_RECORD_UNKNOWN_HELP = (
+    "Folder (created): write every stretch served unknown_terrain (ground unlike the model's training "
+    'windows) as a run: its canonical rows (unknown_*.parquet, terrain -1; or unknown_*.mcap with '
+    '--record-format mcap) and a JSON sidecar (t_s span, distance, model, mean novelty). Label it '
+    '(`terrainml dataset label`, docs/stream.md "Unknown ground") and `terrainml dataset build` takes it.'
+    ' A failed write is counted in the summary, never stops serving.')
+_RECORD_FORMAT_HELP = (
+    'With --record-unknown: parquet (default; a run table that `terrainml dataset label` labels as is) or'
+    " mcap (a ROS 2 MCAP log of the stretch with the default topic map's messages, stamped with the "
+    "samples' ROS time, to open in Foxglove or replay; to label it, `terrainml ingest` it to Parquet "
+    'beside its sidecar first).')
+_CLOSED_SET_HELP = (
+    "Serve without the model's novelty score: every window is served as one of the model's classes, never"
+    ' unknown_terrain (the behaviour before unknown-ground detection; for comparison, or a model whose '
+    'training runs covered all the ground it will meet).')
+
+
+def _record_format(record_format: Optional[str], record_unknown: Optional[Path]) -> str:
+    """The recorder's format from ``--record-format`` (exit 2 without ``--record-unknown`` or
+    for a format the recorder does not write)."""
+    from terrainml.stream.recorder import RECORD_FORMATS
+
+    if record_format is not None and record_unknown is None:
+        fail(f"--record-format {record_format}: needs --record-unknown DIR (the folder to record into)")
+    fmt_rec = (record_format or RECORD_FORMATS[0]).strip().lower()
+    if fmt_rec not in RECORD_FORMATS:
+        fail(f"--record-format {record_format!r}: expected one of {', '.join(RECORD_FORMATS)}")
+    return fmt_rec
+
+
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the top-level app."""
 
@@ -70,48 +111,28 @@ def register(app: typer.Typer) -> None:
             help="Clock policy: consistent samples on a new timeline before the stream re-anchors."),
         trusted_key: Optional[List[Path]] = typer.Option(
             None, "--trusted-key",
-            help="Public key (KEY.pub from `terrainml model keygen`); the model must be signed by it "
-                 "(`terrainml model sign`), else it is refused. Repeat for several."),
+            help=_TRUSTED_KEY_HELP),
         topics: Optional[str] = typer.Option(
             None, "--topics",
-            help="Log or ros2:// source: topic map YAML (or built-in name: default, "
-                 "husky_robot_localization, husky_ros2) saying which topics feed which columns, as for "
-                 "`terrainml ingest`."),
+            help=_TOPICS_HELP),
         fmt: Optional[str] = typer.Option(
             None, "--format", "--spec",
-            help="CSV/Parquet source: dataset spec (built-in name: borealtc, or SPEC.yaml) giving its "
-                 "column names, units and scales (e.g. m/s wheel speeds -> rad/s) and side-to-wheel "
-                 "mapping; the source is one file of a run, as for `terrainml ingest --format`."),
+            help=_FORMAT_HELP),
         allow_outside: bool = typer.Option(False, "--allow-outside-spec-dir", help=ALLOW_OUTSIDE_HELP),
         record_unknown: Optional[Path] = typer.Option(
             None, "--record-unknown",
-            help="Folder (created): write every stretch served unknown_terrain (ground unlike the model's "
-                 "training windows) as a run: its canonical rows (unknown_*.parquet, terrain -1; or "
-                 "unknown_*.mcap with --record-format mcap) and a JSON sidecar (t_s span, distance, model, "
-                 "mean novelty). Label it (`terrainml dataset label`, docs/stream.md \"Unknown ground\") and "
-                 "`terrainml dataset build` takes it. A failed write is counted in the summary, never stops "
-                 "serving."),
+            help=_RECORD_UNKNOWN_HELP),
         record_format: Optional[str] = typer.Option(
             None, "--record-format",
-            help="With --record-unknown: parquet (default; a run table that `terrainml dataset label` "
-                 "labels as is) or mcap (a ROS 2 MCAP log of the stretch with the default topic map's "
-                 "messages, stamped with the samples' ROS time, to open in Foxglove or replay; to label "
-                 "it, `terrainml ingest` it to Parquet beside its sidecar first)."),
+            help=_RECORD_FORMAT_HELP),
         closed_set: bool = typer.Option(
             False, "--closed-set",
-            help="Serve without the model's novelty score: every window is served as one of the model's "
-                 "classes, never unknown_terrain (the behaviour before unknown-ground detection; for "
-                 "comparison, or a model whose training runs covered all the ground it will meet)."),
+            help=_CLOSED_SET_HELP),
     ) -> None:
         from terrainml.stream.config import ServingConfig
-        from terrainml.stream.recorder import RECORD_FORMATS
         from terrainml.stream.runner import CLASSIFY_LAG_TICKS, run_predict
 
-        if record_format is not None and record_unknown is None:
-            fail(f"--record-format {record_format}: needs --record-unknown DIR (the folder to record into)")
-        fmt_rec = (record_format or RECORD_FORMATS[0]).strip().lower()
-        if fmt_rec not in RECORD_FORMATS:
-            fail(f"--record-format {record_format!r}: expected one of {', '.join(RECORD_FORMATS)}")
+        fmt_rec = _record_format(record_format, record_unknown)
         # resolved here, once: the stream takes a RobotSpec and a ServingConfig
         config = ServingConfig(preset=preset, max_clock_gap_s=max_clock_gap_s,
                                reanchor_after=reanchor_after, classify_lag_ticks=CLASSIFY_LAG_TICKS,

@@ -472,6 +472,39 @@ class RosMcapWriter:
 
 
 # ----------------------------------------------------------------------------- export
+def _column(df: pd.DataFrame, name: str, default: float = np.nan) -> np.ndarray:
+    """Column ``name`` as floats, or ``default`` on every row when the table has none."""
+    return df[name].to_numpy(float) if name in df else np.full(len(df), default)
+
+
+def _imu_messages(df: pd.DataFrame, robot: RobotSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(acceleration (n, 3), angular rate (n, 3), orientation xyzw (n, 4)) in the IMU's own axes:
+    the body vectors rotated back through the mount; the yaw, when the table has it, as the
+    orientation (:func:`_imu_orientation`), else identity."""
+    mount = Rotation.from_euler("xyz", [robot.imu.roll_rad, robot.imu.pitch_rad, robot.imu.yaw_rad])
+    rot_inv = mount.inv()
+    acc = rot_inv.apply(np.column_stack([_column(df, f"imu_a{a}_mps2") for a in "xyz"]))
+    gyr = rot_inv.apply(np.column_stack([_column(df, "imu_roll_rate_radps", 0.0),
+                                         _column(df, "imu_pitch_rate_radps", 0.0), _column(df, "imu_yaw_rate_radps")]))
+    imu_q = _imu_orientation(_column(df, "imu_yaw_rad"), mount) if "imu_yaw_rad" in df else \
+        np.tile([0.0, 0.0, 0.0, 1.0], (len(df), 1))
+    return acc, gyr, imu_q
+
+
+def _camera_messages(df: pd.DataFrame, t: np.ndarray, robot: RobotSpec) -> tuple[dict, np.ndarray]:
+    """(T265 odometry fields per row, confidence (n,)) of the camera rows: the robot pose
+    integrated from the camera yaw and velocities, through the camera mount."""
+    mount = (robot.camera.x_m, robot.camera.y_m, robot.camera.z_m)  # type: ignore[union-attr]
+    yaw = np.nan_to_num(_column(df, "cam_yaw_rad"))
+    yaw_rate = np.nan_to_num(_column(df, "cam_yaw_rate_radps"))
+    vx, vy = t265.robot_velocity_from_mount(np.nan_to_num(_column(df, "cam_vx_mps")),
+                                            np.nan_to_num(_column(df, "cam_vy_mps")), yaw_rate, mount[:2])
+    dt = np.diff(t, prepend=t[0])
+    xw = np.cumsum(dt * (vx * np.cos(yaw) - vy * np.sin(yaw)))
+    yw = np.cumsum(dt * (vx * np.sin(yaw) + vy * np.cos(yaw)))
+    return t265.body_to_t265_odometry(xw, yw, yaw, vx, vy, yaw_rate, mount), _column(df, "cam_confidence", 3.0)
+
+
 def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec, *,
                    start_time_ns: int = 1_700_000_000_000_000_000, metadata: dict | None = None) -> Path:
     """Write a canonical run table to a ROS 2 MCAP with the default topic map's messages.
@@ -504,32 +537,18 @@ def write_run_mcap(table: pd.DataFrame, path: str | Path, robot: RobotSpec, *,
     n = robot.n_wheels
     df = validate_run_table(table, n)
     t = df["t_s"].to_numpy(float)
-    mount = Rotation.from_euler("xyz", [robot.imu.roll_rad, robot.imu.pitch_rad, robot.imu.yaw_rad])
-    rot_inv = mount.inv()
 
     def col(name, default=np.nan):
-        return df[name].to_numpy(float) if name in df else np.full(len(df), default)
+        return _column(df, name, default)
 
     def valid(g):
         c = valid_column(g).name
         return df[c].to_numpy(bool) if c in df else np.zeros(len(df), bool)
 
-    acc = rot_inv.apply(np.column_stack([col("imu_ax_mps2"), col("imu_ay_mps2"), col("imu_az_mps2")]))
-    imu_q = _imu_orientation(col("imu_yaw_rad"), mount) if "imu_yaw_rad" in df else \
-        np.tile([0.0, 0.0, 0.0, 1.0], (len(df), 1))
-    gyr = rot_inv.apply(np.column_stack([col("imu_roll_rate_radps", 0.0), col("imu_pitch_rate_radps", 0.0),
-                                         col("imu_yaw_rate_radps")]))
+    acc, gyr, imu_q = _imu_messages(df, robot)
     has_cam = "cam_vx_mps" in df and valid("cam").any() and robot.camera is not None
     if has_cam:
-        mount = (robot.camera.x_m, robot.camera.y_m, robot.camera.z_m)
-        yaw = np.nan_to_num(col("cam_yaw_rad"))
-        vx, vy = t265.robot_velocity_from_mount(np.nan_to_num(col("cam_vx_mps")), np.nan_to_num(col("cam_vy_mps")),
-                                                np.nan_to_num(col("cam_yaw_rate_radps")), mount[:2])
-        dt = np.diff(t, prepend=t[0])
-        xw = np.cumsum(dt * (vx * np.cos(yaw) - vy * np.sin(yaw)))
-        yw = np.cumsum(dt * (vx * np.sin(yaw) + vy * np.cos(yaw)))
-        msg = t265.body_to_t265_odometry(xw, yw, yaw, vx, vy, np.nan_to_num(col("cam_yaw_rate_radps")), mount)
-        conf = col("cam_confidence", 3.0)
+        msg, conf = _camera_messages(df, t, robot)
     wv, sv, cv, iv, camv, cmdv = (valid(g) for g in ("wheels", "steer", "current", "imu", "cam", "cmd"))
     omega = np.column_stack([col(wheel_col("omega", i)) for i in range(1, n + 1)])
     steer = np.column_stack([col(wheel_col("steer", i), 0.0) for i in range(1, n + 1)])

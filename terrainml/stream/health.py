@@ -93,6 +93,14 @@ class InputCounters:
     def dropped(self) -> int:
         return self.duplicate + self.out_of_order + self.bad_time + self.not_a_sample
 
+    def count_invalid(self, reason: str) -> None:
+        """Count an :class:`~terrainml.stream.sample.InvalidSample` by its ``reason``: a ``t_s``
+        that is missing, not a number or not finite is ``bad_time``, anything else ``not_a_sample``."""
+        if reason in ("no_t_s", "bad_t_s", "t_s_not_finite"):
+            self.bad_time += 1
+        else:
+            self.not_a_sample += 1
+
     def as_dict(self) -> dict[str, Any]:
         return {"accepted": self.accepted, "duplicate": self.duplicate,
                 "out_of_order": self.out_of_order, "bad_time": self.bad_time,

@@ -62,9 +62,6 @@ __all__ = ["InvalidSample", "Predictor"]
 
 log = logging.getLogger("terrainml.stream")
 
-_TIME_REASONS = ("no_t_s", "bad_t_s", "t_s_not_finite")
-
-
 class Estimator(Protocol):
     def step(self, sample: dict) -> dict: ...
 
@@ -208,10 +205,7 @@ class Predictor:
         try:
             t = check_sample(sample)
         except InvalidSample as exc:
-            if exc.reason in _TIME_REASONS:
-                self.counters.bad_time += 1
-            else:
-                self.counters.not_a_sample += 1
+            self.counters.count_invalid(exc.reason)
             raise
         verdict = self.clock.check(t)
         if verdict == JUMP:
