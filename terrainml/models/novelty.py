@@ -385,19 +385,14 @@ class NoveltyScorer:
         return np.min([nn.kneighbors(self._queries(Z, j))[0][:, -1] for j, nn in enumerate(self._neighbours())],
                       axis=0)
 
-    def is_unknown(self, F: np.ndarray, moving: np.ndarray | None = None) -> np.ndarray:
-        """Boolean (n,): score above the threshold, and, with the moving gate (``moving_mps``),
-        the window moving (``moving``, bool (n,), from :func:`moving_windows` at ``moving_mps``)."""
-        if self.threshold is None:
-            raise NoveltyError("novelty: no threshold set (fit it with fit_novelty)")
-        return self.flag(self.score(F), moving)
-
     def flag(self, scores: np.ndarray, moving: np.ndarray | None = None) -> np.ndarray:
         """Boolean (n,) flags of scores (n,): over the threshold and, when gated, moving.
 
         NoveltyError when the scorer is gated and ``moving`` is not given (a window's speed
         decides whether it can be flagged)."""
-        over = np.asarray(scores, dtype=np.float64) > float(self.threshold)  # type: ignore[arg-type]
+        if self.threshold is None:
+            raise NoveltyError("novelty: no threshold set (fit it with fit_novelty)")
+        over = np.asarray(scores, dtype=np.float64) > float(self.threshold)
         if self.moving_mps is None:
             return over
         if moving is None:

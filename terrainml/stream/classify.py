@@ -134,11 +134,15 @@ class WindowClassifier:
     class_ids : class ids of the probabilities (default ``model.classes_``).
     novelty : the model's fitted :class:`~terrainml.models.novelty.NoveltyScorer` with its
         threshold, or None (no novelty: ``last_novelty`` stays None).
+    class_names : names by class id (``class_names[cid]``, the served message's ``terrain_name``),
+        or None (the predictor then names ids as the reference's eight classes).
     """
 
     def __init__(self, model: Any, robot: RobotSpec, features: Any, window_spec: WindowSpec,
-                 class_ids: Sequence[int] | None = None, novelty: NoveltyScorer | None = None):
+                 class_ids: Sequence[int] | None = None, novelty: NoveltyScorer | None = None,
+                 class_names: Sequence[str] | None = None):
         self.model = model
+        self.class_names = None if class_names is None else list(class_names)
         self.robot = robot
         self.features = features
         self.window_spec = window_spec
@@ -286,7 +290,7 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | None = None,
         names[cid] = name
     clf = WindowClassifier(art.model, rb, art.features, art.window_spec,
                            class_ids=[int(c) for c in art.model.classes_],
-                           novelty=art.novelty if open_set else None)
+                           novelty=art.novelty if open_set else None, class_names=names)
     return ServingModel(rb, table, clf, art.preset or "robust", names, art.window_spec,
                         sensors=None if art.sensors is None else list(art.sensors),
                         members=_members(art, rb, clf.class_ids, open_set))

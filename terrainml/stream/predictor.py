@@ -75,7 +75,9 @@ class Predictor:
     table : desired-slip table with ``target(class_id, state) -> float``
         (:class:`terrainml.lookup.table.DesiredSlipTable`).
     classifier : object with ``class_ids`` and ``classify(window_df) -> probs | None``
-        (:class:`terrainml.stream.classify.WindowClassifier`), or None (always fallback).
+        (:class:`terrainml.stream.classify.WindowClassifier`), or None (always fallback). Its
+        ``class_names`` (names by class id), when it has them, name the served classes; else the
+        eight of design §6.1.
     estimator : object with ``step(sample) -> dict`` (an EST row); default
         ``OnlineEstimator(robot, preset)``. On a re-anchor a built one is built afresh, an
         injected one is ``reset()`` if it has that method, else kept.
@@ -83,7 +85,6 @@ class Predictor:
         serving: its window length sizes the ring buffer, its online hop the classification
         rate. None: the classifier's ``window_spec``, else ``WindowSpec()`` (2.0 s, hop 0.5 s,
         100 Hz). A classifier that cuts another spec is refused (ValueError).
-    class_names : names of all class ids (default the eight of design §6.1).
     sensors : sensor groups the model needs (health is checked on these; None: all the robot's).
     config : :class:`~terrainml.stream.config.ServingConfig` (fallback rules, fusion, clock
         policy, classification thread, EKF preset); default ``ServingConfig()``.
@@ -95,8 +96,8 @@ class Predictor:
     def __init__(self, robot: RobotSpec, table: TargetTable,
                  classifier: WindowClassifierLike | None = None,
                  estimator: Estimator | None = None, *, window_spec: WindowSpec | None = None,
-                 class_names: Sequence[str] = TERRAIN_CLASSES, sensors: Sequence[str] | None = None,
-                 config: ServingConfig | None = None, members: Sequence[ServingMember] = ()):
+                 sensors: Sequence[str] | None = None, config: ServingConfig | None = None,
+                 members: Sequence[ServingMember] = ()):
         cfg = config or ServingConfig()
         preset = cfg.preset or "robust"
         self.robot, self.table, self.classifier, self.config = robot, table, classifier, cfg
@@ -108,7 +109,8 @@ class Predictor:
             self._estimator_factory = partial(OnlineEstimator, robot, preset)
             estimator = self._estimator_factory()
         self.estimator = estimator
-        self.class_names = list(class_names)
+        # names by class id: the classifier's (a loaded model's own), else the reference's eight
+        self.class_names = list(getattr(classifier, "class_names", None) or TERRAIN_CLASSES)
         self.counters = InputCounters()
         self.clock = ClockGate(self.counters, max_gap_s=cfg.max_clock_gap_s,
                                reanchor_after=cfg.reanchor_after)
@@ -164,9 +166,8 @@ class Predictor:
         cfg = config or ServingConfig()
         served = load_serving_model(model_dir, robot, trusted_keys=trusted_keys, open_set=cfg.open_set)
         return cls(served.robot, served.table, served.classifier,
-                   window_spec=served.window_spec, class_names=served.class_names,
-                   sensors=served.sensors, config=replace(cfg, preset=cfg.preset or served.preset),
-                   members=served.members)
+                   window_spec=served.window_spec, sensors=served.sensors,
+                   config=replace(cfg, preset=cfg.preset or served.preset), members=served.members)
 
     @property
     def odometer_m(self) -> float:

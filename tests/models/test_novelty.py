@@ -33,9 +33,9 @@ def test_far_windows_score_above_known_ones_and_threshold_meets_target(method):
     far = rng.normal(size=(200, 6))
     far[:, 1] += 8.0  # 8 sd away along an axis no class varies on
     assert scorer.score(far).min() > np.quantile(scorer.score(fresh), 0.99)
-    flagged = scorer.is_unknown(fresh).mean()
+    flagged = scorer.flag(scorer.score(fresh)).mean()
     assert flagged <= 0.10  # target 5 %; the final scorer has more references than the inner ones
-    assert scorer.is_unknown(far).all()
+    assert scorer.flag(scorer.score(far)).all()
     assert info["false_alarm_target"] == 0.05
 
 
@@ -165,11 +165,11 @@ def test_moving_gate_sets_the_threshold_on_moving_windows_and_never_flags_standi
     moving = np.ones(len(fresh), dtype=bool)
     # over all windows the far standing-still ones set the line: almost no moving window reaches it
     assert gated.threshold < ungated.threshold
-    assert gated.is_unknown(fresh, moving).mean() <= 0.10
+    assert gated.flag(gated.score(fresh), moving).mean() <= 0.10
     shifted = fresh + np.array([0.0, 2.5, 0, 0, 0, 0])  # new ground: 2.5 sd off on an axis no class varies on
-    assert gated.is_unknown(shifted, moving).mean() > ungated.is_unknown(shifted).mean()
-    assert not gated.is_unknown(shifted, ~moving).any()
+    assert gated.flag(gated.score(shifted), moving).mean() > ungated.flag(ungated.score(shifted)).mean()
+    assert not gated.flag(gated.score(shifted), ~moving).any()
     with pytest.raises(NoveltyError, match="moving"):
-        gated.is_unknown(shifted)
+        gated.flag(gated.score(shifted))
     back = NoveltyScorer.load(gated.save(tmp_path), gated.config())
     assert back.moving_mps == gated.moving_mps

@@ -118,11 +118,12 @@ def test_safe_cap_is_served_on_fallback_with_reason_and_no_class():
 
     class Never(FakeClassifier):
         class_ids = ids
+        class_names = table.class_names
 
         def classify(self, window):
             return None
 
-    pred = Predictor(robot, table, Never(), FakeEstimator(robot), class_names=table.class_names)
+    pred = Predictor(robot, table, Never(), FakeEstimator(robot))
     out = [pred.step(s) for s in make_samples(robot, 1.0)]
     m = out[-1]
     assert m.fallback and m.fallback_reason == "no_classification"
