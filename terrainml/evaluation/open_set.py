@@ -142,8 +142,10 @@ def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequen
     OpenSetResult
     """
     y, groups = W.y, W.groups
-    moving = moving_windows(W) if moving is None else np.asarray(moving, dtype=bool)
     gate = moving_mask(W)  # what OpenSetModel gates on (the same windows' wheel speeds)
+    if moving is None:  # the gate is the default moving mask; without speed channels, say so
+        moving = gate if gate is not None else moving_windows(W)
+    moving = np.asarray(moving, dtype=bool)
     rows, scores, flagged = [], {}, {}
     for u, name in zip(classes, class_names):
         if progress:

@@ -40,6 +40,7 @@ import numpy as np
 
 from terrainml.robot import RobotSpec
 from terrainml.schema import VALID_GROUPS, column_map, group_columns, physical_limit
+from terrainml.stream.sample import TIME_REASONS
 
 _NAN = float("nan")
 log = logging.getLogger("terrainml.stream")
@@ -96,7 +97,7 @@ class InputCounters:
     def count_invalid(self, reason: str) -> None:
         """Count an :class:`~terrainml.stream.sample.InvalidSample` by its ``reason``: a ``t_s``
         that is missing, not a number or not finite is ``bad_time``, anything else ``not_a_sample``."""
-        if reason in ("no_t_s", "bad_t_s", "t_s_not_finite"):
+        if reason in TIME_REASONS:
             self.bad_time += 1
         else:
             self.not_a_sample += 1

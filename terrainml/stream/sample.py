@@ -24,6 +24,9 @@ INVALID_REASONS: tuple[str, ...] = (
     "t_s_not_finite",  # t_s is NaN, +-inf, or an integer too large for a float
 )
 
+#: the reasons about ``t_s`` (counted as ``bad_time``; the others as ``not_a_sample``)
+TIME_REASONS: tuple[str, ...] = ("no_t_s", "bad_t_s", "t_s_not_finite")
+
 
 class InvalidSample(ValueError):
     """The argument of ``Predictor.step`` is not a sample; ``reason`` is one of :data:`INVALID_REASONS`."""
