@@ -120,7 +120,7 @@ def flagged_at_false_alarm(known: np.ndarray, unknown: np.ndarray, false_alarm: 
 
 def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequence, class_names: Sequence[str],
                         moving: np.ndarray | None = None, method: str = DEFAULT_METHOD, k: int = DEFAULT_K,
-                        false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int = 3, seed: int = 0,
+                        false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int | None = None, seed: int = 0,
                         n_jobs: int | None = 1,
                         progress: Callable[[str], None] | None = None) -> OpenSetResult:
     """Each class held out of training in turn, scored as the unknown.
@@ -176,7 +176,8 @@ def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequen
         })
         scores[name], flagged[name] = np.where(done, res.novelty, np.nan), flag
     settings = {"method": method, "k": int(k), "false_alarm_target": float(false_alarm),
-                "inner_folds": int(inner_folds), "folds": len(folds), "seed": int(seed),
+                "inner_folds": "one run out" if inner_folds is None else int(inner_folds), "folds": len(folds),
+                "seed": int(seed),
                 "moving_mps": MOVING_MPS, "reach_false_alarm": REACH_FALSE_ALARM}
     names = dict(zip(classes, class_names))
     windows = pd.DataFrame({"run": np.asarray(groups).astype(str), "label": [names.get(c, str(c)) for c in y],

@@ -98,8 +98,9 @@ def _novelty_lines(result: Any, doc: dict) -> list[str]:
 
 def _open_set_settings(st: dict, folds: str) -> str:
     return (f"Each class in turn held out of training {folds}; novelty `{st['method']}` (k = {st['k']}), "
-            f"threshold at {100 * st['false_alarm_target']:.0f} % false alarms in inner grouped folds of "
-            f"the training windows; moving: rim speed > {st['moving_mps']} m/s.")
+            f"threshold at {100 * st['false_alarm_target']:.0f} % false alarms of the moving known windows in "
+            f"inner grouped folds of the training runs ({st.get('inner_folds', 3)}); moving: rim speed > "
+            f"{st['moving_mps']} m/s.")
 
 
 def write_open_set_report(out: str | Path, result: Any, context: dict) -> dict:

@@ -31,9 +31,17 @@ The threshold (:func:`fit_novelty`) is set in inner grouped folds of the trainin
 the scorer is refit on the training runs of every inner fold and scores the windows of its
 held-out runs (known ground, never seen by that scorer); the threshold is the ``1 -
 false_alarm`` quantile of those out-of-fold scores (of the moving ones, with the gate), so about
-``false_alarm`` of a new run on known ground is flagged. The final scorer is fitted on all
-training windows (a little closer to new known windows than the inner scorers were, so the
-false-alarm share on new runs is at most about the target).
+``false_alarm`` of a new run on known ground is flagged. The inner folds hold one training run
+out at a time (:func:`threshold_splits`): an inner scorer then sees all the training runs but
+one, as the final scorer (fitted on all of them) sees a new run. With three inner folds, whose
+scorers saw two thirds of the runs, held-out windows lay further from their references than a
+new run lies from the final scorer's, and the threshold came out high: it realised 0.9 % false
+alarms of moving known windows on BorealTC for a 3 % target (one run out: 1.7 %), 1.0 % on the
+simulator's tuning runs (1.2 %), and on runs drawn from known Gaussians (the unit test) about
+half the target (one run out: about the target). With few runs per class one run out is still
+cautious (an inner scorer has one run of its class fewer than the final one): the realised share
+stays under the target (``benchmarks/novelty_calibration_study.py``; docs/models.md, "Unknown
+ground").
 
 Persistence (:meth:`NoveltyScorer.save` / :meth:`NoveltyScorer.load`): arrays in one safetensors
 file, settings in the model manifest's ``novelty`` entry (:mod:`terrainml.models.artifacts`),
@@ -49,6 +57,7 @@ import numpy as np
 from safetensors.numpy import load_file, save_file
 from sklearn.base import BaseEstimator, ClassifierMixin, clone
 from sklearn.covariance import LedoitWolf
+from sklearn.model_selection import GroupKFold, LeaveOneGroupOut
 from sklearn.neighbors import NearestNeighbors
 from sklearn.utils.validation import check_is_fitted
 
@@ -57,14 +66,21 @@ from terrainml.models.svm import inner_splits
 
 __all__ = ["NoveltyScorer", "NoveltyError", "OpenSetModel", "model_features", "model_feature_names",
            "proba_and_features",
-           "fit_novelty", "fit_model_novelty", "novelty_of", "METHODS", "DEFAULT_METHOD", "DEFAULT_K",
+           "fit_novelty", "fit_model_novelty", "threshold_splits", "MAX_THRESHOLD_FOLDS", "novelty_of", "METHODS",
+           "DEFAULT_METHOD", "DEFAULT_K",
            "DEFAULT_FALSE_ALARM", "NOVELTY_FILE", "MOVING_MPS", "moving_windows", "moving_mask"]
 
 METHODS = ("knn", "class_knn", "mahalanobis")
 DEFAULT_METHOD = "class_knn"
 DEFAULT_K = 5
-#: target share of known-ground windows flagged (under the 5 % of issue #30, with a margin)
-DEFAULT_FALSE_ALARM = 0.03
+#: target share of moving known-ground windows flagged: the 5 % line of issue #30. Chosen on the
+#: simulator's tuning runs (seed 7, not the evaluation's seed 0), where one run out realised
+#: 1.7 % of moving known windows for it (1.2 % for 3 %); it was 3 % "with a margin" while the
+#: inner folds were three and realised a third of the target (docs/models.md, "Unknown ground")
+DEFAULT_FALSE_ALARM = 0.05
+#: the threshold's inner folds hold one training run out at a time up to this many runs; beyond,
+#: this many grouped folds (each inner scorer still sees 98 % of the runs)
+MAX_THRESHOLD_FOLDS = 50
 #: at most this many reference windows per class are kept (evenly spaced, deterministic)
 MAX_REFERENCE_PER_CLASS = 2000
 NOVELTY_FILE = "novelty.safetensors"
@@ -461,8 +477,26 @@ class NoveltyScorer:
         return ["center", "scale", "reference", "reference_y", "classes", *extra.get(self.method, [])]
 
 
+def threshold_splits(y, groups, inner_folds: int | None = None, seed: int = 0) -> list:
+    """Grouped (train_idx, test_idx) splits whose out-of-fold scores set the threshold.
+
+    ``inner_folds`` None (the default): one run out at a time (``LeaveOneGroupOut``), and with
+    more than :data:`MAX_THRESHOLD_FOLDS` runs that many grouped folds (``GroupKFold``), so each
+    inner scorer sees all the training runs but one (or 98 % of them). An int: that many
+    stratified grouped folds (:func:`~terrainml.models.svm.inner_splits`, seeded).
+    """
+    y, groups = np.asarray(y), np.asarray(groups)
+    if inner_folds is not None:
+        return inner_splits(y, groups, int(inner_folds), seed)
+    n_runs = len(np.unique(groups))
+    if n_runs < 2:
+        raise NoveltyError("novelty: the threshold needs at least 2 training runs (one held out at a time)")
+    split = LeaveOneGroupOut() if n_runs <= MAX_THRESHOLD_FOLDS else GroupKFold(MAX_THRESHOLD_FOLDS)
+    return list(split.split(np.zeros(len(y)), y, groups))
+
+
 def fit_novelty(F: np.ndarray, y, groups, *, moving: np.ndarray | None = None, method: str = DEFAULT_METHOD,
-                k: int = DEFAULT_K, false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int = 3,
+                k: int = DEFAULT_K, false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int | None = None,
                 seed: int = 0) -> tuple[NoveltyScorer, dict]:
     """Fit a scorer on training features and set its threshold in inner grouped folds.
 
@@ -474,23 +508,24 @@ def fit_novelty(F: np.ndarray, y, groups, *, moving: np.ndarray | None = None, m
         set on the moving held-out windows only and the scorer gets the gate ``moving_mps``.
     method, k : see :class:`NoveltyScorer`.
     false_alarm : target share of held-out known windows above the threshold, in (0, 0.5).
-    inner_folds : grouped folds of the training windows. seed : their seed.
+    inner_folds : None (default, one run out at a time) or a number of grouped folds
+        (:func:`threshold_splits`). seed : seed of numbered folds.
 
     Returns
     -------
     (scorer fitted on all of ``F`` with its ``threshold``, info dict: ``false_alarm_target``,
-    ``inner_folds``, ``inner_scores_n``).
+    ``inner_folds`` (the number of folds used), ``inner_scores_n``, ``seed``).
     """
     if not 0.0 < float(false_alarm) < 0.5:
         raise NoveltyError(f"novelty false_alarm must be in (0, 0.5), got {false_alarm}")
     F = np.asarray(F, dtype=np.float64)
     y, groups = np.asarray(y), np.asarray(groups)
     judged = np.ones(len(y), dtype=bool) if moving is None else np.asarray(moving, dtype=bool)
-    oof = []
-    for tr, te in inner_splits(y, groups, inner_folds, seed):
+    oof, splits = [], threshold_splits(y, groups, inner_folds, seed)
+    for tr, te in splits:
         # a class absent from the inner training is not "known"; a window standing still is not judged
         known = np.isin(y[te], np.unique(y[tr])) & judged[te]
-        if known.any():
+        if known.any() and all((y[tr] == c).sum() > k for c in np.unique(y[tr])):
             oof.append(NoveltyScorer(method, k).fit(F[tr], y[tr]).score(F[te][known]))
     if not oof:
         raise NoveltyError("novelty: no inner fold tests a known class" + ("" if moving is None else " moving")
@@ -498,7 +533,7 @@ def fit_novelty(F: np.ndarray, y, groups, *, moving: np.ndarray | None = None, m
     oof = np.concatenate(oof)
     scorer = NoveltyScorer(method, k, moving_mps=None if moving is None else MOVING_MPS).fit(F, y)
     scorer.threshold = float(np.quantile(oof, 1.0 - float(false_alarm)))
-    return scorer, {"false_alarm_target": float(false_alarm), "inner_folds": int(inner_folds),
+    return scorer, {"false_alarm_target": float(false_alarm), "inner_folds": len(splits),
                     "inner_scores_n": int(len(oof)), "seed": int(seed)}
 
 
@@ -527,7 +562,7 @@ class OpenSetModel(ClassifierMixin, BaseEstimator):
     """
 
     def __init__(self, base: Any = None, method: str = DEFAULT_METHOD, k: int = DEFAULT_K,
-                 false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int = 3, random_state: int = 0):
+                 false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int | None = None, random_state: int = 0):
         self.base = base
         self.method = method
         self.k = k

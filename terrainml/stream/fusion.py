@@ -41,7 +41,7 @@ forward pass) over the model's K classes whose clock is the odometer:
   then restarts from the last of them and serves it. U is 1 + round((window length +
   :data:`UNKNOWN_CONFIRM_S`) / hop) (:func:`unknown_windows_for`: 5 for 1 s windows at a 0.5 s
   hop), so a terrain change's straddling windows and a window or two over
-  the threshold (about 3 % of known windows are, by the threshold's design) never leave the class;
+  the threshold (at most about 5 % of moving known windows are, by the threshold's design) never leave the class;
   leaving takes at least U windows too, because at a 0.5 s hop K is 1 and one closed-set
   window that looks known on new ground would end the stretch. A window without a flag (a model
   without a novelty scorer) changes nothing here: the filter serves exactly as before.
