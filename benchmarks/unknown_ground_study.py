@@ -8,7 +8,7 @@ Protocol, fixed before it was run (nothing here is tuned on its figures):
 
 * the model: ``--windows chunks`` (the BorealTC authors' windows), ``svm+hgb`` (the choice of
   default ``train`` on BorealTC), all sensor groups, trained by :func:`terrainml.pipeline.train.train`
-  (its novelty scorer and threshold fitted with it, inner grouped folds) on every ASPHALT,
+  (its novelty scorer and threshold fitted with it, one training run out at a time) on every ASPHALT,
   FLOORING, ICE and SANDY_LOAM run except the last one of each class;
 * the course: 30 s from the middle of each run, IMU kept, alternating a held-out known run (the
   four in turn) and a SNOW run, for every SNOW run: known, SNOW_00, known, SNOW_01, ...;

@@ -393,7 +393,7 @@ def _dataset_summary(ds: Dataset, plan: _CVPlan) -> dict:
 
 def served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], None]):
     """(name, scorer, info) of the served model's novelty score, or None (named) without one."""
-    say(f"{name}: novelty score (threshold from inner grouped folds)")
+    say(f"{name}: novelty score (threshold from the training runs, one held out at a time)")
     try:
         scorer, info = fit_model_novelty(model, W, seed=seed)
     except NoveltyError as exc:
