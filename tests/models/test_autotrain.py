@@ -84,7 +84,8 @@ def test_cli_train_auto_selects_replays_and_saves_a_calibrated_model(tmp_path):
     assert isinstance(served.classifier.model, CalibratedModel)
     entry = json.loads((out / "manifest.json").read_text())["models"]["hgb"]
     assert entry["calibration"]["temperature"] == pytest.approx(rep["selection"]["temperature"])
-    # issue #30: the default path saves the served model's novelty score (threshold from inner grouped folds),
+    # issue #30: the default path saves the served model's novelty score (threshold from its
+    # training runs, one held out at a time),
     # so unknown ground is served unknown_terrain with no option given
     nov = json.loads((out / "manifest.json").read_text())["novelty"]
     assert nov["model"] == "hgb" and nov["threshold"] > 0
