@@ -60,7 +60,7 @@ def serve(course: Path, threshold: float) -> tuple[int, int, int]:
 
     Predictor.from_model_dir = with_threshold
     try:
-        segs = runner.replay_summary(DEMO / "model", course, console=Console(file=open("/dev/null", "w")))
+        segs = runner.replay_summary(DEMO / "model", course, console=Console(quiet=True))
     finally:
         Predictor.from_model_dir = original
     n = sum(s.get("moving_ticks", 0) for s in segs)
