@@ -30,8 +30,10 @@ class ServingConfig:
     max_age_s : s or None (default: off). An optional wall-time limit on the age of the last
         classification, on top of ``stale_m``.
     fusion : dict of :class:`~terrainml.stream.fusion.TerrainFilter` settings (``length_m``,
-        ``alpha``, ``eps``, ``drift``, ``threshold``, ``confirm_windows``, ``unknown_windows``;
-        the last two default to :func:`~terrainml.stream.fusion.confirm_windows_for` the hop: 3
+        ``alpha``, ``eps``, ``drift``, ``threshold``, ``confirm_windows``, ``unknown_windows``,
+        ``settle_m``; ``settle_m`` defaults to :data:`~terrainml.stream.fusion.SETTLE_M` (2.5 m,
+        the travel over which flags that begin on known ground must last), the two before it
+        default to :func:`~terrainml.stream.fusion.confirm_windows_for` the hop: 3
         at 0.1 s, 1 at 0.5 s, and :func:`~terrainml.stream.fusion.unknown_windows_for` the hop and
         window length: 5 for 1 s windows at 0.5 s, flagged windows that make the ground
         ``unknown_terrain``).

@@ -41,7 +41,7 @@ from terrainml.pipeline.labels import label_run
 from terrainml.robot import load_robot
 from terrainml.schema import read_run_parquet
 from terrainml.stream.config import ServingConfig
-from terrainml.stream.fusion import TerrainFilter
+from terrainml.stream.fusion import SETTLE_M, TerrainFilter
 from terrainml.stream.predictor import Predictor
 from terrainml.stream.recorder import RECORD_FORMATS, UnknownGroundRecorder
 from terrainml.stream.ros2.source import STAMP_ORIGIN_KEY
@@ -120,7 +120,7 @@ def test_the_folder_loads_its_novelty_scorer_and_the_older_one_has_none(folders)
     assert Predictor.from_model_dir(folders["without"]).classifier.novelty is None
 
 
-def test_unknown_ground_is_served_the_safe_cap_within_3_m_and_the_class_comes_back(served, drive):
+def test_unknown_ground_is_served_the_safe_cap_after_settling_and_the_class_comes_back(served, drive):
     p, out, odo = served["with"]
     t = drive["t_s"].to_numpy()
     reason = np.array([m.fallback_reason for m in out])
@@ -128,11 +128,13 @@ def test_unknown_ground_is_served_the_safe_cap_within_3_m_and_the_class_comes_ba
     # known ground before: never unknown; the class 0 is served once classified
     assert not unknown[t < ON_S].any()
     assert (np.array([m.terrain_class for m in out])[(t > 10.0) & (t < ON_S)] == 0).mean() > 0.9
-    # onto the far slip: unknown within 3 m travelled, and it holds to the end of the stretch
+    # onto the far slip from known ground: unknown once its flags have lasted SETTLE_M, and the
+    # first flagged window comes within one 1 s window (1 m at 1 m/s) of moving onto it; it holds
+    # to the end of the stretch
     first = int(np.flatnonzero(unknown)[0])
     assert t[first] >= ON_S
     on_idx = int(np.searchsorted(t, ON_S))
-    assert odo[first] - odo[on_idx] <= 3.0
+    assert SETTLE_M <= odo[first] - odo[on_idx] <= SETTLE_M + 1.0 + 0.2
     stretch = (t >= t[first]) & (t < OFF_S)
     assert unknown[stretch].mean() > 0.95
     cap = p.safe_cap_traction()
@@ -199,6 +201,60 @@ def test_one_flagged_window_never_leaves_the_class_and_leaving_takes_confirmed_w
     g = TerrainFilter(2)
     g.update(known)  # no novelty score: as before
     assert not g.unknown and g.novelty == -1.0
+
+
+def test_unknown_ground_from_the_start_is_served_unknown_within_u_windows(folders):
+    """As on a BorealTC SNOW run: the robot sets off on ground no training run covered. No known
+    ground comes before the flags, so U = 5 windows (0.5 s apart, 2 m at 1 m/s) suffice after the
+    first classified window, the same tick as without settling."""
+    table = kinematic_run(ROBOT, duration_s=12.0, slip=FAR_SLIP, terrain=0, seed=78, imu_acc_noise=0.005,
+                          vx=lambda t: trapezoid_speed(t, 1.0, 1.0, 1.0), run_id="far")
+    table = table.drop(columns=[c for c in table.columns if c.startswith("gt_") or c in ("terrain", "run_id")])
+    first = {}
+    for settle_m in (SETTLE_M, 0.0):
+        p = Predictor.from_model_dir(folders["with"], config=ServingConfig(fusion={"settle_m": settle_m}))
+        out, odo = zip(*((p.step(s), p.odometer_m) for s in iter_table_samples(table)))
+        p.close()
+        classified = next(i for i, m in enumerate(out) if m.novelty >= 0)
+        unknown = next(i for i, m in enumerate(out) if m.fallback_reason == "unknown_terrain")
+        assert odo[unknown] - odo[classified] <= 2.0 + 0.05
+        first[settle_m] = unknown
+    assert first[SETTLE_M] == first[0.0]
+
+
+def test_flags_after_known_ground_enter_unknown_only_once_they_outlast_the_settling():
+    """Hand-worked, 0.25 m between windows: U = 2 flagged windows, settle_m = 1 m."""
+    known, flag = np.array([0.9, 0.1]), (np.array([0.9, 0.1]), True, 2.0)
+    f = TerrainFilter(2, confirm_windows=1, unknown_windows=2, settle_m=1.0)
+    for _ in range(5):  # 1 m of known ground (the first window starts the count at 0 m)
+        f.predict(0.25)
+        f.update(known, False, 0.5)
+    entered = []
+    for _ in range(8):
+        f.predict(0.25)
+        f.update(*flag)
+        entered.append(f.unknown)
+    # known windows at 0.25-1.25 m, flags from 1.5 m: the stretch has lasted 1 m at its fifth
+    # window (2.5 m), not at U = 2
+    assert entered == [False, False, False, False, True, True, True, True]
+    # after only 0.5 m of known ground, flags are not a change of known terrain: U windows suffice
+    g = TerrainFilter(2, confirm_windows=1, unknown_windows=2, settle_m=1.0)
+    for _ in range(3):
+        g.predict(0.25)
+        g.update(known, False, 0.5)
+    g.predict(0.25)
+    g.update(*flag)
+    g.predict(0.25)
+    g.update(*flag)
+    assert g.unknown
+    # settle_m = 0 (the default): U windows, as before
+    h = TerrainFilter(2, confirm_windows=1, unknown_windows=2)
+    for _ in range(5):
+        h.predict(0.25)
+        h.update(known, False, 0.5)
+    h.update(*flag)
+    h.update(*flag)
+    assert h.unknown
 
 
 def test_predict_says_unknown_terrain_in_its_json_and_its_summary(folders, drive, tmp_path):
