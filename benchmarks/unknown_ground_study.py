@@ -39,12 +39,16 @@ from terrainml.io.ingest import load_dataset
 from terrainml.pipeline.dataset import build_from_tables
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
+from terrainml.stream.config import ServingConfig
+from terrainml.stream.fusion import SETTLE_M
 from terrainml.stream.predictor import Predictor
 
 UNKNOWN = "SNOW"
 SEGMENT_S = 30.0
 MOVING_MPS = 0.2
 MODEL = "svm+hgb"
+#: the filter's settle_m served: the shipped one first (its table), then 0 (before 2026-12-05)
+SETTLES = (SETTLE_M, 0.0)
 
 
 def _log(msg: str) -> None:
@@ -109,18 +113,28 @@ def measure() -> dict:
         t0 = time.perf_counter()
         res = train(ds, Path(tmp) / "m", [MODEL], folds=2, seed=0, ablation=False, progress=_log)
         t_train = time.perf_counter() - t0
-        p = Predictor.from_model_dir(Path(tmp) / "m")
-        cols = list(course.columns)
-        _log(f"serving {len(course)} ticks ({len(order)} segments)")
-        served = np.array([p.step(dict(zip(cols, row))).to_dict() for row in course.itertuples(index=False)],
-                          dtype=object)
+        served = {s: _serve(Path(tmp) / "m", course, s) for s in SETTLES}
     segs = _segments(tables, course, order, robot)
     lab = [names[int(course["terrain"].iloc[s["rows"].start])] for s in segs]
-    rows = [_score(s, served, label) for s, label in zip(segs, lab)]
-    return {"snow": [r for r, label in zip(rows, lab) if label == UNKNOWN],
-            "known": [r for r, label in zip(rows, lab) if label != UNKNOWN],
-            "train_runs": len(train_tables), "held_known": known, "t_train_s": t_train,
-            "cv": res.models[MODEL]["cv"].pooled["balanced_accuracy"]}
+    out = {"train_runs": len(train_tables), "held_known": known, "t_train_s": t_train,
+           "cv": res.models[MODEL]["cv"].pooled["balanced_accuracy"], "by_settle": {}}
+    for settle_m, ticks in served.items():
+        rows = [_score(s, ticks, label) for s, label in zip(segs, lab)]
+        out["by_settle"][settle_m] = {"snow": [r for r, label in zip(rows, lab) if label == UNKNOWN],
+                                      "known": [r for r, label in zip(rows, lab) if label != UNKNOWN]}
+    return out
+
+
+def _serve(model: Path, course: pd.DataFrame, settle_m: float) -> np.ndarray:
+    """The messages (as dicts) served tick by tick on ``course`` with the filter's ``settle_m``."""
+    p = Predictor.from_model_dir(model, config=ServingConfig(fusion={"settle_m": settle_m}))
+    cols = list(course.columns)
+    _log(f"serving {len(course)} ticks, settle_m {settle_m:g}")
+    try:
+        return np.array([p.step(dict(zip(cols, row))).to_dict() for row in course.itertuples(index=False)],
+                        dtype=object)
+    finally:
+        p.close()
 
 
 def _f(x, d=1, scale=100.0) -> str:
@@ -134,15 +148,22 @@ def _weighted(rows: list[dict], key: str) -> float:
     return float(np.sum(w * [r[key] for r in use]) / w.sum()) if w.sum() > 0 else float("nan")
 
 
-def markdown(m: dict) -> str:
-    snow, known = m["snow"], m["known"]
+def _summary(snow: list[dict], known: list[dict]) -> tuple[int, list[float], float, float, float]:
+    """(SNOW segments entered within 3 m, distances to each first unknown tick, SNOW moving ticks
+    unknown, known moving ticks unknown, known moving ticks served their class)."""
     first = [r["first_unknown_m"] for r in snow]
-    within = sum(f is not None and f <= 3.0 for f in first)
     reached = [f for f in first if f is not None]
+    return (sum(f <= 3.0 for f in reached), reached, _weighted(snow, "unknown_share"),
+            _weighted(known, "unknown_share"), _weighted(known, "right_share"))
+
+
+def markdown(m: dict) -> str:
+    snow, known = m["by_settle"][SETTLES[0]]["snow"], m["by_settle"][SETTLES[0]]["known"]
+    within, reached, snow_unknown, false_unknown, right_known = _summary(snow, known)
     w = np.array([r["moving"] for r in known], dtype=float)
-    false_unknown = _weighted(known, "unknown_share")
-    right_known = _weighted(known, "right_share")
-    snow_unknown = _weighted(snow, "unknown_share")
+    other = [f"- settle_m {s:g} m instead: within 3 m {a} of {len(snow)}, any {len(b)}; SNOW moving ticks "
+             f"unknown {100 * c:.1f}%; known moving ticks unknown {100 * d:.1f}%, labelled class {100 * e:.1f}%."
+             for s in SETTLES[1:] for a, b, c, d, e in [_summary(**m["by_settle"][s])]]
     still = sum(r["moving"] == 0 for r in snow)
     rows = [[r["run"], r["moving"], _f(r["unknown_share"]), _f(r["first_unknown_m"], 2, 1.0),
              ", ".join(f"{k or 'class'} {100 * v:.0f}%" for k, v in r["reasons"].items())] for r in snow]
@@ -158,7 +179,8 @@ def markdown(m: dict) -> str:
         f"- SNOW moving ticks served `unknown_terrain`: **{100 * snow_unknown:.1f}%** ({still} SNOW segments have "
         f"no moving tick: rim speed at or under {MOVING_MPS} m/s).",
         f"- Known held-out segments ({int(w.sum())} moving ticks): `unknown_terrain` on "
-        f"**{100 * false_unknown:.1f}%**, the labelled class on {100 * right_known:.1f}%.", "",
+        f"**{100 * false_unknown:.1f}%**, the labelled class on {100 * right_known:.1f}%.",
+        f"- The filter's settle_m {SETTLES[0]:g} m (stream/fusion.SETTLE_M) serves these figures.", *other, "",
         markdown_table(["SNOW run", "moving ticks", "unknown_terrain %", "m to first unknown",
                         "served on moving ticks (fallback reason)"], rows), "",
         "Known held-out runs (each served several times, after a SNOW segment; moving ticks pooled):", "",

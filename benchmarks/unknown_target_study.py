@@ -1,16 +1,27 @@
-"""Study: the novelty threshold's false-alarm target against known ground served (issue #30).
+"""Study: the novelty threshold and the settling distance against known and unknown ground served (issue #30).
 
-A higher target flags more of unknown ground and more of known ground. Known ground pays where
-the flags run together: at the windows that straddle a change between known terrains (unlike
-either class). This study serves held-out *tuning* courses (the ``mixed`` scenario of
-``make demo``'s course, 0.8 m/s, 120 s, seeds 9301-9306: the transition tuning seeds of issue
-#19, never the demo's course, seed 10000) through the demo's model (``runs/demo/model``, from
-``make demo``) with its novelty threshold set for each setting from out-of-fold scores of the
-demo's training windows (:func:`terrainml.models.novelty.fit_model_novelty`; and none, the
-closed-set model), and counts per setting: moving ticks served the logged class (the demo's
-figure) and moving ticks served ``unknown_terrain``.
+A higher false-alarm target flags more of unknown ground and more of known ground. Known ground
+pays where the flags run together: at a change between known terrains, flagged until every
+wheel has crossed and the drive has settled (0.8-3.7 m). The filter's ``settle_m``
+(:data:`terrainml.stream.fusion.SETTLE_M`) makes flags that begin on known ground enter unknown
+only once they outlast that distance; unknown ground entered from known ground pays it as delay.
 
-Run: ``python -m benchmarks.unknown_target_study [--targets 0.03,0.05] [--seeds 9301-9306]``.
+This study serves held-out *tuning* courses (the ``mixed`` scenario of ``make demo``'s course,
+0.8 m/s, 120 s, seeds 9301-9304: the transition tuning seeds of issue #19, never the demo's
+course, seed 10000) through
+
+* the demo's model (``runs/demo/model``, from ``make demo``), with its novelty threshold set for
+  each target from out-of-fold scores of the demo's training windows
+  (:func:`terrainml.models.novelty.fit_model_novelty`; and none, the closed-set model), and with
+  the shipped threshold at each ``settle_m``: moving ticks served the logged class (the demo's
+  figure) and served ``unknown_terrain``;
+* the open-set suite's models (``runs/open_set_models/no_CLASS``, from
+  ``benchmarks/bench_open_set_missions.py``), each trained without one class, at each
+  ``settle_m``: the share of that class's moving ticks served ``unknown_terrain``, and the
+  metres driven onto each of its stretches before the first ``unknown_terrain`` tick.
+
+Run: ``python -m benchmarks.unknown_target_study [--targets 0.03,0.05] [--settle 0,2,2.5,3]
+[--seeds 9301-9304]``.
 """
 
 from __future__ import annotations
@@ -20,23 +31,27 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from rich.console import Console
 
 from terrainml.models.novelty import fit_model_novelty
 from terrainml.pipeline.dataset import read_windows
 from terrainml.sim.generate import simulate, write_run
-from terrainml.stream import runner
+from terrainml.stream.config import ServingConfig
+from terrainml.stream.fusion import SETTLE_M
 from terrainml.stream.predictor import Predictor
+from terrainml.stream.runner import CLASSIFY_LAG_TICKS
+from terrainml.stream.sample import InvalidSample
+from terrainml.stream.sources import open_source
 
 DEMO = Path("runs/demo")
+OPEN_SET = Path("runs/open_set_models")
+MOVING_MPS = 0.05  # as the demo's figure (stream/runner.replay_summary)
 
 
 def thresholds(targets: list[float]) -> dict[str, float]:
     """Threshold per setting, from the demo model's features of its training windows: each
     target held out one run at a time (shipped), 3 % in 3 inner folds (before 2026-12-05), and
     no threshold (``inf``: the closed-set model, before issue #30)."""
-    pred = Predictor.from_model_dir(DEMO / "model")
-    clf = pred.classifier
+    clf = Predictor.from_model_dir(DEMO / "model").classifier
     W = read_windows(DEMO / "windows.parquet").windows
     if clf.features is not None:
         raise SystemExit("the demo model has a feature transform before its model; this study takes raw windows")
@@ -49,46 +64,92 @@ def thresholds(targets: list[float]) -> dict[str, float]:
     return out
 
 
-def serve(course: Path, threshold: float) -> tuple[int, int, int]:
-    """(moving ticks, served the logged class, served unknown_terrain) of one course."""
-    original = Predictor.from_model_dir
-
-    def with_threshold(*args, **kwargs):
-        p = original(*args, **kwargs)
+def serve(model: Path, course: Path, settle_m: float, threshold: float | None = None) -> dict:
+    """Serve one course: moving ticks of known classes (n, served the logged class, unknown) and
+    of classes the model lacks (n, unknown), and the metres onto each such stretch before its
+    first ``unknown_terrain`` tick (inf: never)."""
+    p = Predictor.from_model_dir(model, config=ServingConfig(classify_lag_ticks=CLASSIFY_LAG_TICKS,
+                                                             fusion={"settle_m": settle_m}))
+    if threshold is not None:  # flags compare the scorer's threshold (the message's ratio keeps the saved one)
         p.classifier.novelty.threshold = threshold
-        return p
-
-    Predictor.from_model_dir = with_threshold
+    known = set(p.policy.class_ids)
+    c = {"known": 0, "right": 0, "known_unknown": 0, "new": 0, "new_unknown": 0, "entries_m": []}
+    odo_prev, t_prev, start_m, entered = 0.0, None, None, False
     try:
-        segs = runner.replay_summary(DEMO / "model", course, console=Console(quiet=True))
+        for sample in open_source(str(course), robot=p.robot):
+            try:
+                msg = p.step(sample)
+            except InvalidSample:
+                continue
+            if msg is None:
+                continue
+            lab = sample.get("terrain")
+            lab = -1 if lab is None or lab != lab else int(lab)
+            dt = 0.0 if t_prev is None else msg.t_s - t_prev
+            moving = dt > 0 and (p.odometer_m - odo_prev) / dt >= MOVING_MPS
+            odo_prev, t_prev = p.odometer_m, msg.t_s
+            unknown = msg.fallback_reason == "unknown_terrain"
+            new = lab >= 0 and lab not in known
+            if new and start_m is None:
+                start_m, entered = p.odometer_m, False
+            if start_m is not None and (not new or unknown) and not entered:
+                c["entries_m"].append(p.odometer_m - start_m if unknown else np.inf)
+                entered = True
+            if not new:
+                start_m = None
+            if not moving or lab < 0:
+                continue
+            key = "new" if new else "known"
+            c[key] += 1
+            c[f"{key}_unknown"] += unknown
+            c["right"] += (not new and not msg.fallback and msg.terrain_class == lab)
     finally:
-        Predictor.from_model_dir = original
-    n = sum(s.get("moving_ticks", 0) for s in segs)
-    ok = sum(s.get("moving_right", 0) for s in segs)
-    unk = sum(s.get("moving_ticks", 0) for s in segs if s.get("fallback_reason") == "unknown_terrain")
-    return n, ok, unk
+        p.close()
+    if start_m is not None and not entered:
+        c["entries_m"].append(np.inf)
+    return c
+
+
+def _add(total: dict, c: dict) -> None:
+    for k, v in c.items():
+        total[k] = total.get(k, [] if isinstance(v, list) else 0) + v
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--targets", default="0.03,0.05")
-    ap.add_argument("--seeds", default="9301-9306")
+    ap.add_argument("--settle", default=f"0,2,{SETTLE_M:g},3")
+    ap.add_argument("--seeds", default="9301-9304")
     a = ap.parse_args()
     lo, hi = (int(x) for x in a.seeds.split("-"))
+    settles = [float(s) for s in a.settle.split(",")]
     thr = thresholds([float(t) for t in a.targets.split(",")])
-    totals = {t: np.zeros(3) for t in thr}
+    demo_rows = {(t, SETTLE_M): v for t, v in thr.items()} | {("shipped", s): None for s in settles}
+    open_models = sorted(OPEN_SET.glob("no_*/manifest.json"))
+    totals: dict = {}
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(lo, hi + 1):
             course = write_run(simulate(None, "mixed", speed_mps=0.8, duration_s=120.0, seed=seed),
                                Path(tmp) / f"course{seed}.mcap", f"tuning_{seed}")
-            for t, v in thr.items():
-                n, ok, unk = serve(course, v)
-                totals[t] += (n, ok, unk)
-                print(f"seed {seed} {t}: right {100 * ok / n:.1f} %, unknown {100 * unk / n:.1f} % "
-                      f"of {n} moving ticks", flush=True)
-    print("\n| threshold | moving ticks | served the logged class % | served unknown_terrain % |\n|---|---|---|---|")
-    for t, (n, ok, unk) in totals.items():
-        print(f"| {t} | {int(n)} | {100 * ok / n:.1f} | {100 * unk / n:.1f} |")
+            for (t, s), v in demo_rows.items():
+                _add(totals.setdefault(("demo", t, s), {}), serve(DEMO / "model", course, s, v))
+            for m in open_models:
+                for s in settles:
+                    _add(totals.setdefault((m.parent.name, "shipped", s), {}), serve(m.parent, course, s))
+            print(f"seed {seed} served", flush=True)
+    print("\n| model | threshold | settle_m | known moving ticks | served the logged class % | "
+          "served unknown_terrain % |\n|---|---|---|---|---|---|")
+    for (m, t, s), c in totals.items():
+        if m == "demo":
+            print(f"| demo | {t} | {s:g} | {c['known']} | {100 * c['right'] / c['known']:.1f} | "
+                  f"{100 * c['known_unknown'] / c['known']:.1f} |")
+    print("\n| model | settle_m | its unseen class's moving ticks | served unknown_terrain % | stretches entered "
+          "| m onto each stretch before unknown_terrain |\n|---|---|---|---|---|---|")
+    for (m, t, s), c in totals.items():
+        if m != "demo" and c["new"]:
+            e = np.array(c["entries_m"])
+            print(f"| {m} | {s:g} | {c['new']} | {100 * c['new_unknown'] / c['new']:.1f} | "
+                  f"{int(np.isfinite(e).sum())} of {e.size} | {', '.join(f'{x:.1f}' for x in e)} |")
 
 
 if __name__ == "__main__":
