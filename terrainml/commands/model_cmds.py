@@ -75,6 +75,10 @@ def train(
                                   "in turn held out of training and scored as the unknown by the served "
                                   "model's novelty (one more CV per class; report.md section, as "
                                   "`terrainml evaluate --open-set`)."),
+    novelty_false_alarm: float = typer.Option(0.05, "--novelty-false-alarm", help="Target share of moving "
+                                              "windows on known ground over the novelty threshold (held-out "
+                                              "training runs): higher finds more unknown ground and serves more "
+                                              "known ground the safe cap (`unknown_terrain`). In (0, 0.5)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
     """Cross-validate (grouped by run), train, report and save a terrain classifier.
@@ -96,22 +100,24 @@ def train(
         fail("--budget-min must be > 0")
     if not replay_s > 0:
         fail("--replay-s must be > 0")
+    if not 0 < novelty_false_alarm < 0.5:
+        fail(f"--novelty-false-alarm must be in (0, 0.5), e.g. 0.05, got {novelty_false_alarm}")
     check_n_jobs(n_jobs)
     check_output_writable(out, folder=True)
     if auto:
         _train_auto(data, out, model=model, windows=windows, sensors=sensors, folds=folds, seed=seed,
                     n_jobs=n_jobs, preset=preset, robot=robot, fmt=fmt, budget_min=budget_min,
                     allow_unproven=allow_unproven, replay_s=replay_s, members=members, open_set=open_set,
-                    quiet=quiet)
+                    false_alarm=novelty_false_alarm, quiet=quiet)
         return
     _train_fixed(data, out, kinds, spec, sensors=sensors, folds=folds, seed=seed, n_jobs=n_jobs,
                  dask_address=dask_address, preset=preset, robot=robot, fmt=fmt, ablation=ablation,
-                 members=members, open_set=open_set, quiet=quiet)
+                 members=members, open_set=open_set, false_alarm=novelty_false_alarm, quiet=quiet)
 
 
 def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, seed: int, n_jobs: int,
                  dask_address, preset: str, robot, fmt: str, ablation: bool, members: bool, open_set: bool,
-                 quiet: bool) -> None:
+                 false_alarm: float, quiet: bool) -> None:
     """``train`` with the model kinds and window spec given (no selection)."""
     from terrainml.commands.dataset_cmds import parse_sensors
     from terrainml.pipeline.train import train as do_train
@@ -132,11 +138,12 @@ def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, see
                 progress.update(task, description=msg)
 
             res = do_train(ds, out, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=ablation,
-                           progress=say, open_set=open_set)
+                           progress=say, open_set=open_set, novelty_false_alarm=false_alarm)
             names = []
             if members and sensors is None:
                 names = _train_members(out, ds, data, kinds, folds=folds, seed=seed, n_jobs=n_jobs,
-                                       robot=robot, preset=preset, fmt=fmt, spec=spec, say=say)
+                                       robot=robot, preset=preset, fmt=fmt, spec=spec, say=say,
+                                       false_alarm=false_alarm)
     except typer.Exit:
         raise
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback
@@ -160,7 +167,7 @@ def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, see
 
 
 def _train_members(out: Path, ds, data: Path, kinds, *, folds: int, seed: int, n_jobs: int, robot, preset: str,
-                   fmt: str, spec, say) -> list[str]:
+                   fmt: str, spec, say, false_alarm: float) -> list[str]:
     """The folder's sensor members, each trained like its model (windows rebuilt from logs per subset)."""
     from terrainml.pipeline.members import subset_dataset, train_members
     from terrainml.pipeline.train import train as do_train
@@ -169,7 +176,8 @@ def _train_members(out: Path, ds, data: Path, kinds, *, folds: int, seed: int, n
         sub = (subset_dataset(ds, subset) if is_windows_file(data) else
                _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=None, fmt=fmt,
                           quiet=True, spec=spec, sensors=subset))
-        do_train(sub, folder, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=False, progress=say)
+        do_train(sub, folder, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=False, progress=say,
+                 novelty_false_alarm=false_alarm)
 
     return train_members(out, ds.sensors, fit, progress=say)
 
@@ -240,7 +248,7 @@ def _load_tables(data: Path, *, robot, fmt: str, quiet: bool):
 
 def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, folds: int, seed: int, n_jobs: int,
                 preset: str, robot, fmt: str, budget_min: float, allow_unproven: bool, replay_s: float,
-                members: bool, open_set: bool, quiet: bool) -> None:
+                members: bool, open_set: bool, false_alarm: float, quiet: bool) -> None:
     """``train`` selecting the window spec and the model (``--windows auto`` / ``--model auto``)."""
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
@@ -268,11 +276,11 @@ def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, fol
             res = train_auto(tables, rb, out, specs=windows, models=model, folds=folds, seed=seed, n_jobs=n_jobs,
                              budget_min=budget_min, preset=preset, sensors=parse_sensors(sensors),
                              allow_unproven=allow_unproven, segment_s=replay_s, datasets=datasets,
-                             open_set=open_set, progress=say)
+                             open_set=open_set, novelty_false_alarm=false_alarm, progress=say)
             names = []
             if members and sensors is None and tables is not None:
                 names = _auto_members(out, res, tables, rb, folds=folds, seed=seed, n_jobs=n_jobs,
-                                      preset=preset, replay_s=replay_s, say=say)
+                                      preset=preset, replay_s=replay_s, say=say, false_alarm=false_alarm)
     except typer.Exit:
         raise
     except ReplayRefused as exc:
@@ -285,7 +293,7 @@ def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, fol
 
 
 def _auto_members(out: Path, res, tables, rb, *, folds: int, seed: int, n_jobs: int, preset: str,
-                  replay_s: float, say) -> list[str]:
+                  replay_s: float, say, false_alarm: float) -> list[str]:
     """The sensor members of a selected model: the chosen window spec and model trained again on
     each subset of its sensor groups, under the same nested CV and served replay; a member whose
     replay refuses it is not saved (the folder then serves without it)."""
@@ -298,7 +306,7 @@ def _auto_members(out: Path, res, tables, rb, *, folds: int, seed: int, n_jobs: 
         try:
             train_auto(tables, rb, folder, specs=[chosen.spec], models=[chosen.model], folds=folds, seed=seed,
                        n_jobs=n_jobs, budget_min=None, preset=preset, sensors=subset, segment_s=replay_s,
-                       progress=say)
+                       novelty_false_alarm=false_alarm, progress=say)
         except ReplayRefused as exc:
             raise ValueError(f"its served replay refuses it: {exc}") from None
 

@@ -68,7 +68,7 @@ __all__ = ["NoveltyScorer", "NoveltyError", "OpenSetModel", "model_features", "m
            "proba_and_features",
            "fit_novelty", "fit_model_novelty", "threshold_splits", "MAX_THRESHOLD_FOLDS", "novelty_of", "METHODS",
            "DEFAULT_METHOD", "DEFAULT_K",
-           "DEFAULT_FALSE_ALARM", "NOVELTY_FILE", "MOVING_MPS", "moving_windows", "moving_mask"]
+           "DEFAULT_FALSE_ALARM", "NOVELTY_FILE", "MOVING_MPS", "moving_windows", "moving_mask", "check_false_alarm"]
 
 METHODS = ("knn", "class_knn", "mahalanobis")
 DEFAULT_METHOD = "class_knn"
@@ -497,6 +497,15 @@ def threshold_splits(y, groups, inner_folds: int | None = None, seed: int = 0) -
     return list(split.split(np.zeros(len(y)), y, groups))
 
 
+def check_false_alarm(false_alarm: float) -> float:
+    """The threshold's false-alarm target as a float; ValueError unless it is in (0, 0.5)."""
+    v = float(false_alarm)
+    if not 0.0 < v < 0.5:
+        raise ValueError(f"novelty false-alarm target must be in (0, 0.5) (a share of moving known windows, "
+                         f"e.g. 0.05), got {false_alarm}")
+    return v
+
+
 def fit_novelty(F: np.ndarray, y, groups, *, moving: np.ndarray | None = None, method: str = DEFAULT_METHOD,
                 k: int = DEFAULT_K, false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int | None = None,
                 seed: int = 0) -> tuple[NoveltyScorer, dict]:
@@ -518,8 +527,7 @@ def fit_novelty(F: np.ndarray, y, groups, *, moving: np.ndarray | None = None, m
     (scorer fitted on all of ``F`` with its ``threshold``, info dict: ``false_alarm_target``,
     ``inner_folds`` (the number of folds used), ``inner_scores_n``, ``seed``).
     """
-    if not 0.0 < float(false_alarm) < 0.5:
-        raise NoveltyError(f"novelty false_alarm must be in (0, 0.5), got {false_alarm}")
+    check_false_alarm(false_alarm)
     F = np.asarray(F, dtype=np.float64)
     y, groups = np.asarray(y), np.asarray(groups)
     judged = np.ones(len(y), dtype=bool) if moving is None else np.asarray(moving, dtype=bool)

@@ -41,6 +41,7 @@ from terrainml.features.windows import window_spec
 from terrainml.models.artifacts import json_safe, save_artifact, write_manifest
 from terrainml.models.calibration import CalibratedModel, Temperature
 from terrainml.models.ensemble import ProbabilityAverage
+from terrainml.models.novelty import DEFAULT_FALSE_ALARM, check_false_alarm
 from terrainml.pipeline.dataset import Dataset, build_from_tables
 from terrainml.pipeline.replay import (MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S, make_course, pooled_replay,
                                        replay_course, replay_refusal)
@@ -132,7 +133,8 @@ def _names(ds: Dataset, classes: Sequence[int]) -> list[str]:
             for c in classes]
 
 
-def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, seed: int, say) -> list[dict]:
+def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, seed: int, say,
+                  false_alarm: float = DEFAULT_FALSE_ALARM) -> list[dict]:
     """Replay of every outer fold's held-out runs through its calibrated model and its novelty score
     (fitted on the fold's training runs only), saved and loaded as ``predict`` loads them."""
     out = []
@@ -151,7 +153,7 @@ def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, s
         W = data[spec].windows
         train_idx = np.flatnonzero(~np.isin(np.asarray(W.groups).astype(str), o["runs"])
                                    & np.isin(W.y, sel.class_ids))
-        novelty = served_novelty(model, name, W.subset(train_idx), seed, say)  # the fold's training runs only
+        novelty = served_novelty(model, name, W.subset(train_idx), seed, say, false_alarm)  # fold's training runs
         with TemporaryDirectory() as tmp:
             _save(Path(tmp) / "m", data[spec], fitted, name, o["temperature"], table, novelty=novelty)
             course = make_course([by_id[r] for r in runs], runs, segment_s=segment_s)
@@ -168,7 +170,8 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
                preset: str = "robust", sensors: Sequence[str] | None = None, replay: bool = True,
                segment_s: float = REPLAY_SEGMENT_S, allow_unproven: bool = False,
                min_classified_share: float = MIN_CLASSIFIED_SHARE, datasets: dict | None = None,
-               open_set: bool = False, progress: Callable[[str], None] | None = None) -> AutoResult:
+               open_set: bool = False, novelty_false_alarm: float = DEFAULT_FALSE_ALARM,
+               progress: Callable[[str], None] | None = None) -> AutoResult:
     """Select, validate on the served path, calibrate and save a model (see the module docstring).
 
     Parameters
@@ -186,6 +189,8 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     datasets : {spec: Dataset} already cut (then ``specs`` is not used).
     open_set : also run the leave-one-class-out evaluation of the chosen model's novelty score on
         the chosen windows (:func:`~terrainml.pipeline.train.evaluate_open_set`; report section).
+    novelty_false_alarm : the novelty threshold's target (default 0.05), for the served model, the
+        replay's fold models and the open-set evaluation alike (:func:`~terrainml.pipeline.train.train`).
     progress : callback with a short message per step.
 
     Returns
@@ -195,6 +200,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     """
     say = progress or (lambda msg: None)
     out = Path(out)
+    check_false_alarm(novelty_false_alarm)
     t0 = time.perf_counter()
     data, failed = _candidate_data(tables, robot, specs, preset, sensors, n_jobs, datasets, say)
     t_windows = time.perf_counter() - t0
@@ -206,7 +212,8 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     sel.infeasible = {**failed, **sel.infeasible}
     t_sel = time.perf_counter() - t0 - t_windows
     replay = replay and tables is not None
-    folds_replay = _replay_folds(sel, data, tables, table, segment_s, seed, say) if replay else []
+    folds_replay = (_replay_folds(sel, data, tables, table, segment_s, seed, say, novelty_false_alarm)
+                    if replay else [])
     pooled = pooled_replay([f for f in folds_replay if f.get("moving_ticks")]) if folds_replay else {}
     refusal = replay_refusal(pooled, min_classified_share) if replay else ""
     t_replay = time.perf_counter() - t0 - t_windows - t_sel
@@ -220,19 +227,20 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
         _write_docs(out, None, res_doc, sel)
         raise ReplayRefused(f"{refusal}; not saved (report: {out / 'report.md'}); "
                             "override with --allow-unproven")
-    tr, final_s = _fit_and_save(out, ds, sel, table, seed, say)
+    tr, final_s = _fit_and_save(out, ds, sel, table, seed, say, novelty_false_alarm)
     timing = {"windows_s": t_windows, "select_s": t_sel, "replay_s": t_replay, "final_fit_s": final_s,
               "total_s": time.perf_counter() - t0}
     if open_set:
         tr.open_set = train_lib.evaluate_open_set(ds, sel.chosen.model, folds=folds, seed=seed, n_jobs=n_jobs,
-                                                  progress=say)
+                                                  progress=say, false_alarm=novelty_false_alarm)
     res_doc["timing_s"] = timing
     _write_docs(out, tr, res_doc, sel)
     tr.manifest = write_manifest(out)
     return AutoResult(sel, folds_replay, pooled, refusal, tr, timing)
 
 
-def _fit_and_save(out: Path, ds: Dataset, sel: Selection, table: Any, seed: int, say) -> tuple[TrainResult, float]:
+def _fit_and_save(out: Path, ds: Dataset, sel: Selection, table: Any, seed: int, say,
+                  false_alarm: float = DEFAULT_FALSE_ALARM) -> tuple[TrainResult, float]:
     """The chosen candidate fitted on every window, calibrated, with its novelty score, saved.
 
     Returns the TrainResult of the report and the seconds of the final fits.
@@ -248,7 +256,7 @@ def _fit_and_save(out: Path, ds: Dataset, sel: Selection, table: Any, seed: int,
                                     "params": params if len(params) > 1 else next(iter(params.values()))}},
                      served, sel.class_ids, sel.class_names, len(sel.partition), seed, _summary(ds, sel), None,
                      fitted={served: cal})
-    novelty = served_novelty(fitted[served], served, ds.windows, seed, say)  # the windows it was fitted on
+    novelty = served_novelty(fitted[served], served, ds.windows, seed, say, false_alarm)  # its fitted windows
     _save(out, ds, fitted, served, sel.temperature, table, novelty=novelty,
           extra={"folds": len(sel.partition), "seed": seed, "n_windows": len(ds.windows),
                  "latency_ms": {served: lat}, "selection": {"chosen": sel.chosen.name,

@@ -47,7 +47,7 @@ from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import (Artifact, ArtifactError, load_artifact, save_artifact,
                                         write_manifest)
 from terrainml.models.ensemble import ProbabilityAverage
-from terrainml.models.novelty import NoveltyError, fit_model_novelty
+from terrainml.models.novelty import DEFAULT_FALSE_ALARM, NoveltyError, check_false_alarm, fit_model_novelty
 from terrainml.models.svm import SVMClassifier
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.dataset import Dataset
@@ -222,7 +222,8 @@ def _ablation(ds: Dataset, folds, seed: int, n_jobs: int, table, classes, cv_all
 
 def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds: int = 5, seed: int = 0,
           n_jobs: int = 1, ablation: bool = True, model_params: dict | None = None,
-          progress: Callable[[str], None] | None = None, open_set: bool = False) -> TrainResult:
+          progress: Callable[[str], None] | None = None, open_set: bool = False,
+          novelty_false_alarm: float = DEFAULT_FALSE_ALARM) -> TrainResult:
     """Cross-validate, fit, report and save models on a window dataset.
 
     Parameters
@@ -237,6 +238,9 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     progress : callback with a short message per stage.
     open_set : also run the leave-one-class-out evaluation of the served model's novelty score
         on the same folds (:mod:`terrainml.evaluation.open_set`; one more CV per class).
+    novelty_false_alarm : the novelty threshold's target, the share of moving known windows of a
+        held-out training run over it (default 0.05; higher finds more unknown ground and serves
+        more known ground the safe cap: docs/models.md "Unknown ground").
 
     The served model's novelty score (:mod:`terrainml.models.novelty`, threshold from inner
     grouped folds of the training windows) is fitted and saved with it when the model has a
@@ -249,6 +253,7 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     say = progress or (lambda msg: None)
     out = Path(out)
     models = parse_models(models)
+    check_false_alarm(novelty_false_alarm)
     plan = _cv_plan(ds, folds, seed, say)
     W = plan.W
     table = desired_slip_table_for(ds, ds.robot)
@@ -277,9 +282,9 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     summary = _dataset_summary(ds, plan)
     res = TrainResult(out, results, default, plan.classes.tolist(), plan.names, len(plan.folds), seed, summary,
                       abl, fitted=fitted)
-    novelty = served_novelty(fitted[default], default, W, seed, say)
+    novelty = served_novelty(fitted[default], default, W, seed, say, novelty_false_alarm)
     if open_set and novelty is not None:
-        res.open_set = _open_set(default, factories, plan, seed, n_jobs, say)
+        res.open_set = _open_set(default, factories, plan, seed, n_jobs, say, novelty_false_alarm)
     metrics_summary = {k: r["cv"].summary for k, r in results.items()}
     save_artifact(out, fitted, classes=plan.classes.tolist(), class_names=plan.names, channels=W.channels,
                   window_spec=ds.spec, robot=ds.robot, training_fingerprint=ds.fingerprint,
@@ -391,11 +396,14 @@ def _dataset_summary(ds: Dataset, plan: _CVPlan) -> dict:
             "fingerprint": ds.fingerprint, "rejections": ds.counts}
 
 
-def served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], None]):
-    """(name, scorer, info) of the served model's novelty score, or None (named) without one."""
-    say(f"{name}: novelty score (threshold from the training runs, one held out at a time)")
+def served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], None],
+                   false_alarm: float = DEFAULT_FALSE_ALARM):
+    """(name, scorer, info) of the served model's novelty score, or None (named) without one;
+    ``false_alarm``: the threshold's target (:func:`~terrainml.models.novelty.fit_novelty`)."""
+    say(f"{name}: novelty score (threshold at {100 * false_alarm:g} % of the training runs' moving windows, "
+        "one run held out at a time)")
     try:
-        scorer, info = fit_model_novelty(model, W, seed=seed)
+        scorer, info = fit_model_novelty(model, W, seed=seed, false_alarm=false_alarm)
     except NoveltyError as exc:
         say(f"{name}: no novelty score ({exc})")
         return None
@@ -403,22 +411,25 @@ def served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], Non
 
 
 def _open_set(default: str, factories: dict, plan: _CVPlan, seed: int, n_jobs: int,
-              say: Callable[[str], None]):
+              say: Callable[[str], None], false_alarm: float = DEFAULT_FALSE_ALARM):
     """Leave-one-class-out evaluation of the served model's novelty on the CV folds."""
     members = [factories[q] for q in default.split("+")]
     factory = members[0] if len(members) == 1 else (lambda: ProbabilityAverage([f() for f in members]))
     return leave_one_class_out(factory, plan.Wcv, folds=plan.folds, classes=plan.cv_classes.tolist(),
-                               class_names=plan.cv_names, seed=seed, n_jobs=n_jobs, progress=say)
+                               class_names=plan.cv_names, seed=seed, n_jobs=n_jobs, progress=say,
+                               false_alarm=false_alarm)
 
 
 def evaluate_open_set(ds: Dataset, model: str = "svm", folds: int = 5, seed: int = 0, n_jobs: int = 1,
-                      progress: Callable[[str], None] | None = None) -> OpenSetResult:
+                      progress: Callable[[str], None] | None = None,
+                      false_alarm: float = DEFAULT_FALSE_ALARM) -> OpenSetResult:
     """Leave-one-class-out evaluation of a model kind's novelty score on a window dataset.
 
     The same classes, grouped folds and factories as :func:`train` (``_cv_plan``,
     :func:`make_factory`); each CV class in turn is held out of training and plays the unknown
     (:func:`~terrainml.evaluation.open_set.leave_one_class_out`). ``model``: ``svm``, ``hgb``
     or an average such as ``svm+hgb`` (a model with a feature space; not ``cnn``).
+    ``false_alarm``: the threshold's target, as :func:`train`'s ``novelty_false_alarm``.
 
     Raises ValueError naming the model for a kind without a feature space or several models,
     and (from the plan) for a dataset with fewer than 3 classes that have 2 runs or more.
@@ -436,7 +447,7 @@ def evaluate_open_set(ds: Dataset, model: str = "svm", folds: int = 5, seed: int
                          f"(one held out, two known); the dataset has {plan.cv_names}")
     inner_jobs = 1 if n_jobs != 1 else None
     factories = {q: make_factory(q, ds, seed, n_jobs=inner_jobs) for q in name.split("+")}
-    return _open_set(name, factories, plan, seed, n_jobs, say)
+    return _open_set(name, factories, plan, seed, n_jobs, say, false_alarm)
 
 
 def parse_class_map(text: str | None) -> dict[str, str]:

@@ -132,3 +132,26 @@ def test_evaluate_open_set_of_a_model_folder_uses_its_model_kind_and_window_spec
     assert doc["window_spec"] == manifest["window_spec"]["name"]
     r = runner.invoke(app, ["evaluate", str(model), "--open-set", "--data", str(windows_file), "--windows", "state"])
     assert r.exit_code == 2 and "--windows" in r.output
+
+
+def test_train_novelty_false_alarm_sets_the_served_threshold(windows_file, tmp_path):
+    """``train --novelty-false-alarm``: the manifest states the target, and a higher target puts the
+    served threshold lower (flags more windows); a target outside (0, 0.5) is refused."""
+    from terrainml.models.artifacts import load_artifact
+    from terrainml.models.novelty import DEFAULT_FALSE_ALARM
+
+    runner = CliRunner()
+    common = ["train", "--data", str(windows_file), "--model", "svm", "--folds", "3", "--no-ablation",
+              "--no-members", "-q"]
+    thresholds, targets = {}, {}
+    for target in (None, 0.2):
+        out = tmp_path / f"m{target}"
+        extra = [] if target is None else ["--novelty-false-alarm", str(target)]
+        r = runner.invoke(app, common + ["--out", str(out)] + extra)
+        assert r.exit_code == 0, r.output
+        targets[target] = json.loads((out / "manifest.json").read_text())["novelty"]["false_alarm_target"]
+        thresholds[target] = load_artifact(out).novelty.threshold
+    assert targets == {None: DEFAULT_FALSE_ALARM, 0.2: 0.2}
+    assert thresholds[0.2] < thresholds[None]
+    r = runner.invoke(app, common + ["--out", str(tmp_path / "bad"), "--novelty-false-alarm", "0.7"])
+    assert r.exit_code == 2 and "--novelty-false-alarm must be in (0, 0.5)" in r.output
