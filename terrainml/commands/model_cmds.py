@@ -22,6 +22,17 @@ model_app = typer.Typer(help="Sign model folders and check their signatures (ed2
 
 _TRUSTED_KEY_HELP = ("Public key (KEY.pub from `terrainml model keygen`); the model folder must be signed by "
                      "it (`terrainml model sign`), else it is refused. Repeat for several.")
+#: the novelty threshold's default target (``terrainml.models.novelty.DEFAULT_FALSE_ALARM``, not
+#: imported here so that ``--help`` stays fast; a test checks the two agree)
+NOVELTY_FALSE_ALARM = 0.05
+_NOVELTY_FALSE_ALARM_HELP = ("Target share of moving windows on known ground over the novelty threshold (held-out "
+                             "training runs): higher finds more unknown ground and serves more known ground the "
+                             "safe cap (`unknown_terrain`). In (0, 0.5).")
+
+
+def _check_false_alarm_option(value: float) -> None:
+    if not 0 < value < 0.5:
+        fail(f"--novelty-false-alarm must be in (0, 0.5), e.g. 0.05, got {value}")
 
 
 def _load_data(data: Path, *, robot, preset: str, n_jobs: int, dask_address, fmt: str, spec=None,
@@ -75,10 +86,8 @@ def train(
                                   "in turn held out of training and scored as the unknown by the served "
                                   "model's novelty (one more CV per class; report.md section, as "
                                   "`terrainml evaluate --open-set`)."),
-    novelty_false_alarm: float = typer.Option(0.05, "--novelty-false-alarm", help="Target share of moving "
-                                              "windows on known ground over the novelty threshold (held-out "
-                                              "training runs): higher finds more unknown ground and serves more "
-                                              "known ground the safe cap (`unknown_terrain`). In (0, 0.5)."),
+    novelty_false_alarm: float = typer.Option(NOVELTY_FALSE_ALARM, "--novelty-false-alarm",
+                                              help=_NOVELTY_FALSE_ALARM_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
     """Cross-validate (grouped by run), train, report and save a terrain classifier.
@@ -100,8 +109,7 @@ def train(
         fail("--budget-min must be > 0")
     if not replay_s > 0:
         fail("--replay-s must be > 0")
-    if not 0 < novelty_false_alarm < 0.5:
-        fail(f"--novelty-false-alarm must be in (0, 0.5), e.g. 0.05, got {novelty_false_alarm}")
+    _check_false_alarm_option(novelty_false_alarm)
     check_n_jobs(n_jobs)
     check_output_writable(out, folder=True)
     if auto:
@@ -376,6 +384,8 @@ def evaluate(
                                "--open-set: also over folds)."),
     dask_address: Optional[str] = typer.Option(None, "--dask-address", help="Dask scheduler for building."),
     fmt: str = typer.Option("auto", "--format", help="auto or borealtc (when --data is a folder)."),
+    novelty_false_alarm: float = typer.Option(NOVELTY_FALSE_ALARM, "--novelty-false-alarm",
+                                              help="With --open-set: " + _NOVELTY_FALSE_ALARM_HELP),
     trusted_key: Optional[List[Path]] = typer.Option(None, "--trusted-key", help=_TRUSTED_KEY_HELP),
     class_map: Optional[str] = typer.Option(None, "--class-map", help="Data class = model class, e.g. "
                                             "CONCRETE=ASPHALT,...: classes are matched by name; a data class "
@@ -394,9 +404,10 @@ def evaluate(
     """
     check_n_jobs(n_jobs)
     if open_set:
+        _check_false_alarm_option(novelty_false_alarm)
         _evaluate_open_set(model_dir, data, out, model=model, windows=windows, folds=folds, seed=seed, robot=robot,
                            preset=preset, n_jobs=n_jobs, dask_address=dask_address, fmt=fmt,
-                           trusted_key=trusted_key, quiet=quiet)
+                           trusted_key=trusted_key, false_alarm=novelty_false_alarm, quiet=quiet)
         return
     if model_dir is None:
         fail("give the model folder (MODEL_DIR), or --open-set to evaluate unknown-ground detection")
@@ -481,7 +492,7 @@ def _open_set_inputs(model_dir: Optional[Path], *, model, windows, robot, preset
 
 def _evaluate_open_set(model_dir: Optional[Path], data: Path, out: Optional[Path], *, model, windows, folds: int,
                        seed: int, robot, preset: str, n_jobs: int, dask_address, fmt: str, trusted_key,
-                       quiet: bool) -> None:
+                       false_alarm: float, quiet: bool) -> None:
     """``evaluate --open-set``: the leave-one-class-out table on stdout, the report in ``out``."""
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
@@ -501,7 +512,7 @@ def _evaluate_open_set(model_dir: Optional[Path], data: Path, out: Optional[Path
         with Progress(SpinnerColumn(), TextColumn("[bold]evaluate[/] {task.description}"), TimeElapsedColumn(),
                       console=console, transient=True, disable=quiet) as progress:
             task = progress.add_task("", total=None)
-            res = evaluate_open_set(ds, kind, folds=folds, seed=seed, n_jobs=n_jobs,
+            res = evaluate_open_set(ds, kind, folds=folds, seed=seed, n_jobs=n_jobs, false_alarm=false_alarm,
                                     progress=lambda msg: progress.update(task, description=msg))
         context = {"data": str(data), "model": kind, "window_spec": ds.spec.name, "robot": ds.robot.name,
                    "windows": int(len(ds.windows)), "runs": int(len(set(ds.windows.groups.tolist()))),

@@ -155,3 +155,13 @@ def test_train_novelty_false_alarm_sets_the_served_threshold(windows_file, tmp_p
     assert thresholds[0.2] < thresholds[None]
     r = runner.invoke(app, common + ["--out", str(tmp_path / "bad"), "--novelty-false-alarm", "0.7"])
     assert r.exit_code == 2 and "--novelty-false-alarm must be in (0, 0.5)" in r.output
+
+
+def test_evaluate_open_set_takes_the_novelty_false_alarm_target(windows_file, tmp_path):
+    out = tmp_path / "rep"
+    r = CliRunner().invoke(app, ["evaluate", "--open-set", "--data", str(windows_file), "--folds", "3",
+                                 "--novelty-false-alarm", "0.2", "--out", str(out), "-q"])
+    assert r.exit_code == 0, r.output
+    assert json.loads((out / "open_set.json").read_text())["settings"]["false_alarm_target"] == 0.2
+    r = CliRunner().invoke(app, ["evaluate", "--open-set", "--data", str(windows_file), "--novelty-false-alarm", "0"])
+    assert r.exit_code == 2 and "--novelty-false-alarm must be in (0, 0.5)" in r.output
