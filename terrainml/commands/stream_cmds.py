@@ -62,6 +62,11 @@ _CLOSED_SET_HELP = (
     "Serve without the model's novelty score: every window is served as one of the model's classes, never"
     ' unknown_terrain (the behaviour before unknown-ground detection; for comparison, or a model whose '
     'training runs covered all the ground it will meet).')
+_SETTLE_M_HELP = (
+    "Unknown ground: metres of travel that novelty flags beginning on known ground must last before "
+    "unknown_terrain is served (default 2.5: a change between known terrains stays flagged until every wheel "
+    "has crossed and the drive has settled, 0.8-3.7 m on the reference robot's tuning courses). Flags with no "
+    "known ground before them need none. 0: enter after the flagged windows alone.")
 
 
 def _record_format(record_format: Optional[str], record_unknown: Optional[Path]) -> str:
@@ -128,6 +133,9 @@ def register(app: typer.Typer) -> None:
         closed_set: bool = typer.Option(
             False, "--closed-set",
             help=_CLOSED_SET_HELP),
+        settle_m: Optional[float] = typer.Option(
+            None, "--settle-m", min=0.0,
+            help=_SETTLE_M_HELP),
     ) -> None:
         from terrainml.stream.config import ServingConfig
         from terrainml.stream.runner import CLASSIFY_LAG_TICKS, run_predict
@@ -136,7 +144,8 @@ def register(app: typer.Typer) -> None:
         # resolved here, once: the stream takes a RobotSpec and a ServingConfig
         config = ServingConfig(preset=preset, max_clock_gap_s=max_clock_gap_s,
                                reanchor_after=reanchor_after, classify_lag_ticks=CLASSIFY_LAG_TICKS,
-                               open_set=not closed_set)
+                               open_set=not closed_set,
+                               fusion=None if settle_m is None else {"settle_m": settle_m})
         code = run_predict(model=model, source=source, sinks=list(sink), realtime=realtime,
                            robot=open_robot(robot) if robot else None, config=config,
                            idle_timeout_s=idle_timeout_s, verbose=verbose,

@@ -508,3 +508,20 @@ def test_an_unknown_record_format_is_refused_before_anything_is_created(folders,
                                  "--record-format", "mcap"])
     assert r.exit_code == 2 and "needs --record-unknown" in " ".join(r.output.split())
     assert not any((tmp_path / x).exists() for x in "abd")
+
+
+def test_predict_settle_m_sets_how_long_flags_after_known_ground_must_last(folders, drive, served):
+    """``predict --settle-m 0``: the stretch is entered after its flagged windows alone, earlier than
+    with the default (whose ticks the in-process predictor served); a negative value is refused."""
+    lines = "\n".join(json.dumps(s) for s in iter_table_samples(drive)) + "\n"
+    cmd = [sys.executable, "-m", "terrainml.cli", "predict", "--model", str(folders["with"]), "--source", "-",
+           "--sink", "stdout"]
+    proc = subprocess.run(cmd + ["--settle-m", "0"], input=lines, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    first_0 = next(json.loads(x)["t_s"] for x in proc.stdout.splitlines()
+                   if json.loads(x)["fallback_reason"] == "unknown_terrain")
+    _, out, _ = served["with"]
+    first_default = next(m.t_s for m in out if m.fallback_reason == "unknown_terrain")
+    assert ON_S <= first_0 < first_default
+    bad = subprocess.run(cmd + ["--settle-m", "-1"], input="", capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--settle-m" in bad.stderr
