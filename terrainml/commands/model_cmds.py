@@ -31,7 +31,12 @@ _NOVELTY_FALSE_ALARM_HELP = ("Target share of moving windows on known ground ove
 
 
 def _check_false_alarm_option(value: float) -> None:
-    if not 0 < value < 0.5:
+    """The option checked by the novelty module's own rule (one definition of the range)."""
+    from terrainml.models.novelty import check_false_alarm
+
+    try:
+        check_false_alarm(value)
+    except ValueError:
         fail(f"--novelty-false-alarm must be in (0, 0.5), e.g. 0.05, got {value}")
 
 
