@@ -5,23 +5,25 @@ Every refusal goes through :func:`fail`: one red ``error:`` line on stderr that 
 :func:`check_output_writable` and :func:`check_n_jobs` *before* any long work, so a bad target
 is refused in a second rather than after the simulation or the estimation.
 
-Only typer and rich are imported here; the readers (pyarrow, the ingest engine, the dataset
-pipeline) are imported inside the helpers so that ``terrainml --help`` stays fast.
+Only typer and rich are imported here; the robot specs (numpy, yaml), the readers (pyarrow, the
+ingest engine, the dataset pipeline) are imported inside the helpers, so that ``terrainml --help``,
+``terrainml version`` and every ``--help`` import none of them (``tests/test_cli_startup.py``).
 """
 
 from __future__ import annotations
 
 import tempfile
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 import typer
 from rich.console import Console
 from rich.markup import escape
 
 from terrainml.atomic import DISK_ERRNOS, OutputWriteError
-from terrainml.io.ingest.dataset_spec import DatasetSpecError, load_dataset_spec
-from terrainml.robot import RobotSpec, RobotSpecError, load_robot
+
+if TYPE_CHECKING:
+    from terrainml.robot import RobotSpec
 
 __all__ = ["EXIT_USAGE", "check_n_jobs", "check_output_writable", "console", "fail", "failure_message",
            "is_windows_file", "open_dataset", "open_dataset_spec", "open_robot", "open_run"]
@@ -71,6 +73,8 @@ def failure_message(source: object, exc: BaseException, out: object = None) -> s
 
 def open_robot(robot: str | Path | RobotSpec | None) -> RobotSpec:
     """:func:`terrainml.robot.load_robot`, refusing a bad spec with its message (names the file)."""
+    from terrainml.robot import RobotSpecError, load_robot
+
     try:
         return load_robot(robot)
     except RobotSpecError as exc:
@@ -88,6 +92,8 @@ def open_dataset_spec(fmt: str | None, allow_outside: bool):
     reader refuses such a spec itself."""
     if fmt is None or not allow_outside:
         return fmt
+    from terrainml.io.ingest.dataset_spec import DatasetSpecError, load_dataset_spec
+
     try:
         return load_dataset_spec(fmt, allow_outside=True)
     except DatasetSpecError as exc:

@@ -16,7 +16,6 @@ from rich.progress import Progress
 from terrainml.atomic import write_text
 from terrainml.classes import class_id
 from terrainml.commands._common import check_output_writable, console, fail
-from terrainml.robot import reference_robot
 
 control_app = typer.Typer(help="Traction control in the simulator.", no_args_is_help=True)
 
@@ -51,6 +50,7 @@ def closed_loop(
     from terrainml.control.pid import SlipPIDConfig
     from terrainml.control.traction import POLICIES, tuned_config
     from terrainml.experiments.closed_loop import SCENARIOS, run_closed_loop
+    from terrainml.robot import reference_robot
 
     if policy not in POLICIES:
         fail(f"--policy {policy!r}: expected one of {', '.join(POLICIES)}")

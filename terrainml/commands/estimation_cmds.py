@@ -12,8 +12,6 @@ from rich.table import Table
 
 from terrainml.atomic import write_text
 from terrainml.commands._common import check_output_writable, console, fail, failure_message, open_robot, open_run
-from terrainml.io.damage import damage_summary
-from terrainml.robot import check_wheel_count
 
 
 def register(app: typer.Typer) -> None:
@@ -60,6 +58,8 @@ def register(app: typer.Typer) -> None:
         table = open_run(run, robot=rb, topics=topics)
         from terrainml.estimation.consistency import consistency_report, truth_metrics
         from terrainml.estimation.run import run_robot
+        from terrainml.io.damage import damage_summary
+        from terrainml.robot import check_wheel_count
         from terrainml.schema import infer_n_wheels, write_run_parquet
 
         try:

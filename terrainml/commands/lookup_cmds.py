@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import typer
 from rich.console import Console
@@ -12,7 +12,9 @@ from rich.markup import escape
 from rich.table import Table
 
 from terrainml.commands._common import check_output_writable, console, fail, open_robot
-from terrainml.robot import RobotSpec
+
+if TYPE_CHECKING:
+    from terrainml.robot import RobotSpec
 
 lookup_app = typer.Typer(
     name="lookup",
@@ -155,6 +157,8 @@ def _robot(robot: Optional[str]) -> Optional[RobotSpec]:
 
 
 def _robot_of(table):
+    from terrainml.robot import RobotSpec
+
     return RobotSpec.from_dict(table.robot_spec, source="table")
 
 

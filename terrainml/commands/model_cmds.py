@@ -17,14 +17,12 @@ from rich.table import Table
 from terrainml.atomic import write_text
 from terrainml.commands._common import (check_n_jobs, check_output_writable, console, fail, failure_message,
                                         is_windows_file, open_dataset)
+from terrainml.models.novelty_target import DEFAULT_FALSE_ALARM, check_false_alarm
 
 model_app = typer.Typer(help="Sign model folders and check their signatures (ed25519).", no_args_is_help=True)
 
 _TRUSTED_KEY_HELP = ("Public key (KEY.pub from `terrainml model keygen`); the model folder must be signed by "
                      "it (`terrainml model sign`), else it is refused. Repeat for several.")
-#: the novelty threshold's default target (``terrainml.models.novelty.DEFAULT_FALSE_ALARM``, not
-#: imported here so that ``--help`` stays fast; a test checks the two agree)
-NOVELTY_FALSE_ALARM = 0.05
 _NOVELTY_FALSE_ALARM_HELP = ("Target share of moving windows on known ground over the novelty threshold (held-out "
                              "training runs): higher finds more unknown ground and serves more known ground the "
                              "safe cap (`unknown_terrain`). In (0, 0.5).")
@@ -32,8 +30,6 @@ _NOVELTY_FALSE_ALARM_HELP = ("Target share of moving windows on known ground ove
 
 def _check_false_alarm_option(value: float) -> None:
     """The option checked by the novelty module's own rule (one definition of the range)."""
-    from terrainml.models.novelty import check_false_alarm
-
     try:
         check_false_alarm(value)
     except ValueError:
@@ -91,7 +87,7 @@ def train(
                                   "in turn held out of training and scored as the unknown by the served "
                                   "model's novelty (one more CV per class; report.md section, as "
                                   "`terrainml evaluate --open-set`)."),
-    novelty_false_alarm: float = typer.Option(NOVELTY_FALSE_ALARM, "--novelty-false-alarm",
+    novelty_false_alarm: float = typer.Option(DEFAULT_FALSE_ALARM, "--novelty-false-alarm",
                                               help=_NOVELTY_FALSE_ALARM_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
@@ -389,7 +385,7 @@ def evaluate(
                                "--open-set: also over folds)."),
     dask_address: Optional[str] = typer.Option(None, "--dask-address", help="Dask scheduler for building."),
     fmt: str = typer.Option("auto", "--format", help="auto or borealtc (when --data is a folder)."),
-    novelty_false_alarm: float = typer.Option(NOVELTY_FALSE_ALARM, "--novelty-false-alarm",
+    novelty_false_alarm: float = typer.Option(DEFAULT_FALSE_ALARM, "--novelty-false-alarm",
                                               help="With --open-set: " + _NOVELTY_FALSE_ALARM_HELP),
     trusted_key: Optional[List[Path]] = typer.Option(None, "--trusted-key", help=_TRUSTED_KEY_HELP),
     class_map: Optional[str] = typer.Option(None, "--class-map", help="Data class = model class, e.g. "

@@ -1,7 +1,7 @@
 """CLI: ``terrainml slipmap fit|merge|experiment`` (design §13, the IRLS paper).
 
-The slip maps (statsmodels), run tables (pyarrow) and the experiment are imported inside the
-commands so that ``terrainml --help`` stays fast.
+The robot specs, slip maps (statsmodels), run tables (pyarrow) and the experiment are imported
+inside the commands so that ``terrainml --help`` stays fast.
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ from rich.progress import Progress
 from rich.table import Table
 
 from terrainml.commands._common import check_output_writable, console, fail, open_robot, open_run
-from terrainml.robot import RobotSpec, RobotSpecError, builtin_robot
 
 slipmap_app = typer.Typer(help="Slip maps (IRLS paper): per-terrain robust slippage estimators, "
                                "merged across robots.\n\nExample: `terrainml slipmap experiment --robots 5 "
@@ -45,6 +44,7 @@ def fit_cmd(directory: Path = typer.Argument(..., help="Folder of run tables (.p
 
     Example: ``terrainml slipmap fit runs/husky_tables --out runs/maps/husky1.json --robot husky``
     """
+    from terrainml.robot import RobotSpec, RobotSpecError, builtin_robot
     from terrainml.slipmap.fit import SlipFitError, fit_slip_map
     from terrainml.slipmap.kinematics import side_geometry
     from terrainml.slipmap.slipmap import SlipMapConfig
