@@ -11,7 +11,6 @@ import importlib
 from pathlib import Path
 from typing import Any
 
-import click
 import typer
 from rich.console import Console
 from rich.markup import escape
@@ -27,7 +26,7 @@ class _Group(TyperGroup):
     """The root command group: a write that fails on a full disk (or a quota, a read-only file
     system) in any command is one ``error:`` line naming the output, exit 2, never a traceback."""
 
-    def invoke(self, ctx: click.Context) -> Any:
+    def invoke(self, ctx: typer.Context) -> Any:
         """Run the command; a failed write becomes the refusal (exit 2), anything else propagates."""
         try:
             return super().invoke(ctx)
