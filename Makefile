@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench venv clean
+.PHONY: demo test test-all bench venv clean
 
 venv: $(STAMP)
 
@@ -19,11 +19,16 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/terrainml demo --out runs/demo
 
-# the linter and the layers contract first (seconds), then the tests
+# the fast tier: the linter and the layers contract first (seconds), then every test not marked acceptance
 test: $(STAMP)
 	$(BIN)/ruff check terrainml tests benchmarks
 	$(BIN)/lint-imports
-	$(BIN)/python -m pytest -n 2 --timeout 1800 tests
+	$(BIN)/python -m pytest -n 2 --timeout 600 -m "not acceptance" tests
+
+# the acceptance tier, everything `make test` leaves out: real-data builds and replays, long
+# simulations, real-time DDS (CI runs it after `make test`)
+test-all: $(STAMP)
+	$(BIN)/python -m pytest -n 2 --timeout 1800 -m acceptance tests
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run_all --out BENCHMARKS.md

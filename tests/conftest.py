@@ -1,8 +1,16 @@
 """Shared test setup: ``tests/`` on ``sys.path`` so area folders can import shared helpers
-(``synthetic_runs``) by module name."""
+(``synthetic_runs``, ``shared_cache``) by module name; one BLAS/OpenMP thread per test process.
 
+``make test`` runs one pytest-xdist worker per core, so a library thread pool per worker
+(OpenMP in sklearn's boosted trees, BLAS, torch) only oversubscribes the cores.
+"""
+
+import os
 import sys
 from pathlib import Path
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # before numpy, sklearn or torch are imported; subprocesses inherit it
 
 _TESTS = str(Path(__file__).resolve().parent)
 if _TESTS not in sys.path:

@@ -115,7 +115,7 @@ TUNING_SEEDS = [5003, 5006, 5027]      # draw peaks 0.364, 0.393, 0.440 vs 0.421
 HELD_OUT_SEEDS = [7101, 7102, 7103, 7104, 7105, 7106]   # peaks 0.405-0.435
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 @pytest.mark.parametrize("seed", TUNING_SEEDS + HELD_OUT_SEEDS)
 def test_cap_lands_within_003_of_the_true_peak_after_10_m(seed):
     cap, peak, travel = _refined_cap_after_traction(seed)

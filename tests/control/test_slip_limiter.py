@@ -122,7 +122,7 @@ def _towed_start(policy: str, load_w: float = 0.10, duration_s: float = 30.0):
     return float(np.max(x[:upto])), res, upto
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_towed_start_on_dry_sand_travels_far_more_than_no_control():
     """Dry sand, a cart of 0.10 W rolling resistance, a 0.8 m/s step command for 30 s.
 

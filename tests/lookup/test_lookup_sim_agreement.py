@@ -31,7 +31,7 @@ def _sim_available() -> bool:
 
 
 pytestmark = [
-    pytest.mark.slow,
+    pytest.mark.acceptance,
     pytest.mark.skipif(not _sim_available(),
                        reason="terrainml.sim (the simulator owner's module, `terrainml sim "
                               "generate`) is not available in this tree"),

@@ -53,7 +53,7 @@ def sim_model_dir(tmp_path_factory):
     return out
 
 
-@pytest.mark.slow
+@pytest.mark.acceptance
 def test_mixed_terrain_course_served_class_matches_truth(sim_model_dir):
     from terrainml.sim.generate import simulate
     from terrainml.sim.output import run_table
