@@ -307,17 +307,35 @@ class SVMClassifier(ClassifierMixin, BaseEstimator):
         channel_names : names of the C channels when X is a plain array.
         """
         t0 = time.perf_counter()
-        if int(self.inner_folds) < 2:
-            raise ValueError("SVMClassifier: inner_folds must be >= 2")
-        if not len(self.C_grid) or not len(self.gamma_grid):
-            raise ValueError("SVMClassifier: C_grid and gamma_grid must not be empty")
-        y = np.asarray(y)
         if groups is None and hasattr(X, "groups"):
             groups = X.groups
         fs = clone(self.features) if self.features is not None else FeatureSet()
         if channel_names is not None:
             fs.set_params(channel_names=tuple(channel_names))
-        F = fs.fit_transform(X)
+        self._check_params()
+        return self._fit_on(fs.fit_transform(X), y, groups, fs, t0)
+
+    def fit_features(self, F: np.ndarray, y, groups, features) -> "SVMClassifier":
+        """Fit on the feature matrix ``F`` (n, n_features) of n windows, computed elsewhere.
+
+        The same model as :meth:`fit` on the windows: ``features`` is the fitted, stateless
+        feature transformer whose ``transform`` of those windows gives ``F`` (it becomes
+        ``features_``, so the fitted model predicts on raw windows). The nested selection
+        (:mod:`terrainml.pipeline.select`) computes every spec's features once and fits every
+        fold's model on rows of them.
+        """
+        t0 = time.perf_counter()
+        self._check_params()
+        return self._fit_on(np.asarray(F, dtype=float), y, groups, features, t0)
+
+    def _check_params(self) -> None:
+        if int(self.inner_folds) < 2:
+            raise ValueError("SVMClassifier: inner_folds must be >= 2")
+        if not len(self.C_grid) or not len(self.gamma_grid):
+            raise ValueError("SVMClassifier: C_grid and gamma_grid must not be empty")
+
+    def _fit_on(self, F: np.ndarray, y, groups, fs, t0: float) -> "SVMClassifier":
+        y = np.asarray(y)
         if len(y) != len(F):
             raise ValueError(f"SVMClassifier: {len(F)} windows but {len(y)} labels")
         classes = np.unique(y)

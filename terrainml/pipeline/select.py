@@ -57,7 +57,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
-from sklearn.base import clone
+from sklearn.base import BaseEstimator, ClassifierMixin, clone
 from sklearn.metrics import balanced_accuracy_score
 from sklearn.preprocessing import FunctionTransformer
 
@@ -198,6 +198,26 @@ def _bal_acc(y, p, classes) -> float:
         return float(balanced_accuracy_score(y, classes[np.argmax(p, axis=1)]))
 
 
+class _OnFeatures(ClassifierMixin, BaseEstimator):
+    """A model of raw windows (``svm``, ``hgb``) fitted and scored on rows of its windows' features
+    computed once (:meth:`fit_features`); ``model_`` is the fitted model, which predicts on raw
+    windows like one fitted on them."""
+
+    def __init__(self, model: Any = None, features: Any = None):
+        self.model = model
+        self.features = features
+
+    def fit(self, F, y, groups=None):
+        self.model_ = clone(self.model).fit_features(F, y, groups, self.features)
+        self.classes_ = self.model_.classes_
+        self.best_params_ = dict(getattr(self.model_, "best_params_", {}) or {})
+        return self
+
+    def predict_proba(self, F) -> np.ndarray:
+        mask = getattr(self.model_, "feature_mask_", None)  # the SVM's selected features
+        return self.model_.predict_proba_from_features(F if mask is None else F[:, mask])
+
+
 class _Fits:
     """Held-out probabilities of (spec, base model, training groups), fitted once each."""
 
@@ -218,7 +238,7 @@ class _Fits:
         self.proba: dict[tuple, np.ndarray] = {}
         self.info: dict[tuple, dict] = {}
         self.models: dict[tuple, Any] = {}  # fitted on K - 1 groups: the outer folds' models
-        self._features: dict[str, np.ndarray] = {}
+        self._features: dict[tuple, tuple] = {}  # (spec, feature family) -> (transformer, F)
         self.n_fits = 0
         self.fit_s = 0.0
 
@@ -250,7 +270,7 @@ class _Fits:
             self.fit_s += time.perf_counter() - t0
             for k, (_, te), r in zip(use, splits, res):
                 if r["model"] is not None:
-                    self.models[k] = r["model"]
+                    self.models[k] = r["model"].model_ if isinstance(r["model"], _OnFeatures) else r["model"]
                 P = np.full((len(W), len(self.classes)), np.nan)
                 P[te] = r["proba"]
                 self.proba[k] = P
@@ -258,18 +278,34 @@ class _Fits:
             self.n_fits += len(splits)
 
     def _inputs(self, spec: str, base: str) -> tuple[Any, Callable[[], Any]]:
-        """(X, factory): raw windows and the model's factory, or for the screening model the
-        spec's features (computed once, by the trees' own feature family) and small trees."""
+        """(X, factory) of a base model's fits: for a model on window features (``svm``, ``hgb``),
+        the spec's features (computed once, shared by every fold and every model of the same
+        feature family) and the model fitted on their rows (:class:`_OnFeatures`); else raw
+        windows and the model's factory. The screening model: small trees on the trees' features."""
         ds = self.data[spec]
-        if base != SCREEN:
-            return ds.windows, train_lib.make_factory(base, ds, self.seed, n_jobs=1 if self.n_jobs != 1 else None)
-        if spec not in self._features:
-            self.say(f"{spec}: features of {len(ds.windows)} windows")
-            feats = clone(train_lib.make_factory("hgb", ds, self.seed)().features)
-            self._features[spec] = np.asarray(feats.fit(ds.windows).transform(ds.windows), dtype=float)
         seed = self.seed
-        return self._features[spec], lambda: BoostedTrees(FunctionTransformer(), max_iter=SCREEN_TREES,
-                                                          learning_rate=SCREEN_LEARNING_RATE, random_state=seed)
+        if base == SCREEN:
+            _, F = self.features(spec, "hgb")
+            return F, lambda: BoostedTrees(FunctionTransformer(), max_iter=SCREEN_TREES,
+                                           learning_rate=SCREEN_LEARNING_RATE, random_state=seed)
+        factory = train_lib.make_factory(base, ds, seed, n_jobs=1 if self.n_jobs != 1 else None)
+        if not hasattr(factory(), "fit_features"):
+            return ds.windows, factory
+        feats, F = self.features(spec, base)
+        return F, lambda: _OnFeatures(factory(), feats)
+
+    def features(self, spec: str, base: str) -> tuple[Any, np.ndarray]:
+        """(fitted transformer, features of every window of ``spec``) of model ``base``'s feature
+        family, computed once (the transformers are stateless: a window's features do not depend
+        on the other windows)."""
+        ds = self.data[spec]
+        feats = clone(train_lib.make_factory(base, ds, self.seed)().features)
+        key = (spec, type(feats).__name__, repr(sorted(feats.get_params().items())))
+        if key not in self._features:
+            self.say(f"{spec}: features of {len(ds.windows)} windows")
+            feats.fit(ds.windows)
+            self._features[key] = (feats, np.asarray(feats.transform(ds.windows), dtype=float))
+        return self._features[key]
 
     def keys(self, spec: str, model: str, held: Sequence[int]) -> list[tuple]:
         return [(spec, b, frozenset(held) - {d}) for b in model.split("+") for d in held]
