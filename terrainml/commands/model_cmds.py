@@ -304,17 +304,21 @@ def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, fol
 def _auto_members(out: Path, res, tables, rb, *, folds: int, seed: int, n_jobs: int, preset: str,
                   replay_s: float, say, false_alarm: float) -> list[str]:
     """The sensor members of a selected model: the chosen window spec and model trained again on
-    each subset of its sensor groups, under the same nested CV and served replay; a member whose
-    replay refuses it is not saved (the folder then serves without it)."""
+    each subset of its sensor groups. The choice is fixed, so a member reuses the model's windows
+    (their channels of the subset: :func:`~terrainml.pipeline.members.subset_dataset`) and run
+    groups and gets one grouped CV (no nested selection), the served replay of every fold's
+    held-out runs and the final fit; a member whose replay refuses it is not saved (the folder
+    then serves without it)."""
     from terrainml.pipeline.autotrain import ReplayRefused, train_auto
-    from terrainml.pipeline.members import train_members
+    from terrainml.pipeline.members import subset_dataset, train_members
 
     chosen = res.selection.chosen
 
     def fit(subset, folder):
         try:
-            train_auto(tables, rb, folder, specs=[chosen.spec], models=[chosen.model], folds=folds, seed=seed,
-                       n_jobs=n_jobs, budget_min=None, preset=preset, sensors=subset, segment_s=replay_s,
+            train_auto(tables, rb, folder, models=[chosen.model], folds=folds, seed=seed, n_jobs=n_jobs,
+                       budget_min=None, preset=preset, sensors=subset, segment_s=replay_s,
+                       datasets={chosen.spec: subset_dataset(res.dataset, subset)}, nested=False,
                        novelty_false_alarm=false_alarm, progress=say)
         except ReplayRefused as exc:
             raise ValueError(f"its served replay refuses it: {exc}") from None

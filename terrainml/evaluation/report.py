@@ -263,6 +263,14 @@ def _pooled_line(sel: dict, best: dict | None) -> list[str]:
             f"`train --windows X` reports it): **{pooled:.3f}**{gap}.", ""]
 
 
+def _nested_line(sel: dict, best: dict | None) -> list[str]:
+    return [f"**Honest figure of this choice (nested CV): {sel['nested']['mean']:.3f} ± {sel['nested']['std']:.3f}** "
+            f"balanced accuracy: in outer fold k the choice is made again without group k (inner scores below) and "
+            f"its winner, fitted without group k, is scored on it"
+            + (f"; {100 * (sel['nested']['mean'] - best['cv_balanced_accuracy']):+.1f} points from the best "
+               f"candidate's CV figure" if best else "") + ".", ""]
+
+
 def selection_markdown(doc: dict) -> list[str]:
     """Markdown of ``train --windows auto --model auto`` (:mod:`terrainml.pipeline.autotrain`):
     every candidate side by side, the choice and why, the nested (honest) figure per outer
@@ -279,11 +287,10 @@ def selection_markdown(doc: dict) -> list[str]:
           f"accuracy ({chosen['cv_balanced_accuracy']:.3f})"
           + (f"; next `{others[0]['candidate']}` ({others[0]['cv_balanced_accuracy']:.3f})" if others else "")
           + ".", "",
-          f"**Honest figure of this choice (nested CV): {sel['nested']['mean']:.3f} ± {sel['nested']['std']:.3f}** "
-          f"balanced accuracy: in outer fold k the choice is made again without group k (inner scores below) and "
-          f"its winner, fitted without group k, is scored on it"
-          + (f"; {100 * (sel['nested']['mean'] - best['cv_balanced_accuracy']):+.1f} points from the best "
-             f"candidate's CV figure" if best else "") + ".", "",
+          *(_nested_line(sel, best) if sel.get("nested_cv", True) else
+            [f"**Honest figure: {sel['nested']['mean']:.3f} ± {sel['nested']['std']:.3f}** balanced accuracy, "
+             f"the grouped {K}-fold CV itself: the spec and the model were fixed beforehand (a sensor member "
+             "of a chosen model), so nothing is chosen on these folds and no nested CV is needed.", ""]),
           *_pooled_line(sel, best),
           markdown_table(["candidate", "windows", f"CV bal. acc. (mean ± std, {K} folds)", "pooled", "ECE (raw)",
                           "inner scores (outer fold 1..K)", "chosen in outer folds", "screened out"],
@@ -293,8 +300,10 @@ def selection_markdown(doc: dict) -> list[str]:
     if sel.get("budget_note"):
         md += [f"Time budget: {sel['budget_note']}.", ""]
     md += ["### Outer folds (the honest figure) and calibration", "",
-           "The temperature of fold k is fitted on its winner's inner out-of-fold probabilities (never group k) "
-           "and applied to its predictions on group k; ECE before and after on those runs.", "",
+           ("The temperature of fold k is fitted on its winner's inner out-of-fold probabilities (never group k) "
+            if sel.get("nested_cv", True) else
+            "The temperature of fold k is fitted on the out-of-fold probabilities of the other groups ")
+           + "and applied to its predictions on group k; ECE before and after on those runs.", "",
            markdown_table(["fold", "runs", "chosen", "inner score", "bal. acc.", "ECE before", "ECE after",
                            "temperature"],
                           [[o["fold"] + 1, len(o["runs"]), o["chosen"], _f(o["inner_score"]),

@@ -50,10 +50,22 @@ class BoostedTrees(ClassifierMixin, BaseEstimator):
         ``groups`` is accepted (and unused: no inner search) so that cross-validation can call
         every model alike.
         """
+        features = clone(self.features) if self.features is not None else SideChannelFeatures()
+        return self.fit_features(features.fit(X).transform(X), y, groups, features)
+
+    def fit_features(self, F: np.ndarray, y, groups=None, features=None) -> "BoostedTrees":
+        """Fit on the feature matrix ``F`` (n, n_features) of n windows, computed elsewhere.
+
+        The same model as :meth:`fit` on the windows: ``features`` is the fitted, stateless
+        transformer whose ``transform`` of those windows gives ``F`` (it becomes ``features_``,
+        so the fitted model predicts on raw windows).
+        """
         if int(self.max_iter) < 1 or not float(self.learning_rate) > 0:
             raise ValueError("BoostedTrees: max_iter must be >= 1 and learning_rate > 0")
-        self.features_ = clone(self.features) if self.features is not None else SideChannelFeatures()
-        F = self.features_.fit(X).transform(X)
+        if features is None:
+            raise ValueError("BoostedTrees.fit_features: give the fitted feature transformer of F")
+        self.features_ = features
+        F = np.asarray(F, dtype=float)
         self.model_ = HistGradientBoostingClassifier(
             max_iter=int(self.max_iter), learning_rate=float(self.learning_rate),
             # sklearn's 20 samples per leaf, but at most a quarter of the data: with fewer

@@ -71,6 +71,7 @@ class AutoResult:
     refusal: str
     train: TrainResult | None
     timing_s: dict = field(default_factory=dict)
+    dataset: Dataset | None = None  # the chosen spec's windows (its sensor members subset them)
 
 
 def build_candidates(tables: Sequence[pd.DataFrame], robot: RobotSpec, specs: str | Sequence[str] = "auto",
@@ -171,7 +172,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
                segment_s: float = REPLAY_SEGMENT_S, allow_unproven: bool = False,
                min_classified_share: float = MIN_CLASSIFIED_SHARE, datasets: dict | None = None,
                open_set: bool = False, novelty_false_alarm: float = DEFAULT_FALSE_ALARM,
-               progress: Callable[[str], None] | None = None) -> AutoResult:
+               nested: bool = True, progress: Callable[[str], None] | None = None) -> AutoResult:
     """Select, validate on the served path, calibrate and save a model (see the module docstring).
 
     Parameters
@@ -191,6 +192,8 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
         the chosen windows (:func:`~terrainml.pipeline.train.evaluate_open_set`; report section).
     novelty_false_alarm : the novelty threshold's target (default 0.05), for the served model, the
         replay's fold models and the open-set evaluation alike (:func:`~terrainml.pipeline.train.train`).
+    nested : False for one spec and one model fixed beforehand (a sensor member): its grouped
+        K-fold CV, with no inner level (:func:`~terrainml.pipeline.select.select`).
     progress : callback with a short message per step.
 
     Returns
@@ -208,7 +211,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     table = desired_slip_table_for(first, robot)
     budget_s = None if budget_min is None else 60.0 * float(budget_min)
     sel = select(data, models, folds=folds, seed=seed, n_jobs=n_jobs, budget_s=budget_s, table=table,
-                 progress=say)
+                 progress=say, nested=nested)
     sel.infeasible = {**failed, **sel.infeasible}
     t_sel = time.perf_counter() - t0 - t_windows
     replay = replay and tables is not None
@@ -236,7 +239,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     res_doc["timing_s"] = timing
     _write_docs(out, tr, res_doc, sel)
     tr.manifest = write_manifest(out)
-    return AutoResult(sel, folds_replay, pooled, refusal, tr, timing)
+    return AutoResult(sel, folds_replay, pooled, refusal, tr, timing, ds)
 
 
 def _fit_and_save(out: Path, ds: Dataset, sel: Selection, table: Any, seed: int, say,
@@ -314,7 +317,7 @@ def _selection_doc(sel: Selection) -> dict:
                       "screen_scores": {"top": sel.top.screen_scores,
                                         "inner": [lv.screen_scores for lv in sel.inner]},
                       "partition": [list(map(str, p)) for p in sel.partition], "timing_s": sel.timing_s,
-                      "budget_note": sel.budget_note})
+                      "budget_note": sel.budget_note, "nested_cv": sel.nested})
 
 
 def _write_docs(out: Path, tr: TrainResult | None, doc: dict, sel: Selection) -> None:

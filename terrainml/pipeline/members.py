@@ -85,9 +85,11 @@ def train_members(out: str | Path, sensors: Sequence[str], fit: Callable[[list[s
 def subset_dataset(ds: Dataset, sensors: Sequence[str]) -> Dataset:
     """The windows of ``ds`` restricted to the channels of the groups ``sensors`` (a windows file).
 
-    Built from the logs, a member gets its own windows (a run without IMU then gives windows
-    to the member without IMU); from a windows file only its channels can be narrowed, so the
-    windows kept are those every group of the model allowed.
+    The windows kept are those every group of the model allowed: a run without IMU gives no
+    window to the member without IMU this way (``train --windows X`` from logs cuts a member's
+    own windows instead). The selected default (``train`` with ``--windows auto``) subsets its
+    chosen spec's windows, so a member shares the model's windows and run groups and its
+    windows are not cut again.
     """
     keep = set(sensors) | {"wheels", "estimator"}
     chans = [c for c in ds.windows.channels if channel_sensor_group(c) in keep]

@@ -27,6 +27,15 @@ screening is as honest as the choice). A spec whose
 windows miss a class, or keep fewer than :data:`MIN_WINDOWS_PER_CLASS` of one, is not a
 candidate (the reason is reported).
 
+Work shared across fits. Each spec's features are computed once (:meth:`_Fits.features`: the
+feature transformers are stateless) and every fold's ``svm`` and ``hgb`` is fitted and scored on
+rows of them (:class:`_OnFeatures`, the models' ``fit_features``); the screening model reads the
+same features. The SVM's C/gamma search shares one kernel matrix per inner split and gamma
+across every C (:func:`terrainml.models.svm._kernel_search`).
+
+A single candidate fixed beforehand (a sensor member of a chosen model, ``nested=False``) gets
+its grouped K-fold CV only: nothing is chosen, so that is its honest figure.
+
 Calibration (:mod:`terrainml.models.calibration`). At level ``k`` the winner's out-of-fold
 probabilities (its inner predictions: never group ``k``) fit a temperature, applied to its
 outer predictions on group ``k``: the ECE before and after on runs the calibration never saw.
@@ -57,7 +66,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
-from sklearn.base import clone
+from sklearn.base import BaseEstimator, ClassifierMixin, clone
 from sklearn.metrics import balanced_accuracy_score
 from sklearn.preprocessing import FunctionTransformer
 
@@ -151,7 +160,8 @@ class Selection:
     chosen : Candidate. temperature : float, of the saved model. class_ids / class_names : of
     the CV. timing_s : seconds per stage. budget_note : what the time budget skipped ("" none).
     outer_models : per outer fold k, the level-k winner fitted without group k (uncalibrated;
-    its temperature is ``outer[k]["temperature"]``), for the served replay.
+    its temperature is ``outer[k]["temperature"]``), for the served replay. nested : False when a
+    single fixed candidate was scored by its grouped CV alone (``select(nested=False)``).
     """
 
     candidates: list
@@ -169,6 +179,7 @@ class Selection:
     timing_s: dict = field(default_factory=dict)
     budget_note: str = ""
     outer_models: list = field(default_factory=list)
+    nested: bool = True
 
 
 def candidate_specs(names: str | Sequence[str]) -> list[str]:
@@ -198,6 +209,26 @@ def _bal_acc(y, p, classes) -> float:
         return float(balanced_accuracy_score(y, classes[np.argmax(p, axis=1)]))
 
 
+class _OnFeatures(ClassifierMixin, BaseEstimator):
+    """A model of raw windows (``svm``, ``hgb``) fitted and scored on rows of its windows' features
+    computed once (:meth:`fit_features`); ``model_`` is the fitted model, which predicts on raw
+    windows like one fitted on them."""
+
+    def __init__(self, model: Any = None, features: Any = None):
+        self.model = model
+        self.features = features
+
+    def fit(self, F, y, groups=None):
+        self.model_ = clone(self.model).fit_features(F, y, groups, self.features)
+        self.classes_ = self.model_.classes_
+        self.best_params_ = dict(getattr(self.model_, "best_params_", {}) or {})
+        return self
+
+    def predict_proba(self, F) -> np.ndarray:
+        mask = getattr(self.model_, "feature_mask_", None)  # the SVM's selected features
+        return self.model_.predict_proba_from_features(F if mask is None else F[:, mask])
+
+
 class _Fits:
     """Held-out probabilities of (spec, base model, training groups), fitted once each."""
 
@@ -218,7 +249,7 @@ class _Fits:
         self.proba: dict[tuple, np.ndarray] = {}
         self.info: dict[tuple, dict] = {}
         self.models: dict[tuple, Any] = {}  # fitted on K - 1 groups: the outer folds' models
-        self._features: dict[str, np.ndarray] = {}
+        self._features: dict[tuple, tuple] = {}  # (spec, feature family) -> (transformer, F)
         self.n_fits = 0
         self.fit_s = 0.0
 
@@ -250,7 +281,7 @@ class _Fits:
             self.fit_s += time.perf_counter() - t0
             for k, (_, te), r in zip(use, splits, res):
                 if r["model"] is not None:
-                    self.models[k] = r["model"]
+                    self.models[k] = r["model"].model_ if isinstance(r["model"], _OnFeatures) else r["model"]
                 P = np.full((len(W), len(self.classes)), np.nan)
                 P[te] = r["proba"]
                 self.proba[k] = P
@@ -258,18 +289,34 @@ class _Fits:
             self.n_fits += len(splits)
 
     def _inputs(self, spec: str, base: str) -> tuple[Any, Callable[[], Any]]:
-        """(X, factory): raw windows and the model's factory, or for the screening model the
-        spec's features (computed once, by the trees' own feature family) and small trees."""
+        """(X, factory) of a base model's fits: for a model on window features (``svm``, ``hgb``),
+        the spec's features (computed once, shared by every fold and every model of the same
+        feature family) and the model fitted on their rows (:class:`_OnFeatures`); else raw
+        windows and the model's factory. The screening model: small trees on the trees' features."""
         ds = self.data[spec]
-        if base != SCREEN:
-            return ds.windows, train_lib.make_factory(base, ds, self.seed, n_jobs=1 if self.n_jobs != 1 else None)
-        if spec not in self._features:
-            self.say(f"{spec}: features of {len(ds.windows)} windows")
-            feats = clone(train_lib.make_factory("hgb", ds, self.seed)().features)
-            self._features[spec] = np.asarray(feats.fit(ds.windows).transform(ds.windows), dtype=float)
         seed = self.seed
-        return self._features[spec], lambda: BoostedTrees(FunctionTransformer(), max_iter=SCREEN_TREES,
-                                                          learning_rate=SCREEN_LEARNING_RATE, random_state=seed)
+        if base == SCREEN:
+            _, F = self.features(spec, "hgb")
+            return F, lambda: BoostedTrees(FunctionTransformer(), max_iter=SCREEN_TREES,
+                                           learning_rate=SCREEN_LEARNING_RATE, random_state=seed)
+        factory = train_lib.make_factory(base, ds, seed, n_jobs=1 if self.n_jobs != 1 else None)
+        if not hasattr(factory(), "fit_features"):
+            return ds.windows, factory
+        feats, F = self.features(spec, base)
+        return F, lambda: _OnFeatures(factory(), feats)
+
+    def features(self, spec: str, base: str) -> tuple[Any, np.ndarray]:
+        """(fitted transformer, features of every window of ``spec``) of model ``base``'s feature
+        family, computed once (the transformers are stateless: a window's features do not depend
+        on the other windows)."""
+        ds = self.data[spec]
+        feats = clone(train_lib.make_factory(base, ds, self.seed)().features)
+        key = (spec, type(feats).__name__, repr(sorted(feats.get_params().items())))
+        if key not in self._features:
+            self.say(f"{spec}: features of {len(ds.windows)} windows")
+            feats.fit(ds.windows)
+            self._features[key] = (feats, np.asarray(feats.transform(ds.windows), dtype=float))
+        return self._features[key]
 
     def keys(self, spec: str, model: str, held: Sequence[int]) -> list[tuple]:
         return [(spec, b, frozenset(held) - {d}) for b in model.split("+") for d in held]
@@ -378,7 +425,7 @@ def _top_cv(fits: _Fits, top: Level, cands: Sequence[Candidate], names: list, ta
 
 def select(data: Mapping[str, Dataset], models: Sequence[str] = AUTO_MODELS, folds: int = 5, seed: int = 0,
            n_jobs: int = 1, budget_s: float | None = None, table: Any = None,
-           progress: Callable[[str], None] | None = None) -> Selection:
+           progress: Callable[[str], None] | None = None, nested: bool = True) -> Selection:
     """Nested run-grouped selection of a window spec and a model (see the module docstring).
 
     Parameters
@@ -391,6 +438,11 @@ def select(data: Mapping[str, Dataset], models: Sequence[str] = AUTO_MODELS, fol
         other models (said in ``budget_note``).
     table : desired-slip table for the report's slip error (or None).
     progress : callback with a short message per step.
+    nested : False for a single candidate fixed beforehand (a sensor member of a chosen model):
+        nothing is chosen, so its ordinary grouped K-fold CV is its honest figure and no inner
+        level is fitted. Outer fold k is then the top level's fold k, and its temperature is
+        fitted on the out-of-fold probabilities of the other groups (whose models did see group
+        k's runs, never its labels' probabilities).
 
     Returns
     -------
@@ -423,11 +475,13 @@ def select(data: Mapping[str, Dataset], models: Sequence[str] = AUTO_MODELS, fol
     models = parse_auto_models(models)
     screen = SCREEN
     cands = [Candidate(s, m) for s in feasible for m in models]
+    if not nested and len(cands) != 1:
+        raise ValueError(f"without nested CV there must be one candidate, got {[c.name for c in cands]}")
     K = len(partition)
     fits = _Fits(feasible, partition, classes, seed, n_jobs, say)
     top = Level(tuple(range(K)))
     inner = [Level(tuple(d for d in range(K) if d != k)) for k in range(K)]
-    levels = [top, *inner]
+    levels = [top, *inner] if nested else [top]
     if len(feasible) > 1:  # one spec: nothing to screen
         fits.ensure([k for lv in levels for s in feasible for k in fits.keys(s, screen, lv.held)])
     t_screen = time.perf_counter() - t_start
@@ -439,11 +493,14 @@ def select(data: Mapping[str, Dataset], models: Sequence[str] = AUTO_MODELS, fol
                  for c in cands if c.spec == s for k in fits.keys(s, c.model, lv.held)])
     for lv in levels:
         _choose(fits, lv, cands)
+    if not nested:
+        for lv in inner:
+            lv.chosen = top.chosen
     if not top.chosen or any(not lv.chosen for lv in inner):
         raise ValueError("no candidate could be scored at every level (too few runs per class?)")
     by_name = {c.name: c for c in cands}
     fits.ensure([(by_name[lv.chosen].spec, b, frozenset(lv.held)) for lv in inner for b in by_name[lv.chosen].bases])
-    scored = [_outer_fold(fits, k, lv, by_name[lv.chosen]) for k, lv in enumerate(inner)]
+    scored = [_outer_fold(fits, k, lv, by_name[lv.chosen], top if not nested else None) for k, lv in enumerate(inner)]
     outer = [o for o, _, _ in scored]
     outer_models = [_fitted(fits, by_name[lv.chosen], frozenset(lv.held)) for lv in inner]
     chosen = by_name[top.chosen]
@@ -453,7 +510,7 @@ def select(data: Mapping[str, Dataset], models: Sequence[str] = AUTO_MODELS, fol
     return Selection(cands, infeasible, partition, top, inner, outer, _honest(scored), cvs, chosen,
                      temp.temperature, classes.tolist(), [names[int(c)] for c in classes],
                      {"screen_s": t_screen, "total_s": time.perf_counter() - t_start, "fits": fits.n_fits,
-                      "fit_s": fits.fit_s}, note, outer_models)
+                      "fit_s": fits.fit_s}, note, outer_models, nested)
 
 
 def _fitted(fits: _Fits, cand: Candidate, train_groups: frozenset) -> Any:
@@ -501,16 +558,23 @@ def _honest(scored: list) -> dict:
             "std": float(np.std(vals)) if vals else float("nan"), "pooled": pooled}
 
 
-def _outer_fold(fits: _Fits, k: int, level: Level, cand: Candidate) -> tuple[dict, np.ndarray, np.ndarray]:
+def _outer_fold(fits: _Fits, k: int, level: Level, cand: Candidate,
+                top: Level | None = None) -> tuple[dict, np.ndarray, np.ndarray]:
     """The level-k winner fitted without group k, scored on group k; ECE before/after calibration.
 
+    The temperature is fitted on the level's out-of-fold probabilities, or with ``top`` (no
+    nested CV) on the top level's out-of-fold probabilities of the groups other than k.
     Returns the fold's figures and its held-out labels and predicted labels (for the pooled figure).
     """
     W, g = fits.data[cand.spec].windows, fits.gidx[cand.spec]
     P = fits.proba_of(cand.spec, cand.model, frozenset(level.held))
     idx = np.flatnonzero(g == k)
     idx = idx[np.isfinite(P[idx]).all(axis=1)] if len(idx) else idx
-    y_in, p_in, g_in = fits.oof(cand, level.held)
+    if top is None:
+        y_in, p_in, g_in = fits.oof(cand, level.held)
+    else:
+        y_in, p_in, g_in = fits.oof(cand, top.held)
+        y_in, p_in, g_in = y_in[g_in != k], p_in[g_in != k], g_in[g_in != k]
     temp = fit_temperature(p_in, y_in, g_in, fits.classes)
     out = {"fold": k, "chosen": cand.name, "n_windows": int(len(idx)), "temperature": temp.temperature,
            "runs": [str(r) for r in fits.partition[k]], "inner_score": level.scores.get(cand.name)}

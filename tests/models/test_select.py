@@ -107,3 +107,21 @@ def test_a_temperature_is_kept_only_where_it_calibrates_run_groups_it_was_not_fi
     t = fit_temperature(over, y3, rng.integers(0, 4, size=2000), np.arange(3)).temperature
     assert t == pytest.approx(2.5, rel=0.1)
     assert t == Temperature.fit(over, y3, np.arange(3)).temperature
+
+
+def test_a_fixed_candidate_gets_its_grouped_cv_without_inner_levels(short_ds):
+    """nested=False (a sensor member): K fits on K - 1 groups, the outer folds are the top level's
+    folds, and fold k's temperature never sees group k's probabilities."""
+    sel = select({"short": short_ds}, ["hgb"], folds=3, seed=0, nested=False)
+    W = short_ds.windows
+    assert sel.timing_s["fits"] == 3 and not sel.nested
+    assert all(lv.chosen == "short/hgb" and not lv.scores for lv in sel.inner)
+    for k, o in enumerate(sel.outer):
+        te = np.isin(W.groups, sel.partition[k])
+        m = make_factory("hgb", short_ds, 0)()
+        m.fit(W.subset(np.flatnonzero(~te)), W.y[~te], groups=W.groups[~te])
+        assert o["balanced_accuracy"] == pytest.approx(
+            balanced_accuracy_score(W.y[te], m.predict(W.subset(np.flatnonzero(te)))))
+        assert o["balanced_accuracy"] == pytest.approx(sel.cv["short/hgb"].fold_metrics[k]["balanced_accuracy"])
+    with pytest.raises(ValueError, match="one candidate"):
+        select({"short": short_ds}, ["hgb", "svm"], folds=3, nested=False)

@@ -199,3 +199,35 @@ def test_other_feature_transformers_use_the_numpy_svm_too(data3):
     c = m._compiled()
     assert c is not None and c.columns is None and c.n_features == int(m.feature_mask_.sum())
     np.testing.assert_allclose(m.predict_proba(test), _sklearn_proba(m, test), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_kernel_search_gives_the_scores_and_choice_of_sklearns_grid_search(seed):
+    """The C/gamma search on precomputed kernels (svm._kernel_search) against GridSearchCV on the
+    same pipeline, grid and grouped splits: every mean inner score and the chosen parameters."""
+    from sklearn.model_selection import GridSearchCV
+
+    rng = np.random.default_rng(seed)
+    n, d = 240, 12
+    y = np.repeat([0, 1, 2], n // 3)
+    groups = np.repeat(np.arange(12), n // 12)  # 4 runs per class
+    F = rng.normal(0.0, 1.0, (n, d)) * rng.uniform(0.5, 5.0, d) + rng.uniform(-3, 3, d)
+    F[:, :3] += 0.8 * y[:, None] * rng.uniform(0.5, 1.5, 3)  # overlapping classes: scores below 1
+    splits = svm_mod.inner_splits(y, groups, 3, seed)
+    Cs, gammas = [0.3, 3.0, 30.0], ["scale", 0.01, 0.1]
+    best, score = svm_mod._kernel_search(F, y, splits, Cs, gammas)
+    ref = GridSearchCV(SVMClassifier()._pipeline(), {"svc__C": Cs, "svc__gamma": gammas},
+                       scoring="balanced_accuracy", cv=splits, refit=False).fit(F, y)
+    assert best == {"C": ref.best_params_["svc__C"], "gamma": ref.best_params_["svc__gamma"]}
+    assert score == pytest.approx(ref.best_score_, abs=1e-12)
+    assert 0.4 < score < 0.99  # a search that can fail: classes overlap
+
+
+def test_svm_above_the_kernel_search_size_uses_sklearns_search(data3, monkeypatch):
+    """Both searches choose the same parameters on the same windows."""
+    W = data3[1]
+    kw = {"C_grid": (1.0, 100.0), "gamma_grid": ("scale", 0.001), "selector_trees": 40}
+    a = SVMClassifier(**kw).fit(W, W.y)
+    monkeypatch.setattr(svm_mod, "KERNEL_SEARCH_MAX_WINDOWS", 1)
+    b = SVMClassifier(**kw).fit(W, W.y)
+    assert a.best_params_ == b.best_params_ and a.inner_score_ == pytest.approx(b.inner_score_, abs=1e-12)
