@@ -21,14 +21,19 @@ SEL = re.compile(r"^train: selection (\d+)/(\d+) fits")
 SMALL = {"svm": {"C_grid": (10.0,), "gamma_grid": ("scale",), "selector_trees": 40}, "hgb": {"max_iter": 40}}
 
 
-@pytest.fixture
-def small_models(monkeypatch):
+@pytest.fixture(scope="module")
+def small_models():
+    """Small models, and one OpenMP thread (the trees' threads spin on a loaded machine)."""
+    from threadpoolctl import threadpool_limits
+
     from terrainml.pipeline import train as train_mod
 
     real = train_mod.make_factory
-    monkeypatch.setattr(train_mod, "make_factory",
-                        lambda kind, ds, seed=0, subset="all", n_jobs=1, params=None:
-                        real(kind, ds, seed, subset, n_jobs, {**SMALL.get(kind, {}), **(params or {})}))
+    with pytest.MonkeyPatch.context() as mp, threadpool_limits(1):
+        mp.setattr(train_mod, "make_factory",
+                   lambda kind, ds, seed=0, subset="all", n_jobs=1, params=None:
+                   real(kind, ds, seed, subset, n_jobs, {**SMALL.get(kind, {}), **(params or {})}))
+        yield
 
 
 @pytest.fixture(scope="module")
@@ -52,6 +57,12 @@ def _train(w, out, *extra):
     return r.output.splitlines(), json.loads((out / "report.json").read_text())
 
 
+@pytest.fixture(scope="module")
+def plain_run(windows_file, small_models, tmp_path_factory):
+    """``train`` with the defaults (no Dask) on the windows: (output lines, report.json)."""
+    return _train(windows_file, tmp_path_factory.mktemp("plain") / "m")
+
+
 def _stages(lines):
     """The stages in the order their first line appears."""
     out = []
@@ -62,9 +73,9 @@ def _stages(lines):
     return out
 
 
-def test_train_names_its_budget_first_and_counts_every_fit_to_n_of_n(windows_file, tmp_path, small_models):
-    lines, rep = _train(windows_file, tmp_path / "m", "--budget-min", "45")
-    assert "45 min" in lines[0] and "--budget-min" in lines[0] and "only the best spec" in lines[0]
+def test_train_names_its_budget_first_and_counts_every_fit_to_n_of_n(plain_run):
+    lines, rep = plain_run
+    assert "time budget 30 min (--budget-min)" in lines[0] and "only the best spec" in lines[0]
     assert _stages(lines) == ["selection", "final fit"]
     counts = [tuple(map(int, m.groups())) for m in map(SEL.match, lines) if m]
     done, total = counts[-1]
@@ -72,9 +83,6 @@ def test_train_names_its_budget_first_and_counts_every_fit_to_n_of_n(windows_fil
     assert done == total == rep["selection"]["timing_s"]["fits"] > 0
     assert [d for d, _ in counts] == sorted(d for d, _ in counts)
     assert any(f"final fit {n}/{n} models" in ln for ln in lines for n in (1, 2))
-    # the default budget is stated without the option
-    lines, _ = _train(windows_file, tmp_path / "m2")
-    assert "30 min" in lines[0]
 
 
 def test_reporter_lines_carry_rich_estimate_of_the_time_left():
@@ -107,12 +115,14 @@ def test_reporter_lines_carry_rich_estimate_of_the_time_left():
                      "train: final fit 0/1 models (hgb); 0:00:00 elapsed"]
 
 
-def test_train_on_a_dask_cluster_gives_the_same_selection(windows_file, tmp_path, small_models):
+def test_train_on_a_dask_cluster_gives_the_same_selection(windows_file, plain_run, tmp_path):
     from distributed import LocalCluster
 
-    _, plain = _train(windows_file, tmp_path / "plain", "-q")
-    with LocalCluster(n_workers=1, processes=False, threads_per_worker=2, dashboard_address=None) as cluster:
-        lines, dask = _train(windows_file, tmp_path / "dask", "--dask-address", cluster.scheduler_address)
+    plain = plain_run[1]
+    with LocalCluster(n_workers=1, processes=False, threads_per_worker=2, dashboard_address=":0") as cluster:
+        lines, dask = _train(windows_file, tmp_path / "dask", "--dask-address", cluster.scheduler_address,
+                             "--budget-min", "45")
+    assert "time budget 45 min" in lines[0]
     assert any("fits run on the Dask cluster" in ln and "2 thread(s)" in ln for ln in lines)
     for key in ("chosen", "nested_balanced_accuracy", "nested_balanced_accuracy_pooled"):
         assert dask[key] == plain[key]
