@@ -67,7 +67,7 @@ def _stages(lines):
     """The stages in the order their first line appears."""
     out = []
     for ln in lines:
-        m = re.match(r"^train: ([a-z ]+?) \d+/\d+", ln)
+        m = re.match(r"^train: ([a-z -]+?) \d+/\d+", ln)
         if m and m.group(1) not in out:
             out.append(m.group(1))
     return out
@@ -83,6 +83,20 @@ def test_train_names_its_budget_first_and_counts_every_fit_to_n_of_n(plain_run):
     assert done == total == rep["selection"]["timing_s"]["fits"] > 0
     assert [d for d, _ in counts] == sorted(d for d, _ in counts)
     assert any(f"final fit {n}/{n} models" in ln for ln in lines for n in (1, 2))
+
+
+def test_single_spec_train_counts_its_cv_fits_per_stage(windows_file, small_models, tmp_path):
+    from terrainml.cli import app
+
+    r = CliRunner().invoke(app, ["train", "--data", str(windows_file), "--model", "hgb", "--folds", "3",
+                                 "--out", str(tmp_path / "m")])
+    assert r.exit_code == 0, r.output
+    lines = r.output.splitlines()
+    assert "no time budget" in lines[0]
+    assert _stages(lines) == ["cross-validation", "final fit", "members"]
+    assert any(ln.startswith("train: cross-validation 3/3 fits") for ln in lines)
+    n = len(json.loads((tmp_path / "m" / "manifest.json").read_text()).get("sensor_members", []))
+    assert n > 0 and any(ln.startswith(f"train: members {n}/{n} members") for ln in lines)
 
 
 def test_reporter_lines_carry_rich_estimate_of_the_time_left():
@@ -144,13 +158,13 @@ def test_an_unreachable_scheduler_is_named(windows_file, tmp_path, monkeypatch):
 
 
 @pytest.mark.acceptance
-def test_train_from_logs_reports_every_stage_in_order(tmp_path):
+def test_train_from_logs_reports_every_stage_in_order(tmp_path, small_models):
     """From logs: logs, windows, selection, served replay, final fit, members (minutes)."""
     from terrainml.cli import app
 
     logs = write_logs(tmp_path / "logs", runs_per_class=3, seed=5)
     r = CliRunner().invoke(app, ["train", "--data", str(logs), "--robot", "agrimaro", "--windows", "short",
-                                 "--model", "hgb", "--folds", "3", "--replay-s", "8", "--out", str(tmp_path / "m")])
+                                 "--model", "auto", "--folds", "3", "--replay-s", "8", "--out", str(tmp_path / "m")])
     assert r.exit_code == 0, r.output
     lines = r.output.splitlines()
     assert "--budget-min" in lines[0]
