@@ -154,7 +154,7 @@ def step_train(ds, out: Path, seed: int, console: Console, folds: int = 5) -> Pa
     model_dir = out / "model"
     with console.status("training SVM (grouped cross-validation by run)..."):
         res = train(ds, model_dir, models=("svm",), folds=folds, seed=seed, n_jobs=2, ablation=False,
-                    progress=lambda msg: console.log(msg))
+                    progress=lambda msg: console.log(str(msg)))  # a Step reads as its text
     summary = (res.manifest.get("metrics_summary") or {}).get("svm", {})
     console.print(f"model: {model_dir} (report: {model_dir / 'report.md'})", highlight=False)
     if summary:

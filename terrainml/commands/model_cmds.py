@@ -8,8 +8,9 @@ file); never a traceback. Outputs and ``--n-jobs`` are checked before any long w
 from __future__ import annotations
 
 import json
+from contextlib import contextmanager
 from pathlib import Path
-from typing import List, Optional
+from typing import Iterator, List, Optional
 
 import typer
 from rich.table import Table
@@ -74,8 +75,10 @@ def train(
     folds: int = typer.Option(5, "--folds", help="Outer grouped CV folds (by run)."),
     seed: int = typer.Option(0, "--seed", help="Seed of folds and models."),
     n_jobs: int = typer.Option(1, "--n-jobs", "-j", help="Parallel jobs (folds; logs when building)."),
-    dask_address: Optional[str] = typer.Option(None, "--dask-address", help="Dask scheduler for building "
-                                               "the dataset from logs (tcp://HOST:PORT)."),
+    dask_address: Optional[str] = typer.Option(None, "--dask-address", help="Dask scheduler "
+                                               "(tcp://HOST:PORT): the fits (and the dataset build from "
+                                               "logs) run on its cluster, whose threads set the "
+                                               "parallelism; same figures as without it."),
     preset: str = typer.Option("robust", "--preset", help="Estimation preset when building from logs."),
     robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec when building from logs."),
     fmt: str = typer.Option("auto", "--format", help="auto or borealtc (when --data is a folder)."),
@@ -117,7 +120,7 @@ def train(
         _train_auto(data, out, model=model, windows=windows, sensors=sensors, folds=folds, seed=seed,
                     n_jobs=n_jobs, preset=preset, robot=robot, fmt=fmt, budget_min=budget_min,
                     allow_unproven=allow_unproven, replay_s=replay_s, members=members, open_set=open_set,
-                    false_alarm=novelty_false_alarm, quiet=quiet)
+                    false_alarm=novelty_false_alarm, dask_address=dask_address, quiet=quiet)
         return
     _train_fixed(data, out, kinds, spec, sensors=sensors, folds=folds, seed=seed, n_jobs=n_jobs,
                  dask_address=dask_address, preset=preset, robot=robot, fmt=fmt, ablation=ablation,
@@ -128,24 +131,19 @@ def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, see
                  dask_address, preset: str, robot, fmt: str, ablation: bool, members: bool, open_set: bool,
                  false_alarm: float, quiet: bool) -> None:
     """``train`` with the model kinds and window spec given (no selection)."""
+    from terrainml.commands._progress import StageReporter
     from terrainml.commands.dataset_cmds import parse_sensors
     from terrainml.pipeline.train import train as do_train
 
+    if not quiet:
+        console.print(f"train: {', '.join(kinds)} under grouped {folds}-fold CV by run, then fitted on every "
+                      "window; no selection, so no time budget (--budget-min is the selection's)", highlight=False)
     try:
         ds = _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=dask_address,
                         fmt=fmt, quiet=quiet, spec=spec, sensors=parse_sensors(sensors))
         if sensors is not None and is_windows_file(data):
             _check_sensors(ds, parse_sensors(sensors))
-        from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
-        with Progress(SpinnerColumn(), TextColumn("[bold]train[/] {task.description}"), TimeElapsedColumn(),
-                      console=console, transient=True, disable=quiet) as progress:
-            task = progress.add_task("", total=None)
-            def say(msg: str) -> None:
-                if msg.startswith("warning:"):
-                    console.print(f"[yellow]warning:[/]{msg[len('warning:'):]}", highlight=False)
-                progress.update(task, description=msg)
-
+        with StageReporter(console, quiet=quiet) as say, _fits_on(dask_address, quiet):
             res = do_train(ds, out, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=ablation,
                            progress=say, open_set=open_set, novelty_false_alarm=false_alarm)
             names = []
@@ -175,6 +173,22 @@ def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, see
         _print_members(out, names)
 
 
+@contextmanager
+def _fits_on(dask_address: Optional[str], quiet: bool) -> Iterator[None]:
+    """The fits inside run on the Dask cluster at ``dask_address`` (None: here); exits 2 naming the
+    option when the scheduler cannot be reached."""
+    from terrainml.pipeline.cluster import ClusterError, cluster_summary, dask_jobs
+
+    try:
+        with dask_jobs(dask_address) as client:
+            if client is not None and not quiet:
+                console.print(f"train: fits run on the Dask cluster at {dask_address} ({cluster_summary(client)})",
+                              highlight=False)
+            yield
+    except ClusterError as exc:  # only the connection raises it
+        fail(f"--dask-address: {exc}")
+
+
 def _train_members(out: Path, ds, data: Path, kinds, *, folds: int, seed: int, n_jobs: int, robot, preset: str,
                    fmt: str, spec, say, false_alarm: float) -> list[str]:
     """The folder's sensor members, each trained like its model (windows rebuilt from logs per subset)."""
@@ -185,7 +199,7 @@ def _train_members(out: Path, ds, data: Path, kinds, *, folds: int, seed: int, n
         sub = (subset_dataset(ds, subset) if is_windows_file(data) else
                _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=None, fmt=fmt,
                           quiet=True, spec=spec, sensors=subset))
-        do_train(sub, folder, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=False, progress=say,
+        do_train(sub, folder, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=False, progress=say.nested(),
                  novelty_false_alarm=false_alarm)
 
     return train_members(out, ds.sensors, fit, progress=say)
@@ -226,15 +240,18 @@ def _train_mode(data: Path, model: str, windows: str):
         fail(f"--model/--windows: {exc}")
 
 
-def _load_tables(data: Path, *, robot, fmt: str, quiet: bool):
-    """(ingested run tables, RobotSpec) of a folder of logs or a BorealTC folder."""
+def _load_tables(data: Path, *, robot, fmt: str, quiet: bool, progress=None):
+    """(ingested run tables, RobotSpec) of a folder of logs or a BorealTC folder; ``progress``
+    gets the stage ``logs`` (per log; BorealTC: the folder at once)."""
     from terrainml.commands._common import open_robot
+    from terrainml.pipeline.progress import report
 
     if fmt == "borealtc":
         from terrainml.pipeline.dataset import borealtc_tables
 
         rb = open_robot(robot or "husky")
         say = None if quiet else (lambda msg: console.print(msg, highlight=False))
+        report(progress, "logs", 0, None, "", f"reading the BorealTC folder {data}")
         return borealtc_tables(data, rb, say), rb
     if fmt != "auto":
         fail(f"unknown --format {fmt!r}; expected auto or borealtc")
@@ -243,12 +260,15 @@ def _load_tables(data: Path, *, robot, fmt: str, quiet: bool):
 
     rb = open_robot(robot)
     tables, bad = [], []
-    for p in find_logs(data):
+    logs = find_logs(data)
+    for i, p in enumerate(logs):
+        report(progress, "logs", i, len(logs), "logs", p.name)
         res = load_run(p, robot=rb)
         if res.report.usable and len(res.table):
             tables.append(res.table)
         else:
             bad.append(f"{p.name}: {'; '.join(res.report.errors) or 'no usable rows'}")
+    report(progress, "logs", len(logs), len(logs), "logs")
     if bad:
         console.print(f"[yellow]warning:[/] {len(bad)} log(s) unusable, left out: {'; '.join(bad[:5])}"
                       + (" ..." if len(bad) > 5 else ""), highlight=False)
@@ -257,39 +277,37 @@ def _load_tables(data: Path, *, robot, fmt: str, quiet: bool):
 
 def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, folds: int, seed: int, n_jobs: int,
                 preset: str, robot, fmt: str, budget_min: float, allow_unproven: bool, replay_s: float,
-                members: bool, open_set: bool, false_alarm: float, quiet: bool) -> None:
+                members: bool, open_set: bool, false_alarm: float, dask_address, quiet: bool) -> None:
     """``train`` selecting the window spec and the model (``--windows auto`` / ``--model auto``)."""
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
+    from terrainml.commands._progress import StageReporter
     from terrainml.commands.dataset_cmds import parse_sensors
     from terrainml.pipeline.autotrain import ReplayRefused, train_auto
 
+    if not quiet:
+        console.print(f"train: choosing the window spec ({windows}) and the model ({model}) under nested "
+                      f"run-grouped {folds}-fold CV; time budget {budget_min:g} min (--budget-min): when "
+                      "screening the window specs takes more than half of it, only the best spec gets its models "
+                      "(the budget does not stop the run: every kept candidate is still scored)", highlight=False)
     try:
-        if is_windows_file(data):
-            ds = open_dataset(data)
-            tables, rb, datasets = None, ds.robot, {ds.spec.name: ds}
-        else:
-            tables, rb = _load_tables(data, robot=robot, fmt=fmt, quiet=quiet)
-            datasets = None
-            if not tables:
-                fail(f"{data}: no usable run")
-        with Progress(SpinnerColumn(), TextColumn("[bold]train[/] {task.description}"), TimeElapsedColumn(),
-                      console=console, transient=True, disable=quiet) as progress:
-            task = progress.add_task("", total=None)
-
-            def say(msg: str) -> None:
-                if msg.startswith("warning:"):
-                    console.print(f"[yellow]warning:[/]{msg[len('warning:'):]}", highlight=False)
-                progress.update(task, description=msg)
-
-            res = train_auto(tables, rb, out, specs=windows, models=model, folds=folds, seed=seed, n_jobs=n_jobs,
-                             budget_min=budget_min, preset=preset, sensors=parse_sensors(sensors),
-                             allow_unproven=allow_unproven, segment_s=replay_s, datasets=datasets,
-                             open_set=open_set, novelty_false_alarm=false_alarm, progress=say)
-            names = []
-            if members and sensors is None and tables is not None:
-                names = _auto_members(out, res, tables, rb, folds=folds, seed=seed, n_jobs=n_jobs,
-                                      preset=preset, replay_s=replay_s, say=say, false_alarm=false_alarm)
+        with StageReporter(console, quiet=quiet) as say:
+            if is_windows_file(data):
+                ds = open_dataset(data)
+                tables, rb, datasets = None, ds.robot, {ds.spec.name: ds}
+            else:
+                tables, rb = _load_tables(data, robot=robot, fmt=fmt, quiet=quiet, progress=say)
+                datasets = None
+                if not tables:
+                    fail(f"{data}: no usable run")
+            with _fits_on(dask_address, quiet):
+                res = train_auto(tables, rb, out, specs=windows, models=model, folds=folds, seed=seed,
+                                 n_jobs=n_jobs, budget_min=budget_min, preset=preset,
+                                 sensors=parse_sensors(sensors), allow_unproven=allow_unproven, segment_s=replay_s,
+                                 datasets=datasets, open_set=open_set, novelty_false_alarm=false_alarm,
+                                 progress=say)
+                names = []
+                if members and sensors is None and tables is not None:
+                    names = _auto_members(out, res, tables, rb, folds=folds, seed=seed, n_jobs=n_jobs,
+                                          preset=preset, replay_s=replay_s, say=say, false_alarm=false_alarm)
     except typer.Exit:
         raise
     except ReplayRefused as exc:
@@ -319,7 +337,7 @@ def _auto_members(out: Path, res, tables, rb, *, folds: int, seed: int, n_jobs: 
             train_auto(tables, rb, folder, models=[chosen.model], folds=folds, seed=seed, n_jobs=n_jobs,
                        budget_min=None, preset=preset, sensors=subset, segment_s=replay_s,
                        datasets={chosen.spec: subset_dataset(res.dataset, subset)}, nested=False,
-                       novelty_false_alarm=false_alarm, progress=say)
+                       novelty_false_alarm=false_alarm, progress=say.nested())
         except ReplayRefused as exc:
             raise ValueError(f"its served replay refuses it: {exc}") from None
 

@@ -29,7 +29,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from tempfile import TemporaryDirectory
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
@@ -43,6 +43,7 @@ from terrainml.models.calibration import CalibratedModel, Temperature
 from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.models.novelty import DEFAULT_FALSE_ALARM, check_false_alarm
 from terrainml.pipeline.dataset import Dataset, build_from_tables
+from terrainml.pipeline.progress import ProgressFn, report
 from terrainml.pipeline.replay import (MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S, make_course, pooled_replay,
                                        replay_course, replay_refusal)
 from terrainml.pipeline import train as train_lib  # make_factory read at call time
@@ -76,12 +77,13 @@ class AutoResult:
 
 def build_candidates(tables: Sequence[pd.DataFrame], robot: RobotSpec, specs: str | Sequence[str] = "auto",
                      preset: str = "robust", sensors: Sequence[str] | None = None, n_jobs: int = 1,
-                     progress: Callable[[str], None] | None = None) -> tuple[dict, dict]:
-    """({spec: Dataset}, {spec: why it cannot be cut}) of the runs for every candidate spec."""
-    say = progress or (lambda msg: None)
+                     progress: ProgressFn | None = None) -> tuple[dict, dict]:
+    """({spec: Dataset}, {spec: why it cannot be cut}) of the runs for every candidate spec
+    (``progress``: a :class:`~terrainml.pipeline.progress.Step` of stage ``windows`` per spec)."""
     out, failed = {}, {}
-    for name in candidate_specs(specs):
-        say(f"windows: cutting the runs with the {name!r} spec")
+    names = candidate_specs(specs)
+    for i, name in enumerate(names):
+        report(progress, "windows", i, len(names), "specs", f"cutting the runs with the {name!r} spec")
         try:
             spec = window_spec(name).resolve(robot, sensors)
             ds = build_from_tables(tables, robot, preset, spec, n_jobs=n_jobs)
@@ -92,6 +94,7 @@ def build_candidates(tables: Sequence[pd.DataFrame], robot: RobotSpec, specs: st
             failed[name] = "no window passes its rules"
             continue
         out[name] = ds
+    report(progress, "windows", len(names), len(names), "specs")
     return out, failed
 
 
@@ -99,14 +102,16 @@ def _fit_final(ds: Dataset, model: str, seed: int, temperature: float, say) -> t
     """Fitted models to save ({name: model}), fit times and chosen parameters of the chosen model."""
     W = ds.windows
     fitted, times, params = {}, {}, {}
-    for base in model.split("+"):
-        say(f"final fit: {base} on {len(W)} windows")
+    bases = model.split("+")
+    for i, base in enumerate(bases):
+        report(say, "final fit", i, len(bases), "models", f"{base} on {len(W)} windows")
         m = train_lib.make_factory(base, ds, seed)()
         t0 = time.perf_counter()
         m.fit(W, W.y, groups=W.groups)
         times[base] = time.perf_counter() - t0
         params[base] = dict(getattr(m, "best_params_", {}) or {})
         fitted[base] = m
+        report(say, "final fit", i + 1, len(bases), "models", base)
     if "+" in model:
         fitted[model] = ProbabilityAverage.from_fitted([fitted[b] for b in model.split("+")])
     return fitted, times, params
@@ -143,7 +148,8 @@ def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, s
     for k, o in enumerate(sel.outer):
         spec = o["chosen"].split("/")[0]
         runs = [r for r in o["runs"] if r in by_id]
-        say(f"replay: fold {k + 1}/{len(sel.outer)}, {len(runs)} held-out runs through the online predictor")
+        report(say, "served replay", k, len(sel.outer), "folds",
+               f"fold {k + 1}: {len(runs)} held-out runs through the online predictor")
         if not runs:
             out.append({"fold": k, "runs": 0, "moving_ticks": 0, "chosen": o["chosen"]})
             continue
@@ -162,6 +168,7 @@ def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, s
             res = replay_course(Path(tmp) / "m", course)
         out.append({"fold": k, "chosen": o["chosen"], "runs": len(runs), **res,
                     "replay_s": time.perf_counter() - t0})
+    report(say, "served replay", len(sel.outer), len(sel.outer), "folds")
     return out
 
 
@@ -172,7 +179,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
                segment_s: float = REPLAY_SEGMENT_S, allow_unproven: bool = False,
                min_classified_share: float = MIN_CLASSIFIED_SHARE, datasets: dict | None = None,
                open_set: bool = False, novelty_false_alarm: float = DEFAULT_FALSE_ALARM,
-               nested: bool = True, progress: Callable[[str], None] | None = None) -> AutoResult:
+               nested: bool = True, progress: ProgressFn | None = None) -> AutoResult:
     """Select, validate on the served path, calibrate and save a model (see the module docstring).
 
     Parameters
@@ -194,7 +201,9 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
         replay's fold models and the open-set evaluation alike (:func:`~terrainml.pipeline.train.train`).
     nested : False for one spec and one model fixed beforehand (a sensor member): its grouped
         K-fold CV, with no inner level (:func:`~terrainml.pipeline.select.select`).
-    progress : callback with a short message per step.
+    progress : callback with a short message per step and a
+        :class:`~terrainml.pipeline.progress.Step` per unit of the stages ``windows``,
+        ``selection`` (per fit), ``served replay`` (per fold), ``final fit`` and ``open set``.
 
     Returns
     -------
@@ -234,6 +243,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     timing = {"windows_s": t_windows, "select_s": t_sel, "replay_s": t_replay, "final_fit_s": final_s,
               "total_s": time.perf_counter() - t0}
     if open_set:
+        report(say, "open set", 0, None, "", f"each class of {sel.chosen.name} held out in turn")
         tr.open_set = train_lib.evaluate_open_set(ds, sel.chosen.model, folds=folds, seed=seed, n_jobs=n_jobs,
                                                   progress=say, false_alarm=novelty_false_alarm)
     res_doc["timing_s"] = timing

@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
-from joblib import Parallel, delayed, parallel_config
+from joblib import Parallel, delayed
 
 from terrainml.atomic import atomic_output
 from terrainml.classes import TERRAIN_CLASSES
@@ -387,11 +387,10 @@ def build_dataset(source: str | Path | Sequence[str | Path], robot: RobotSpec | 
                 progress(k + 1, total, r.source)
 
     if dask_address:
-        from distributed import Client  # noqa: PLC0415 - dask, optional
+        from terrainml.pipeline.cluster import dask_jobs  # noqa: PLC0415 - dask, optional
 
-        with Client(dask_address, timeout="30s") as client:  # noqa: F841 - registers the backend
-            with parallel_config(backend="dask"):
-                _consume(Parallel(n_jobs=-1, return_as="generator")(calls))
+        with dask_jobs(dask_address):
+            _consume(Parallel(n_jobs=-1, return_as="generator")(calls))
     else:
         _consume(Parallel(n_jobs=n_jobs, return_as="generator")(calls))
     return _collect(results, robot, spec, preset)

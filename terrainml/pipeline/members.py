@@ -20,6 +20,7 @@ from typing import Any, Callable, Sequence
 from terrainml.features.windows import channel_sensor_group
 from terrainml.models.artifacts import MEMBERS_DIR, attach_members, write_manifest
 from terrainml.pipeline.dataset import Dataset
+from terrainml.pipeline.progress import report
 
 __all__ = ["MEMBER_DROPS", "member_subsets", "subset_dataset", "train_members"]
 
@@ -56,7 +57,8 @@ def train_members(out: str | Path, sensors: Sequence[str], fit: Callable[[list[s
         with the caller's training (the same function and options that made the model).
         A ValueError (e.g. the subset's data gives no windows) skips that member, with a warning
         through ``progress``.
-    progress : callback with a short message per member.
+    progress : callback with a short message and a :class:`~terrainml.pipeline.progress.Step`
+        (stage ``members``) per member.
 
     Returns
     -------
@@ -65,8 +67,9 @@ def train_members(out: str | Path, sensors: Sequence[str], fit: Callable[[list[s
     say = progress or (lambda msg: None)
     out = Path(out)
     names = []
-    for name, subset in member_subsets(sensors).items():
-        say(f"member {name}: training on {','.join(subset)}")
+    subsets = member_subsets(sensors)
+    for i, (name, subset) in enumerate(subsets.items()):
+        report(say, "members", i, len(subsets), "members", f"{name}: training on {','.join(subset)}")
         folder = out / MEMBERS_DIR / name
         try:
             fit(subset, folder)
@@ -75,6 +78,7 @@ def train_members(out: str | Path, sensors: Sequence[str], fit: Callable[[list[s
             say(f"warning: member {name} ({','.join(subset)}) not trained: {exc}")
             continue
         names.append(name)
+    report(say, "members", len(subsets), len(subsets), "members")
     if names:
         attach_members(out, names)
     else:

@@ -77,6 +77,7 @@ from terrainml.models.calibration import Temperature
 from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.dataset import Dataset
+from terrainml.pipeline.progress import ProgressFn, report
 from terrainml.pipeline import train as train_lib  # make_factory read at call time
 from terrainml.pipeline.train import MIN_RUNS_PER_CLASS, parse_models
 
@@ -233,7 +234,7 @@ class _Fits:
     """Held-out probabilities of (spec, base model, training groups), fitted once each."""
 
     def __init__(self, data: Mapping[str, Dataset], partition: list, classes: np.ndarray, seed: int,
-                 n_jobs: int, progress: Callable[[str], None]):
+                 n_jobs: int, progress: ProgressFn):
         self.data = dict(data)
         self.partition = partition
         self.classes = classes
@@ -252,6 +253,21 @@ class _Fits:
         self._features: dict[tuple, tuple] = {}  # (spec, feature family) -> (transformer, F)
         self.n_fits = 0
         self.fit_s = 0.0
+        self.done = 0  # keys settled (fitted, or skipped: a training part with one class)
+        self.total = 0  # keys planned (see plan)
+
+    def plan(self, keys: Sequence[tuple]) -> None:
+        """Plan the fits ``keys`` still need: the progress total is the keys settled so far plus
+        the missing ones (called again when screening or the outer folds change the plan)."""
+        total = self.done + len([k for k in dict.fromkeys(keys) if k not in self.proba])
+        if total != self.total or self.done == 0:  # the first plan starts the stage
+            self.total = total
+            report(self.say, "selection", self.done, self.total, "fits")
+
+    def _settled(self, key: tuple) -> None:
+        self.done += 1
+        self.total = max(self.total, self.done)
+        report(self.say, "selection", self.done, self.total, "fits", f"{key[0]}/{key[1]}")
 
     def ensure(self, keys: Sequence[tuple]) -> None:
         """Fit every missing (spec, base, frozenset of training groups)."""
@@ -268,6 +284,7 @@ class _Fits:
                 te = np.flatnonzero((g >= 0) & ~np.isin(g, sorted(k[2])))
                 if len(np.unique(W.y[tr])) < 2 or len(te) == 0:
                     self.proba[k] = np.full((len(W), len(self.classes)), np.nan)
+                    self._settled(k)
                     continue
                 splits.append((tr, te))
                 use.append(k)
@@ -277,7 +294,7 @@ class _Fits:
             X, factory = self._inputs(spec, base)
             keep = [base != SCREEN and len(k[2]) == len(self.partition) - 1 for k in use]
             res = predict_held_out(factory, X, W.y, W.groups, splits, self.classes, n_jobs=self.n_jobs, keep=keep,
-                                   progress=lambda i, n: self.say(f"{spec}/{base}: fit {i}/{n}"))
+                                   progress=lambda i, n: self._settled(use[i - 1]))
             self.fit_s += time.perf_counter() - t0
             for k, (_, te), r in zip(use, splits, res):
                 if r["model"] is not None:
@@ -425,7 +442,7 @@ def _top_cv(fits: _Fits, top: Level, cands: Sequence[Candidate], names: list, ta
 
 def select(data: Mapping[str, Dataset], models: Sequence[str] = AUTO_MODELS, folds: int = 5, seed: int = 0,
            n_jobs: int = 1, budget_s: float | None = None, table: Any = None,
-           progress: Callable[[str], None] | None = None, nested: bool = True) -> Selection:
+           progress: ProgressFn | None = None, nested: bool = True) -> Selection:
     """Nested run-grouped selection of a window spec and a model (see the module docstring).
 
     Parameters
@@ -437,7 +454,9 @@ def select(data: Mapping[str, Dataset], models: Sequence[str] = AUTO_MODELS, fol
     budget_s : s or None. Past it after screening, only the best spec of every level gets its
         other models (said in ``budget_note``).
     table : desired-slip table for the report's slip error (or None).
-    progress : callback with a short message per step.
+    progress : callback with a short message per step and a
+        :class:`~terrainml.pipeline.progress.Step` per fit (stage ``selection``; its total is
+        planned from every level's fits and updated when screening drops specs).
     nested : False for a single candidate fixed beforehand (a sensor member of a chosen model):
         nothing is chosen, so its ordinary grouped K-fold CV is its honest figure and no inner
         level is fitted. Outer fold k is then the top level's fold k, and its temperature is
@@ -482,15 +501,22 @@ def select(data: Mapping[str, Dataset], models: Sequence[str] = AUTO_MODELS, fol
     top = Level(tuple(range(K)))
     inner = [Level(tuple(d for d in range(K) if d != k)) for k in range(K)]
     levels = [top, *inner] if nested else [top]
-    if len(feasible) > 1:  # one spec: nothing to screen
-        fits.ensure([k for lv in levels for s in feasible for k in fits.keys(s, screen, lv.held)])
+    screen_keys = ([k for lv in levels for s in feasible for k in fits.keys(s, screen, lv.held)]
+                   if len(feasible) > 1 else [])  # one spec: nothing to screen
+    fits.plan(screen_keys + [k for lv in levels for c in cands for k in fits.keys(c.spec, c.model, lv.held)])
+    if screen_keys:
+        fits.ensure(screen_keys)
     t_screen = time.perf_counter() - t_start
     over = budget_s is not None and t_screen > 0.5 * budget_s
     note = (f"screening took {t_screen / 60:.1f} min, over half the {budget_s / 60:.0f}-min budget: only the "
             "best spec of every level got its other models") if over else ""
+    if over:
+        say(f"note: {note}")
     specs = list(feasible)
-    fits.ensure([k for lv in levels for s in (_screen(fits, lv, specs, screen, over) if len(specs) > 1 else specs)
-                 for c in cands if c.spec == s for k in fits.keys(s, c.model, lv.held)])
+    keys = [k for lv in levels for s in (_screen(fits, lv, specs, screen, over) if len(specs) > 1 else specs)
+            for c in cands if c.spec == s for k in fits.keys(s, c.model, lv.held)]
+    fits.plan(keys)  # screening decided which specs get their models
+    fits.ensure(keys)
     for lv in levels:
         _choose(fits, lv, cands)
     if not nested:
@@ -499,7 +525,9 @@ def select(data: Mapping[str, Dataset], models: Sequence[str] = AUTO_MODELS, fol
     if not top.chosen or any(not lv.chosen for lv in inner):
         raise ValueError("no candidate could be scored at every level (too few runs per class?)")
     by_name = {c.name: c for c in cands}
-    fits.ensure([(by_name[lv.chosen].spec, b, frozenset(lv.held)) for lv in inner for b in by_name[lv.chosen].bases])
+    keys = [(by_name[lv.chosen].spec, b, frozenset(lv.held)) for lv in inner for b in by_name[lv.chosen].bases]
+    fits.plan(keys)  # the outer folds' models (usually fitted already at the top level)
+    fits.ensure(keys)
     scored = [_outer_fold(fits, k, lv, by_name[lv.chosen], top if not nested else None) for k, lv in enumerate(inner)]
     outer = [o for o, _, _ in scored]
     outer_models = [_fitted(fits, by_name[lv.chosen], frozenset(lv.held)) for lv in inner]

@@ -51,6 +51,7 @@ from terrainml.models.novelty import DEFAULT_FALSE_ALARM, NoveltyError, check_fa
 from terrainml.models.svm import SVMClassifier
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.dataset import Dataset
+from terrainml.pipeline.progress import report
 
 __all__ = ["MODEL_KINDS", "TABLE_FILE", "make_factory", "train", "evaluate", "TrainResult",
            "desired_slip_table_for", "served_table", "parse_models", "feature_family",
@@ -235,7 +236,9 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     n_jobs : joblib jobs over folds.
     ablation : run the SVM feature-set ablation.
     model_params : {kind: {param: value}} constructor overrides.
-    progress : callback with a short message per stage.
+    progress : callback with a short message per stage and a
+        :class:`~terrainml.pipeline.progress.Step` per fit (stages ``cross-validation``,
+        ``final fit``, ``ablation``, ``open set``).
     open_set : also run the leave-one-class-out evaluation of the served model's novelty score
         on the same folds (:mod:`terrainml.evaluation.open_set`; one more CV per class).
     novelty_false_alarm : the novelty threshold's target, the share of moving known windows of a
@@ -273,7 +276,7 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     fitted = {k: fitted[k] for k in results}
     abl = None
     if ablation and "svm" in models and feature_family(W.channels) == "canonical":
-        say("svm: feature-set ablation")
+        report(say, "ablation", 0, None, "", "svm feature sets")
         abl = _ablation(ds, plan.folds, seed, n_jobs, table, plan.cv_classes, results["svm"]["cv"],
                         (model_params or {}).get("svm"), windows=plan.Wcv)
     order = list(results)
@@ -284,6 +287,7 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
                       abl, fitted=fitted)
     novelty = served_novelty(fitted[default], default, W, seed, say, novelty_false_alarm)
     if open_set and novelty is not None:
+        report(say, "open set", 0, None, "", f"each class of {default} held out in turn")
         res.open_set = _open_set(default, factories, plan, seed, n_jobs, say, novelty_false_alarm)
     metrics_summary = {k: r["cv"].summary for k, r in results.items()}
     save_artifact(out, fitted, classes=plan.classes.tolist(), class_names=plan.names, channels=W.channels,
@@ -362,10 +366,12 @@ def _fit_bases(ds: Dataset, bases: list[str], plan: _CVPlan, table, seed: int, n
             params = {"n_threads": 1, **params}
         factory = make_factory(kind, ds, seed, n_jobs=inner_jobs, params=params)
         factories[kind] = factory
-        say(f"{kind}: grouped {len(plan.folds)}-fold cross-validation")
+        n_cv, before = len(bases) * len(plan.folds), len(results) * len(plan.folds)
+        report(say, "cross-validation", before, n_cv, "fits", f"{kind}: grouped {len(plan.folds)}-fold CV")
         cv = cross_validate(factory, Wcv, Wcv.y, Wcv.groups, folds=plan.folds, n_jobs=n_jobs, table=table,
-                            classes=plan.cv_classes, class_names=plan.cv_names, name=kind)
-        say(f"{kind}: final fit on {len(W)} windows")
+                            classes=plan.cv_classes, class_names=plan.cv_names, name=kind,
+                            progress=lambda i, n: report(say, "cross-validation", before + i, n_cv, "fits", kind))
+        report(say, "final fit", len(results), len(bases), "models", f"{kind} on {len(W)} windows")
         model = factory()
         t0 = time.perf_counter()
         model.fit(W, W.y, groups=W.groups)
@@ -375,6 +381,7 @@ def _fit_bases(ds: Dataset, bases: list[str], plan: _CVPlan, table, seed: int, n
             p = {"best_epoch": getattr(model, "best_epoch_", None), "n_epochs": getattr(model, "n_epochs_", None)}
         results[kind] = {"cv": cv, "fit_time_s": fit_s, "params": p}
         fitted[kind] = model
+        report(say, "final fit", len(results), len(bases), "models", kind)
     return results, fitted, factories
 
 
