@@ -188,8 +188,8 @@ def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, see
                                        false_alarm=false_alarm, plan=plan)
     except (typer.Exit, ReplayRefused):
         raise
-    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-        fail(failure_message(data, exc, shown))
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback; the folder as the user named it
+        fail(failure_message(data, exc, shown).replace(str(out), str(shown)))
     if not quiet:
         t = Table(title=f"grouped {res.n_folds}-fold CV ({res.dataset_summary['n_runs']} runs, "
                         f"{res.dataset_summary['n_windows']} windows)", title_justify="left")
@@ -394,8 +394,8 @@ def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, fol
                                       catalogue=catalogue)
     except (typer.Exit, ReplayRefused):
         raise
-    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-        fail(f"{data}: {type(exc).__name__}: {exc}")
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback; the folder as the user named it
+        fail(f"{data}: {type(exc).__name__}: {exc}".replace(str(out), str(shown)))
     if not quiet:
         _print_selection(res, shown)
         _print_members(out, names, shown)

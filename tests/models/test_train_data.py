@@ -25,6 +25,21 @@ FAST = ["--robot", "agrimaro", "--windows", "short", "--model", "svm", "--folds"
         "--no-ablation", "-q"]
 
 
+@pytest.fixture(autouse=True)
+def small_svm(monkeypatch):
+    """One point of the SVM grid and a small feature selector: these tests check what train does
+    with the data, not the model's accuracy (seconds, not minutes)."""
+    import terrainml.pipeline.train as train_lib
+
+    real = train_lib.make_factory
+
+    def small(kind, ds, seed=0, subset="all", n_jobs=1, params=None):
+        extra = {"C_grid": (10.0,), "gamma_grid": ("scale",), "selector_trees": 50} if kind == "svm" else {}
+        return real(kind, ds, seed, subset, n_jobs, {**extra, **(params or {})})
+
+    monkeypatch.setattr(train_lib, "make_factory", small)
+
+
 def _logs(folder: Path, runs: dict[int, int], names=None, seed: int = 3, duration_s: float = 12.0) -> Path:
     """``runs[c]`` runs of class ``c``; ``names``: the class names the logs carry (None: ours)."""
     folder.mkdir(parents=True, exist_ok=True)
