@@ -235,21 +235,17 @@ def _fixed_data(data: Path, spec, groups, *, robot, preset: str, n_jobs: int, da
         ds = _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=dask_address, fmt=fmt,
                         quiet=quiet, spec=spec, sensors=groups)
         return tables, ds, pre
+    from contextlib import nullcontext
+
     from terrainml.commands.dataset_cmds import print_class_report, rejection_table
     from terrainml.pipeline.dataset import build_from_tables
 
-    with console.status("[bold]windows[/] cutting the runs", spinner="dots") if not quiet else _nullcontext():
+    with console.status("[bold]windows[/] cutting the runs", spinner="dots") if not quiet else nullcontext():
         ds = build_from_tables(tables, rb, preset, spec, n_jobs=n_jobs, sensors=groups)
     if not quiet:
         console.print(rejection_table(ds))
         print_class_report(ds)
     return tables, ds, pre
-
-
-def _nullcontext():
-    from contextlib import nullcontext
-
-    return nullcontext()
 
 
 def _train_members(out: Path, ds, tables, kinds, *, folds: int, seed: int, n_jobs: int, say, false_alarm: float,

@@ -351,9 +351,7 @@ def preflight_markdown(pre: dict | None) -> list[str]:
         return []
     md = ["### Data checks and the rules applied", "",
           "Runs per class: " + ", ".join(f"{k} {v}" for k, v in pre.get("runs_per_class", {}).items()) + ".", "",
-          ("Desired slip: every class is served the class-free safe cap (no terrain catalogue has these classes; "
-           "give one with `--catalogue`)." if pre.get("class_free") else
-           f"Desired slip: the `{pre.get('catalogue')}` terrain catalogue's table of the classes."), ""]
+          f"Desired slip: {pre.get('desired_slip')}.", ""]
     for name, rule in (pre.get("rules") or {}).items():
         md += [f"- class `{name}`: {rule}"]
     return md + ([""] if pre.get("rules") else [])

@@ -56,7 +56,7 @@ class Preflight:
     class_names : the class names by id (the table's ids).
     table : the desired-slip table of the classes, or None (no catalogue has them: class-free).
     catalogue : the catalogue the table comes from (``reference``, ``borealtc``, a path) or None.
-    rules : {class name: the rule applied to it} (single-run classes, classes without parameters).
+    rules : {class name: the rule applied to it} (a class with a single run).
     """
 
     runs_per_class: dict
@@ -68,7 +68,9 @@ class Preflight:
     def doc(self) -> dict:
         """The report's ``preflight`` entry."""
         return {"runs_per_class": dict(self.runs_per_class), "catalogue": self.catalogue,
-                "class_free": self.table is None, "rules": dict(self.rules)}
+                "class_free": self.table is None, "rules": dict(self.rules),
+                "desired_slip": (CLASS_FREE_RULE if self.table is None else
+                                 f"the `{self.catalogue}` terrain catalogue's table of the classes")}
 
 
 def class_names_of_tables(tables: Sequence[pd.DataFrame]) -> list[str]:
@@ -156,11 +158,9 @@ def check_runs(labels: Sequence[int], names: Sequence[str], robot: RobotSpec, *,
             raise ValueError(f"--sensors/--windows: no window spec can be cut for robot '{robot.name}'"
                              + (f" with sensors {list(sensors)}" if sensors else "") + ": "
                              + "; ".join(f"{s}: {r}" for s, r in why.items()))
-    present = [n for n in names if n in per]
+    present = list(per)
     table, source = table_for_classes(robot, names, catalogue)
     if table is None:
-        for n in present:
-            rules[n] = (rules[n] + "; " if n in rules else "") + CLASS_FREE_RULE
         say(f"warning: no built-in terrain catalogue ({', '.join(map(str, BUILTIN_CATALOGUES))}) has the classes "
             f"{present}: {CLASS_FREE_RULE}")
     return Preflight(per, list(names), table, source, rules)

@@ -132,8 +132,8 @@ def test_class_names_no_catalogue_knows_train_and_serve_the_class_free_safe_cap_
     r = _train(["--data", str(logs), *FAST, "--no-members", "--folds", "2", "--out", str(out)])
     assert r.exit_code == 0, r.output
     rep = json.loads((out / "report.json").read_text())
-    assert rep["preflight"]["class_free"] is True and "class-free safe cap" in rep["preflight"]["rules"]["B2"]
-    assert "class-free safe cap" in (out / "report.md").read_text()
+    assert rep["preflight"]["class_free"] is True and "class-free safe cap" in rep["preflight"]["desired_slip"]
+    assert "Desired slip: no terrain parameters" in (out / "report.md").read_text()
     assert not (out / "desired_slip_table.json").exists()
     # the independent figure: the largest traction target of the reference catalogue's classes
     robot = load_robot("agrimaro")
