@@ -5,12 +5,17 @@ Every file a command writes goes to a hidden ``.NAME.part`` beside it and is ren
 a partial file that looks complete. A failure while writing raises :class:`OutputWriteError`: an
 ``OSError`` whose ``filename`` is the output (a bare ``write()`` ENOSPC names no file) and whose
 message says nothing was written; the CLI prints it as one ``error:`` line (exit 2, no traceback).
+
+A folder of several files (a model folder: models, members, report, manifest) is written the same
+way (:func:`staged_folder`): under a hidden ``.NAME.partial-PID/NAME`` beside it, renamed onto
+``NAME`` only once complete, so a reader (``terrainml predict``) never opens half of one.
 """
 
 from __future__ import annotations
 
 import errno
 import os
+import shutil
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -103,6 +108,53 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     except BaseException:
         discard(tmp)
         raise
+
+
+def publish_folder(src: str | Path, dest: str | Path) -> Path:
+    """Rename the complete folder ``src`` onto ``dest`` (same file system); an existing ``dest`` is
+    moved aside first and removed after, so ``dest`` is only ever the old folder or the new one.
+
+    Returns
+    -------
+    pathlib.Path
+        ``dest``.
+    """
+    src, dest = Path(src), Path(dest)
+    old = None
+    if dest.exists():
+        old = dest.with_name(f".{dest.name}.old-{os.getpid()}")
+        shutil.rmtree(old, ignore_errors=True)
+        os.replace(dest, old)
+    os.replace(src, dest)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+    return dest
+
+
+@contextmanager
+def staged_folder(path: str | Path) -> Iterator[Path]:
+    """Yield a folder to write, named like ``path`` inside a hidden ``.NAME.partial-PID`` beside
+    it; on success it is renamed onto ``path`` (:func:`publish_folder`), on any exception removed.
+
+    The folder keeps ``path``'s name while it is written (reports name it), and a process that
+    reads ``path`` meanwhile sees the previous folder or none, never a partial one. The caller may
+    publish the staged folder elsewhere before raising (e.g. a refusal's report).
+
+    Yields
+    ------
+    pathlib.Path
+        ``.NAME.partial-PID/NAME`` (not created: the writer creates it).
+    """
+    path = Path(path)
+    stage = path.parent / f".{path.name}.partial-{os.getpid()}"
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir(parents=True)
+    try:
+        yield stage / path.name
+        if (stage / path.name).exists():
+            publish_folder(stage / path.name, path)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def write_text(path: str | Path, text: str) -> Path:

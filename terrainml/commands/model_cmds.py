@@ -58,11 +58,14 @@ def train(
     out: Path = typer.Option(..., "--out", "-o", help="Model folder to create, e.g. runs/NAME."),
     model: str = typer.Option("auto", "--model", "-m", help="auto (default: svm, hgb and svm+hgb, chosen under "
                               "nested run-grouped CV; auto,cnn adds the CNN), or svm, cnn, hgb, all (svm and "
-                              "cnn), an average such as svm+hgb, or several comma-separated (trains them all)."),
+                              "cnn), an average such as svm+hgb, or several comma-separated (trains them all). "
+                              "A model named alone keeps --windows auto (the window spec is still chosen for "
+                              "it); name both the model and the windows for no selection at all."),
     windows: str = typer.Option("auto", "--windows", help="Window spec when --data is a folder: auto (default: "
                                 "short, chunks, state and steady where the data feeds them, chosen with the "
                                 "model), several comma-separated to choose among, or short, steady, "
-                                "chunks (BorealTC authors' windows), state."),
+                                "chunks (BorealTC authors' windows), state. One spec with a named --model: "
+                                "that model on those windows, grouped CV and served replay, no selection."),
     budget_min: float = typer.Option(30.0, "--budget-min", help="Time budget of the selection, minutes: past "
                                      "half of it after screening, only the best window spec gets its models."),
     replay_s: float = typer.Option(30.0, "--replay-s", help="Seconds of every held-out run replayed through the "
@@ -92,6 +95,11 @@ def train(
                                   "`terrainml evaluate --open-set`)."),
     novelty_false_alarm: float = typer.Option(DEFAULT_FALSE_ALARM, "--novelty-false-alarm",
                                               help=_NOVELTY_FALSE_ALARM_HELP),
+    catalogue: Optional[str] = typer.Option(None, "--catalogue", help="Terrain catalogue with the parameters of "
+                                            "the data's classes (YAML path or built-in: reference, borealtc): "
+                                            "the model serves their desired slip from it. Default: the built-in "
+                                            "one with every class; with none, every class is served the "
+                                            "class-free safe cap (report and served messages say so)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
     """Cross-validate (grouped by run), train, report and save a terrain classifier.
@@ -99,6 +107,10 @@ def train(
     By default (``--windows auto --model auto``) the window spec and the model are chosen on the
     data under nested run-grouped CV, the held-out runs of every outer fold are replayed through
     the online predictor, and the calibrated model is saved (``report.md`` shows every candidate).
+    With the model and one window spec named, that model is fitted on those windows under grouped
+    CV and the same served replay, with no selection. The data checks that can refuse run first
+    (runs per class, class names against the catalogue, sensors); the folder appears at ``--out``
+    only once complete (members included).
 
     Example: ``terrainml train --data ../shared/datasets/borealtc --format borealtc --out runs/boreal``
 
@@ -116,45 +128,63 @@ def train(
     _check_false_alarm_option(novelty_false_alarm)
     check_n_jobs(n_jobs)
     check_output_writable(out, folder=True)
-    if auto:
-        _train_auto(data, out, model=model, windows=windows, sensors=sensors, folds=folds, seed=seed,
-                    n_jobs=n_jobs, preset=preset, robot=robot, fmt=fmt, budget_min=budget_min,
-                    allow_unproven=allow_unproven, replay_s=replay_s, members=members, open_set=open_set,
-                    false_alarm=novelty_false_alarm, dask_address=dask_address, quiet=quiet)
-        return
-    _train_fixed(data, out, kinds, spec, sensors=sensors, folds=folds, seed=seed, n_jobs=n_jobs,
-                 dask_address=dask_address, preset=preset, robot=robot, fmt=fmt, ablation=ablation,
-                 members=members, open_set=open_set, false_alarm=novelty_false_alarm, quiet=quiet)
+    from terrainml.atomic import publish_folder, staged_folder
+    from terrainml.pipeline.replay import ReplayRefused
+
+    try:
+        with staged_folder(out) as stage:  # --out appears whole (members included) or not at all
+            try:
+                if auto:
+                    _train_auto(data, stage, model=model, windows=windows, sensors=sensors, folds=folds, seed=seed,
+                                n_jobs=n_jobs, preset=preset, robot=robot, fmt=fmt, budget_min=budget_min,
+                                allow_unproven=allow_unproven, replay_s=replay_s, members=members,
+                                open_set=open_set, false_alarm=novelty_false_alarm, quiet=quiet,
+                                catalogue=catalogue, dask_address=dask_address, shown=out)
+                else:
+                    _train_fixed(data, stage, kinds, spec, sensors=sensors, folds=folds, seed=seed, n_jobs=n_jobs,
+                                 dask_address=dask_address, preset=preset, robot=robot, fmt=fmt, ablation=ablation,
+                                 members=members, open_set=open_set, false_alarm=novelty_false_alarm, quiet=quiet,
+                                 catalogue=catalogue, replay_s=replay_s, allow_unproven=allow_unproven, shown=out)
+            except ReplayRefused as exc:  # no model: its report goes beside --out, an older --out is kept
+                refused = publish_folder(exc.report_dir or stage, out.with_name(f"{out.name}.refused"))
+                fail(f"{data}: refused: {exc} (report: {refused / 'report.md'})")
+    except OSError as exc:
+        fail(failure_message(data, exc, out))
 
 
 def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, seed: int, n_jobs: int,
                  dask_address, preset: str, robot, fmt: str, ablation: bool, members: bool, open_set: bool,
-                 false_alarm: float, quiet: bool) -> None:
-    """``train`` with the model kinds and window spec given (no selection)."""
+                 false_alarm: float, quiet: bool, catalogue, replay_s: float, allow_unproven: bool,
+                 shown: Path) -> None:
+    """``train`` with the model kinds and window spec given (no selection): grouped CV, the served
+    replay of every fold's held-out runs, final fit; ``out`` is written, ``shown`` named."""
     from terrainml.commands._progress import StageReporter
     from terrainml.commands.dataset_cmds import parse_sensors
+    from terrainml.pipeline.replay import ReplayRefused
+    from terrainml.pipeline.train import ServePlan
     from terrainml.pipeline.train import train as do_train
 
     if not quiet:
-        console.print(f"train: {', '.join(kinds)} under grouped {folds}-fold CV by run, then fitted on every "
-                      "window; no selection, so no time budget (--budget-min is the selection's)", highlight=False)
+        console.print(f"train: {', '.join(kinds)} under grouped {folds}-fold CV by run, the served replay of every "
+                      "fold's held-out runs, then fitted on every window; no selection, so no time budget "
+                      "(--budget-min is the selection's)", highlight=False)
+    groups = parse_sensors(sensors)
     try:
-        ds = _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=dask_address,
-                        fmt=fmt, quiet=quiet, spec=spec, sensors=parse_sensors(sensors))
-        if sensors is not None and is_windows_file(data):
-            _check_sensors(ds, parse_sensors(sensors))
+        tables, ds, pre = _fixed_data(data, spec, groups, robot=robot, preset=preset, n_jobs=n_jobs,
+                                      dask_address=dask_address, fmt=fmt, catalogue=catalogue, quiet=quiet)
+        plan = ServePlan(tables, segment_s=replay_s, allow_unproven=allow_unproven, catalogue=catalogue,
+                         preflight=pre.doc())
         with StageReporter(console, quiet=quiet) as say, _fits_on(dask_address, quiet):
             res = do_train(ds, out, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=ablation,
-                           progress=say, open_set=open_set, novelty_false_alarm=false_alarm)
+                           progress=say, open_set=open_set, novelty_false_alarm=false_alarm, serve=plan)
             names = []
             if members and sensors is None:
-                names = _train_members(out, ds, data, kinds, folds=folds, seed=seed, n_jobs=n_jobs,
-                                       robot=robot, preset=preset, fmt=fmt, spec=spec, say=say,
-                                       false_alarm=false_alarm)
-    except typer.Exit:
+                names = _train_members(out, ds, tables, kinds, folds=folds, seed=seed, n_jobs=n_jobs, say=say,
+                                       false_alarm=false_alarm, plan=plan)
+    except (typer.Exit, ReplayRefused):
         raise
-    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-        fail(failure_message(data, exc, out))
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback; the folder as the user named it
+        fail(failure_message(data, exc, shown).replace(str(out), str(shown)))
     if not quiet:
         t = Table(title=f"grouped {res.n_folds}-fold CV ({res.dataset_summary['n_runs']} runs, "
                         f"{res.dataset_summary['n_windows']} windows)", title_justify="left")
@@ -168,9 +198,15 @@ def _train_fixed(data: Path, out: Path, kinds, spec, *, sensors, folds: int, see
                       f"{s['macro_f1']['mean']:.3f} ± {s['macro_f1']['std']:.3f}",
                       "n/a" if not dse else f"{dse['mean']:.4f}", f"{r['latency']['p50_ms']:.2f}")
         console.print(t)
-        console.print(f"[green]wrote[/] {out} (served model: {res.default_model}; report {out / 'report.md'})",
+        pooled = (res.replay or {}).get("pooled") or {}
+        if pooled.get("moving_ticks"):
+            console.print(f"served replay of held-out runs: {100 * pooled['right_share']:.1f}% of "
+                          f"{pooled['moving_ticks']} moving ticks right, {100 * pooled['fallback_share']:.1f}% "
+                          "fallback" + (f" ([yellow]{res.replay['refusal']}[/], saved anyway: --allow-unproven)"
+                                        if res.replay.get("refusal") else ""), highlight=False)
+        console.print(f"[green]wrote[/] {shown} (served model: {res.default_model}; report {shown / 'report.md'})",
                       highlight=False)
-        _print_members(out, names)
+        _print_members(out, names, shown)
 
 
 @contextmanager
@@ -189,23 +225,72 @@ def _fits_on(dask_address: Optional[str], quiet: bool) -> Iterator[None]:
         fail(f"--dask-address: {exc}")
 
 
-def _train_members(out: Path, ds, data: Path, kinds, *, folds: int, seed: int, n_jobs: int, robot, preset: str,
-                   fmt: str, spec, say, false_alarm: float) -> list[str]:
-    """The folder's sensor members, each trained like its model (windows rebuilt from logs per subset)."""
+def _fixed_data(data: Path, spec, groups, *, robot, preset: str, n_jobs: int, dask_address, fmt: str, catalogue,
+                quiet: bool):
+    """(run tables or None, Dataset, Preflight) of the fixed path: the checks that can refuse run on
+    the runs' labels and names before the windows are cut (once, with every sensor group asked)."""
+    from terrainml.pipeline.preflight import check_dataset, check_tables
+
+    warn = None if quiet else (lambda msg: console.print(f"[yellow]warning:[/]{msg[len('warning:'):]}",
+                                                         highlight=False))
+    if is_windows_file(data):
+        ds = open_dataset(data)
+        if groups is not None:
+            _check_sensors(ds, groups)
+        return None, ds, check_dataset(ds, catalogue=catalogue, say=warn)
+    tables, rb = _load_tables(data, robot=robot, fmt=fmt, quiet=quiet)
+    if not tables:
+        fail(f"{data}: no usable run")
+    pre = check_tables(tables, rb, catalogue=catalogue, specs=[spec], sensors=groups, say=warn)
+    if dask_address is not None:  # the build on the cluster, from the logs
+        ds = _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=dask_address, fmt=fmt,
+                        quiet=quiet, spec=spec, sensors=groups)
+        return tables, ds, pre
+    from contextlib import nullcontext
+
+    from terrainml.commands.dataset_cmds import print_class_report, rejection_table
+    from terrainml.pipeline.dataset import build_from_tables
+
+    with console.status("[bold]windows[/] cutting the runs", spinner="dots") if not quiet else nullcontext():
+        ds = build_from_tables(tables, rb, preset, spec, n_jobs=n_jobs, sensors=groups)
+    if not quiet:
+        console.print(rejection_table(ds))
+        print_class_report(ds)
+    return tables, ds, pre
+
+
+def _train_members(out: Path, ds, tables, kinds, *, folds: int, seed: int, n_jobs: int, say, false_alarm: float,
+                   plan) -> list[str]:
+    """The folder's sensor members, each trained like its model (grouped CV, served replay).
+
+    A member's windows are the model's with the member's channels (``subset_dataset``) when that
+    is what cutting them again would give: no window was rejected for an invalid channel (the
+    only window rule that reads the channels) and the spec is not chunked (chunks span the runs
+    that hold its columns). Otherwise they are cut again from the run tables for the subset.
+    """
+    from dataclasses import replace
+
+    from terrainml.pipeline.dataset import build_from_tables
     from terrainml.pipeline.members import subset_dataset, train_members
+    from terrainml.pipeline.replay import ReplayRefused
     from terrainml.pipeline.train import train as do_train
 
+    exact = ds.spec.chunk_s is None and not ds.counts.get("channel_valid", 0)
+
     def fit(subset, folder):
-        sub = (subset_dataset(ds, subset) if is_windows_file(data) else
-               _load_data(data, robot=robot, preset=preset, n_jobs=n_jobs, dask_address=None, fmt=fmt,
-                          quiet=True, spec=spec, sensors=subset))
-        do_train(sub, folder, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=False, progress=say.nested(),
-                 novelty_false_alarm=false_alarm)
+        sub = (subset_dataset(ds, subset) if exact or tables is None else
+               build_from_tables(tables, ds.robot, ds.preset, replace(ds.spec, channels=None), n_jobs=n_jobs,
+                                 sensors=subset))
+        try:
+            do_train(sub, folder, kinds, folds=folds, seed=seed, n_jobs=n_jobs, ablation=False, progress=say.nested(),
+                     novelty_false_alarm=false_alarm, serve=replace(plan, preflight=None))
+        except ReplayRefused as exc:
+            raise ValueError(f"its served replay refuses it: {exc}") from None
 
     return train_members(out, ds.sensors, fit, progress=say)
 
 
-def _print_members(out: Path, names) -> None:
+def _print_members(out: Path, names, shown: Path | None = None) -> None:
     if not names:
         return
     doc = json.loads((out / "manifest.json").read_text())
@@ -213,7 +298,7 @@ def _print_members(out: Path, names) -> None:
         bacc = m.get("balanced_accuracy")
         console.print(f"member {m['name']}: sensors {','.join(m['sensors'] or [])}, served model "
                       f"{m['default_model']}, grouped CV balanced accuracy "
-                      f"{'n/a' if bacc is None else f'{bacc:.3f}'} ({out / m['path'] / 'report.md'})",
+                      f"{'n/a' if bacc is None else f'{bacc:.3f}'} ({(shown or out) / m['path'] / 'report.md'})",
                       highlight=False)
 
 
@@ -277,67 +362,79 @@ def _load_tables(data: Path, *, robot, fmt: str, quiet: bool, progress=None):
 
 def _train_auto(data: Path, out: Path, *, model: str, windows: str, sensors, folds: int, seed: int, n_jobs: int,
                 preset: str, robot, fmt: str, budget_min: float, allow_unproven: bool, replay_s: float,
-                members: bool, open_set: bool, false_alarm: float, dask_address, quiet: bool) -> None:
-    """``train`` selecting the window spec and the model (``--windows auto`` / ``--model auto``)."""
+                members: bool, open_set: bool, false_alarm: float, dask_address, quiet: bool, catalogue,
+                shown: Path) -> None:
+    """``train`` selecting the window spec and the model (``--windows auto`` / ``--model auto``);
+    ``out`` is written, ``shown`` named."""
     from terrainml.commands._progress import StageReporter
     from terrainml.commands.dataset_cmds import parse_sensors
     from terrainml.pipeline.autotrain import ReplayRefused, train_auto
+    from terrainml.pipeline.preflight import check_dataset, check_tables
+    from terrainml.pipeline.select import candidate_specs
 
     if not quiet:
         console.print(f"train: choosing the window spec ({windows}) and the model ({model}) under nested "
                       f"run-grouped {folds}-fold CV; time budget {budget_min:g} min (--budget-min): when "
                       "screening the window specs takes more than half of it, only the best spec gets its models "
                       "(the budget does not stop the run: every kept candidate is still scored)", highlight=False)
+    warn = None if quiet else (lambda msg: console.print(f"[yellow]warning:[/]{msg[len('warning:'):]}",
+                                                         highlight=False))
     try:
         with StageReporter(console, quiet=quiet) as say:
             if is_windows_file(data):
                 ds = open_dataset(data)
                 tables, rb, datasets = None, ds.robot, {ds.spec.name: ds}
+                pre = check_dataset(ds, catalogue=catalogue, say=warn)
             else:
                 tables, rb = _load_tables(data, robot=robot, fmt=fmt, quiet=quiet, progress=say)
                 datasets = None
                 if not tables:
                     fail(f"{data}: no usable run")
+                pre = check_tables(tables, rb, catalogue=catalogue, specs=candidate_specs(windows),
+                                   sensors=parse_sensors(sensors), say=warn)
             with _fits_on(dask_address, quiet):
                 res = train_auto(tables, rb, out, specs=windows, models=model, folds=folds, seed=seed,
                                  n_jobs=n_jobs, budget_min=budget_min, preset=preset,
                                  sensors=parse_sensors(sensors), allow_unproven=allow_unproven, segment_s=replay_s,
                                  datasets=datasets, open_set=open_set, novelty_false_alarm=false_alarm,
-                                 progress=say)
+                                 progress=say, catalogue=catalogue, preflight=pre.doc())
                 names = []
                 if members and sensors is None and tables is not None:
                     names = _auto_members(out, res, tables, rb, folds=folds, seed=seed, n_jobs=n_jobs,
-                                          preset=preset, replay_s=replay_s, say=say, false_alarm=false_alarm)
-    except typer.Exit:
+                                          preset=preset, replay_s=replay_s, say=say, false_alarm=false_alarm,
+                                          catalogue=catalogue)
+    except (typer.Exit, ReplayRefused):
         raise
-    except ReplayRefused as exc:
-        fail(f"{data}: refused: {exc}")
-    except Exception as exc:  # noqa: BLE001 - a message, never a traceback
-        fail(f"{data}: {type(exc).__name__}: {exc}")
+    except Exception as exc:  # noqa: BLE001 - a message, never a traceback; the folder as the user named it
+        fail(f"{data}: {type(exc).__name__}: {exc}".replace(str(out), str(shown)))
     if not quiet:
-        _print_selection(res, out)
-        _print_members(out, names)
+        _print_selection(res, shown)
+        _print_members(out, names, shown)
 
 
 def _auto_members(out: Path, res, tables, rb, *, folds: int, seed: int, n_jobs: int, preset: str,
-                  replay_s: float, say, false_alarm: float) -> list[str]:
+                  replay_s: float, say, false_alarm: float, catalogue=None) -> list[str]:
     """The sensor members of a selected model: the chosen window spec and model trained again on
-    each subset of its sensor groups. The choice is fixed, so a member reuses the model's windows
-    (their channels of the subset: :func:`~terrainml.pipeline.members.subset_dataset`) and run
-    groups and gets one grouped CV (no nested selection), the served replay of every fold's
+    each subset of its sensor groups. The choice is fixed, so a member gets one grouped CV (no
+    nested selection) and reuses the model's windows and run groups (their channels of the subset:
+    :func:`~terrainml.pipeline.members.subset_dataset`) where cutting them again would give the
+    same windows (the rule of :func:`_train_members`), else cuts its own; then the served replay of every fold's
     held-out runs and the final fit; a member whose replay refuses it is not saved (the folder
     then serves without it)."""
     from terrainml.pipeline.autotrain import ReplayRefused, train_auto
     from terrainml.pipeline.members import subset_dataset, train_members
 
     chosen = res.selection.chosen
+    ds = res.dataset
+    exact = ds.spec.chunk_s is None and not ds.counts.get("channel_valid", 0)  # as _train_members
 
     def fit(subset, folder):
         try:
             train_auto(tables, rb, folder, models=[chosen.model], folds=folds, seed=seed, n_jobs=n_jobs,
-                       budget_min=None, preset=preset, sensors=subset, segment_s=replay_s,
-                       datasets={chosen.spec: subset_dataset(res.dataset, subset)}, nested=False,
-                       novelty_false_alarm=false_alarm, progress=say.nested())
+                       budget_min=None, preset=preset, sensors=subset, segment_s=replay_s, nested=False,
+                       **({"datasets": {chosen.spec: subset_dataset(ds, subset)}} if exact else
+                          {"specs": [chosen.spec]}),
+                       novelty_false_alarm=false_alarm, progress=say.nested(), catalogue=catalogue)
         except ReplayRefused as exc:
             raise ValueError(f"its served replay refuses it: {exc}") from None
 

@@ -54,6 +54,7 @@ class CVResult:
     name : label of the result (e.g. ``"(b) svm"``).
     novelty : ndarray (n,) or None, out-of-fold novelty scores of an open-set model (its
         threshold per fold is the fold metrics' ``novelty_threshold``); NaN outside the test parts.
+    fold_models : list or None, every fold's fitted model (``cross_validate(keep_models=True)``).
     """
 
     folds: list
@@ -68,6 +69,7 @@ class CVResult:
     pooled: dict = field(default_factory=dict)
     name: str = ""
     novelty: np.ndarray | None = None
+    fold_models: list | None = None
 
     @property
     def accuracy(self) -> float:
@@ -140,7 +142,8 @@ def _assemble(folds, y, classes, class_names, y_pred, proba, fold_info: Sequence
 def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_splits: int = 5,
                    seed: int = 0, n_jobs: int | None = 1, table: Any = None, classes=None,
                    class_names: Sequence[str] | None = None, fit_kwargs: dict | None = None,
-                   name: str = "", progress: Callable[[int, int], None] | None = None) -> CVResult:
+                   name: str = "", progress: Callable[[int, int], None] | None = None,
+                   keep_models: bool = False) -> CVResult:
     """K-fold CV of a model factory on raw windows; no group is ever split.
 
     Parameters
@@ -160,6 +163,8 @@ def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_sp
     fit_kwargs : more keyword arguments of ``fit``.
     name : label stored in the result.
     progress : callback ``(folds done, n folds)`` after each fold, in fold order.
+    keep_models : keep every fold's fitted model in the result's ``fold_models`` (fold order),
+        e.g. to serve it on the fold's held-out runs (:mod:`terrainml.pipeline.replay`).
 
     Returns
     -------
@@ -170,7 +175,7 @@ def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_sp
     folds = folds if folds is not None else grouped_folds(y, groups, n_splits, seed)
     check_groups_not_split(folds, groups)
     classes = np.asarray(classes) if classes is not None else np.unique(y)
-    jobs = (delayed(_run_fold)(factory, X, y, groups, tr, te, fit_kwargs or {}) for tr, te in folds)
+    jobs = (delayed(_run_fold)(factory, X, y, groups, tr, te, fit_kwargs or {}, keep_models) for tr, te in folds)
     if progress is None:
         results = Parallel(n_jobs=n_jobs)(jobs)
     else:  # a generator, to report every fold as it completes
@@ -178,6 +183,8 @@ def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_sp
         for r in Parallel(n_jobs=n_jobs, return_as="generator")(jobs):
             results.append(r)
             progress(len(results), len(folds))
+    fold_models = [r[-1] for r in results] if keep_models else None
+    results = [r[:7] for r in results]
     K = len(classes)
     col = {c: k for k, c in enumerate(classes.tolist())}
     y_pred = np.empty(len(y), dtype=y.dtype)
@@ -196,6 +203,7 @@ def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_sp
             for (_, te), (*_, fit_s, pred_s, best, nov) in zip(folds, results)]
     res = _assemble(folds, y, classes, class_names, y_pred, proba, info, table, name)
     res.novelty = novelty
+    res.fold_models = fold_models
     return res
 
 

@@ -224,6 +224,12 @@ def write_report(out: str | Path, result: Any) -> dict:
                                 f"{a.macro_f1_mean:.3f} ± {a.macro_f1_std:.3f}", _num(a.desired_slip_error_mean, 4)]
                                for a in ab.itertuples()]), ""]
     md += _novelty_lines(result, doc)
+    if getattr(result, "replay", None) is not None:
+        doc["replay"] = result.replay
+        md += replay_markdown(result.replay)
+    if getattr(result, "preflight", None):
+        doc["preflight"] = result.preflight
+        md += preflight_markdown(result.preflight)
     counts = result.dataset_summary.get("rejections", {})
     if counts:
         md += ["## Window rejections (steady rules, design §8)", "",
@@ -311,31 +317,50 @@ def selection_markdown(doc: dict) -> list[str]:
                             _f(o["temperature"], 2)] for o in sel["outer"]]), "",
            f"Served model: temperature {sel['temperature']:.2f}, fitted on the out-of-fold probabilities of all "
            "runs (the fusion, the uncertain-class fallback and the safe cap read the calibrated values).", ""]
-    if rep.get("folds"):
-        fr = rep["folds"]
-        pooled = rep["pooled"]
-        md += ["### Served replay of the held-out runs", "",
-               f"Each outer fold's model, saved and loaded as `terrainml predict` loads it, serves a course of "
-               f"{rep['segment_s']:.0f} s of each of the fold's held-out runs (classes interleaved) tick by tick. "
-               "Right: the labelled class served on a moving tick (a fallback is never right).", "",
-               markdown_table(["fold", "runs", "moving ticks", "right %", "right % (3 s after changes left out)",
-                               "fallback %", "classifications / m", "median m to the right class after a change",
-                               "changes never served right"],
-                              [[f["fold"] + 1, f["runs"], f.get("moving_ticks", 0), _f(f.get("right_share"), 1, 100),
-                                _f(f.get("right_share_settled"), 1, 100), _f(f.get("fallback_share"), 1, 100),
-                                _f(f.get("classifications_per_m"), 2), _f(f.get("median_change_m"), 2),
-                                f.get("changes_never_right", "n/a")] for f in fr]
-                              + [["all", sum(f["runs"] for f in fr), pooled.get("moving_ticks", 0),
-                                  _f(pooled.get("right_share"), 1, 100), "", _f(pooled.get("fallback_share"), 1, 100),
-                                  _f(pooled.get("classifications_per_m"), 2), _f(pooled.get("median_change_m"), 2),
-                                  pooled.get("changes_never_right", "n/a")]]), ""]
-        if rep.get("refusal"):
-            md += [f"**Refused:** {rep['refusal']}" + (" (saved anyway: `--allow-unproven`)." if rep.get("overridden")
-                                                      else "; no model saved."), ""]
-    elif "replay" in doc:
-        md += ["### Served replay", "", "Not run (no run logs: trained from a windows file, or `--no-replay`).", ""]
+    md += replay_markdown(rep, "outer fold") if rep.get("folds") or "replay" in doc else []
+    md += preflight_markdown(doc.get("preflight"))
     if doc.get("timing_s"):
         t = doc["timing_s"]
         md += ["Time: " + ", ".join(f"{k.removesuffix('_s').replace('_', ' ')} {v / 60:.1f} min" for k, v in t.items())
                + ".", ""]
     return md
+
+
+def replay_markdown(rep: dict, fold_word: str = "fold") -> list[str]:
+    """Markdown of the served replay of every fold's held-out runs (``rep``: the report's ``replay``)."""
+    if not rep.get("folds"):
+        return ["### Served replay", "", "Not run (no run logs: trained from a windows file, or `--no-replay`).", ""]
+    fr = rep["folds"]
+    pooled = rep["pooled"]
+    md = ["### Served replay of the held-out runs", "",
+          f"Each {fold_word}'s model, saved and loaded as `terrainml predict` loads it, serves a course of "
+          f"{rep['segment_s']:.0f} s of each of the fold's held-out runs (classes interleaved) tick by tick. "
+          "Right: the labelled class served on a moving tick (a fallback is never right).", "",
+          markdown_table(["fold", "runs", "moving ticks", "right %", "right % (3 s after changes left out)",
+                          "fallback %", "classifications / m", "median m to the right class after a change",
+                          "changes never served right"],
+                         [[f["fold"] + 1, f["runs"], f.get("moving_ticks", 0), _f(f.get("right_share"), 1, 100),
+                           _f(f.get("right_share_settled"), 1, 100), _f(f.get("fallback_share"), 1, 100),
+                           _f(f.get("classifications_per_m"), 2), _f(f.get("median_change_m"), 2),
+                           f.get("changes_never_right", "n/a")] for f in fr]
+                         + [["all", sum(f["runs"] for f in fr), pooled.get("moving_ticks", 0),
+                             _f(pooled.get("right_share"), 1, 100), "", _f(pooled.get("fallback_share"), 1, 100),
+                             _f(pooled.get("classifications_per_m"), 2), _f(pooled.get("median_change_m"), 2),
+                             pooled.get("changes_never_right", "n/a")]]), ""]
+    if rep.get("refusal"):
+        md += [f"**Refused:** {rep['refusal']}" + (" (saved anyway: `--allow-unproven`)." if rep.get("overridden")
+                                                  else "; no model saved."), ""]
+    return md
+
+
+def preflight_markdown(pre: dict | None) -> list[str]:
+    """Markdown of the data checks run before training: the rule applied to each class it names
+    (a class with a single run, classes without terrain parameters) and the desired-slip source."""
+    if not pre:
+        return []
+    md = ["### Data checks and the rules applied", "",
+          "Runs per class: " + ", ".join(f"{k} {v}" for k, v in pre.get("runs_per_class", {}).items()) + ".", "",
+          f"Desired slip: {pre.get('desired_slip')}.", ""]
+    for name, rule in (pre.get("rules") or {}).items():
+        md += [f"- class `{name}`: {rule}"]
+    return md + ([""] if pre.get("rules") else [])

@@ -9,6 +9,8 @@ Integer ids are storage details (the position of a class in the table); lookups 
 or the id, and :meth:`DesiredSlipTable.check_classes` refuses a table that does not hold a
 model's classes under the model's ids (what serving checks on load).
 :meth:`DesiredSlipTable.safe_cap` is the class-free fallback target of design §10.
+:class:`ClassFreeTargets` serves that cap, taken over the reference catalogue's classes, to every
+class of a model whose class names no catalogue knows (a team's own names), until one is given.
 
 For every terrain class the table evaluates the vehicle's net traction coefficient
 
@@ -62,8 +64,8 @@ from terrainml.lookup import terramechanics as tm
 from terrainml.lookup.catalogue import CatalogueClass, TerrainCatalogue, load_catalogue
 from terrainml.robot import RobotSpec, reference_robot
 
-__all__ = ["ClassTargets", "DesiredSlipTable", "LookupTableError", "RIGID_CLASSES", "SafeCap",
-           "mu_net_curve", "STATES"]
+__all__ = ["ClassFreeTargets", "ClassTargets", "DesiredSlipTable", "LookupTableError", "RIGID_CLASSES",
+           "SafeCap", "mu_net_curve", "STATES", "CLASS_FREE_DETAIL"]
 
 SCHEMA = "terrainml.desired_slip_table"
 SCHEMA_VERSION = 1
@@ -636,3 +638,57 @@ class DesiredSlipTable:
         body = ", ".join(f"{r.name}: T{r.traction:+.3f} B{r.braking:+.3f} S{r.steady:+.3f}"
                          for r in self.rows)
         return f"DesiredSlipTable({self.robot_spec.get('name')!r}; {body})"
+
+
+#: what a served message says (``fallback_detail``) when its class has no terrain parameters
+CLASS_FREE_DETAIL = "class_free_targets: no terrain parameters for this class (train --catalogue)"
+
+
+class ClassFreeTargets:
+    """Targets of a model whose classes no terrain catalogue describes (design §10).
+
+    A team's own class names (``gravel_lot``, ``B2``) have no terramechanics parameters, so no
+    class target can be computed. Every class is then served the class-free safe cap of the
+    reference catalogue's eight classes for the robot (:meth:`DesiredSlipTable.safe_cap` of
+    :meth:`DesiredSlipTable.build`; 0.567 / -0.580 for the Husky): a target that stalls none of
+    the terrains we have parameters for and lets no wheel run away. The class itself is still
+    classified and served by name; the stream flags such ticks (:data:`CLASS_FREE_DETAIL`).
+    A catalogue with the classes (``train --catalogue``) replaces it with class targets.
+
+    Parameters
+    ----------
+    cap : the safe cap served to every class.
+    class_names : the model's class names by id (``class_names[cid]``).
+    """
+
+    class_free = True
+
+    def __init__(self, cap: SafeCap, class_names: Sequence[str]):
+        self.cap = cap
+        self._names = tuple(str(n) for n in class_names)
+
+    @classmethod
+    def for_robot(cls, robot: RobotSpec, class_names: Sequence[str]) -> "ClassFreeTargets":
+        """The reference catalogue's safe cap for ``robot``, served to ``class_names``."""
+        return cls(DesiredSlipTable.build(robot).safe_cap(), class_names)
+
+    @property
+    def class_names(self) -> tuple[str, ...]:
+        return self._names
+
+    def target(self, cls: int | str, state: str) -> float:
+        """The safe cap's target in ``state`` whatever the class (``idle`` -> 0)."""
+        if state not in STATES:
+            raise LookupTableError(f"unknown state {state!r}; expected one of {STATES}")
+        return self.cap.target(state)
+
+    def safe_cap(self, classes: Iterable[str] | None = None) -> SafeCap:
+        """The same cap (class-free by construction)."""
+        return self.cap
+
+    def check_classes(self, class_ids: Sequence[int], class_names: Sequence[str], source: str = "") -> None:
+        """Every class is served the cap: any class set is held."""
+
+    def __repr__(self) -> str:
+        return (f"ClassFreeTargets(T{self.cap.traction:+.3f} B{self.cap.braking:+.3f} for "
+                f"{list(self._names)})")

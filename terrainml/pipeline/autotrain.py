@@ -28,7 +28,6 @@ import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from tempfile import TemporaryDirectory
 from typing import Any, Sequence
 
 import numpy as np
@@ -44,22 +43,19 @@ from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.models.novelty import DEFAULT_FALSE_ALARM, check_false_alarm
 from terrainml.pipeline.dataset import Dataset, build_from_tables
 from terrainml.pipeline.progress import ProgressFn, report
-from terrainml.pipeline.replay import (MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S, make_course, pooled_replay,
-                                       replay_course, replay_refusal)
+from terrainml.pipeline.replay import (MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S, ReplayRefused, pooled_replay,
+                                       replay_refusal)
 from terrainml.pipeline import train as train_lib  # make_factory read at call time
 from terrainml.pipeline.select import Selection, candidate_specs, select
-from terrainml.pipeline.train import (MIN_RUNS_PER_CLASS, TABLE_FILE, TrainResult, desired_slip_table_for,
-                                      feature_family, served_novelty)
+from terrainml.pipeline.train import (MIN_RUNS_PER_CLASS, SINGLE_RUN_RULE, TABLE_FILE, FoldModel, TrainResult,
+                                      class_names_of, desired_slip_table_for, feature_family, replay_folds,
+                                      served_novelty)
 from terrainml.robot import RobotSpec
 
 __all__ = ["train_auto", "build_candidates", "AutoResult", "ReplayRefused", "DEFAULT_BUDGET_MIN"]
 
 #: ``--budget-min`` default
 DEFAULT_BUDGET_MIN = 30.0
-
-
-class ReplayRefused(RuntimeError):
-    """The served replay of the held-out runs does not prove the model (reason in the message)."""
 
 
 @dataclass
@@ -133,42 +129,39 @@ def _save(out: Path, ds: Dataset, fitted: dict, served: str, temperature: float,
 
 
 def _names(ds: Dataset, classes: Sequence[int]) -> list[str]:
-    all_names = ds.windows.attrs.get("all_class_names")
-    own = dict(zip(ds.class_ids, ds.class_names))
-    return [str(all_names[c]) if all_names is not None and c < len(all_names) else own.get(c, str(c))
-            for c in classes]
+    return class_names_of(ds, classes)
+
+
+def _texts_only(say: ProgressFn) -> ProgressFn:
+    """``say`` for one fold's :func:`~terrainml.pipeline.train.replay_folds` call: its notes pass,
+    its steps (of one fold) do not: the caller reports the folds' steps."""
+    return lambda msg: say(msg) if isinstance(msg, str) else None
 
 
 def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, seed: int, say,
                   false_alarm: float = DEFAULT_FALSE_ALARM) -> list[dict]:
     """Replay of every outer fold's held-out runs through its calibrated model and its novelty score
-    (fitted on the fold's training runs only), saved and loaded as ``predict`` loads them."""
-    out = []
-    by_id = {str(t["run_id"].iloc[0]): t for t in tables if len(t)}
+    (fitted on the fold's training runs only), saved and loaded as ``predict`` loads them
+    (:func:`~terrainml.pipeline.train.replay_folds`). The outer folds hold the runs of the
+    selection's classes only (a class with a single run is never held out, nor known to a fold model)."""
+    folds = []
     for k, o in enumerate(sel.outer):
-        spec = o["chosen"].split("/")[0]
-        runs = [r for r in o["runs"] if r in by_id]
-        report(say, "served replay", k, len(sel.outer), "folds",
-               f"fold {k + 1}: {len(runs)} held-out runs through the online predictor")
-        if not runs:
-            out.append({"fold": k, "runs": 0, "moving_ticks": 0, "chosen": o["chosen"]})
-            continue
-        model, name = sel.outer_models[k], o["chosen"].split("/")[1]
+        spec, name = o["chosen"].split("/")
+        model = sel.outer_models[k]
         fitted = {name: model}
         if isinstance(model, ProbabilityAverage):
             fitted = {**dict(zip(name.split("+"), model.members_)), **fitted}
         W = data[spec].windows
         train_idx = np.flatnonzero(~np.isin(np.asarray(W.groups).astype(str), o["runs"])
                                    & np.isin(W.y, sel.class_ids))
-        novelty = served_novelty(model, name, W.subset(train_idx), seed, say, false_alarm)  # fold's training runs
-        with TemporaryDirectory() as tmp:
-            _save(Path(tmp) / "m", data[spec], fitted, name, o["temperature"], table, novelty=novelty)
-            course = make_course([by_id[r] for r in runs], runs, segment_s=segment_s)
-            t0 = time.perf_counter()
-            res = replay_course(Path(tmp) / "m", course)
-        out.append({"fold": k, "chosen": o["chosen"], "runs": len(runs), **res,
-                    "replay_s": time.perf_counter() - t0})
-    report(say, "served replay", len(sel.outer), len(sel.outer), "folds")
+        folds.append((spec, FoldModel(list(o["runs"]), fitted, name, W.subset(train_idx), o["temperature"],
+                                      o["chosen"])))
+    out = []
+    for k, (spec, f) in enumerate(folds):  # a fold's spec may differ from another's (chosen per fold)
+        report(say, "served replay", k, len(folds), "folds", f"fold {k + 1}: {len(f.runs)} held-out runs")
+        (res,) = replay_folds([f], data[spec], tables, table, segment_s, seed, _texts_only(say), false_alarm)
+        out.append({**res, "fold": k})
+    report(say, "served replay", len(folds), len(folds), "folds")
     return out
 
 
@@ -179,7 +172,8 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
                segment_s: float = REPLAY_SEGMENT_S, allow_unproven: bool = False,
                min_classified_share: float = MIN_CLASSIFIED_SHARE, datasets: dict | None = None,
                open_set: bool = False, novelty_false_alarm: float = DEFAULT_FALSE_ALARM,
-               nested: bool = True, progress: ProgressFn | None = None) -> AutoResult:
+               nested: bool = True, progress: ProgressFn | None = None, catalogue: str | None = None,
+               preflight: dict | None = None) -> AutoResult:
     """Select, validate on the served path, calibrate and save a model (see the module docstring).
 
     Parameters
@@ -204,6 +198,9 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     progress : callback with a short message per step and a
         :class:`~terrainml.pipeline.progress.Step` per unit of the stages ``windows``,
         ``selection`` (per fit), ``served replay`` (per fold), ``final fit`` and ``open set``.
+    catalogue : terrain catalogue of the desired-slip table (``--catalogue``); None: built-in, or
+        class-free serving when none has the classes.
+    preflight : the report entry of the checks run before (:mod:`terrainml.pipeline.preflight`).
 
     Returns
     -------
@@ -217,7 +214,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     data, failed = _candidate_data(tables, robot, specs, preset, sensors, n_jobs, datasets, say)
     t_windows = time.perf_counter() - t0
     first = next(iter(data.values()))
-    table = desired_slip_table_for(first, robot)
+    table = desired_slip_table_for(first, robot, catalogue)
     budget_s = None if budget_min is None else 60.0 * float(budget_min)
     sel = select(data, models, folds=folds, seed=seed, n_jobs=n_jobs, budget_s=budget_s, table=table,
                  progress=say, nested=nested)
@@ -230,15 +227,14 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     refusal = replay_refusal(pooled, min_classified_share) if replay else ""
     t_replay = time.perf_counter() - t0 - t_windows - t_sel
     ds = data[sel.chosen.spec]
-    res_doc = {"selection": _selection_doc(sel),
+    res_doc = {"selection": _selection_doc(sel), "preflight": preflight,
                "replay": {"folds": folds_replay, "pooled": pooled, "refusal": refusal,
                           "overridden": bool(refusal and allow_unproven), "segment_s": segment_s,
                           "min_classified_share": min_classified_share}}
     if refusal and not allow_unproven:
         out.mkdir(parents=True, exist_ok=True)
         _write_docs(out, None, res_doc, sel)
-        raise ReplayRefused(f"{refusal}; not saved (report: {out / 'report.md'}); "
-                            "override with --allow-unproven")
+        raise ReplayRefused(f"{refusal}; not saved; override with --allow-unproven", out)
     tr, final_s = _fit_and_save(out, ds, sel, table, seed, say, novelty_false_alarm)
     timing = {"windows_s": t_windows, "select_s": t_sel, "replay_s": t_replay, "final_fit_s": final_s,
               "total_s": time.perf_counter() - t0}
@@ -299,8 +295,8 @@ def _summary(ds: Dataset, sel: Selection) -> dict:
     per = runs.groupby("run_class").size().to_dict()
     name_of = dict(zip(classes, names))
     excluded = [{"class": name_of.get(int(c), str(c)), "runs": int(n),
-                 "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: grouped CV cannot test it on an unseen run; "
-                           "excluded from the CV mean"} for c, n in per.items() if n < MIN_RUNS_PER_CLASS]
+                 "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: {SINGLE_RUN_RULE}"}
+                for c, n in per.items() if n < MIN_RUNS_PER_CLASS]
     return {"n_runs": int(len(np.unique(W.groups))), "n_windows": int(len(W)),
             "windows_per_class": {n: int((W.y == c).sum()) for c, n in zip(classes, names)},
             "runs_per_class": {name_of.get(int(c), str(c)): int(n) for c, n in per.items()},

@@ -44,7 +44,7 @@ from terrainml.robot import REFERENCE_ROBOT, RobotSpec, load_robot
 __all__ = ["find_logs", "process_log", "build_dataset", "build_from_tables", "Dataset", "RunResult",
            "write_windows", "read_windows", "fingerprint", "DatasetError", "LOG_SUFFIXES", "SENSOR_GROUPS",
            "sensors_of", "class_report", "LOSS_HINT_FRACTION", "DEFAULT_WINDOWS", "FORMAT_ROBOTS",
-           "dataset_robot", "resolve_spec"]
+           "dataset_robot", "resolve_spec", "run_class"]
 
 #: window spec of a dataset built without one (design §8, issue #19): ``short`` windows exist in
 #: stop-and-go and after every transition, so a model trained by default serves through them
@@ -228,7 +228,7 @@ def _describe_run(table: pd.DataFrame, res: RunResult) -> None:
     damage = damage_summary(table)
     if damage.any:  # usable, but what the log lost is said per run, not only at ingest
         res.status, res.message = "damaged", damage.text.removeprefix("damaged: ")
-    res.run_class = _run_class(table)
+    res.run_class = run_class(table)
 
 
 def _cut_run(table: pd.DataFrame, robot: RobotSpec, spec: WindowSpec, preset: str, channels,
@@ -247,7 +247,7 @@ def _cut_run(table: pd.DataFrame, robot: RobotSpec, spec: WindowSpec, preset: st
     return wins, counts
 
 
-def _run_class(table: pd.DataFrame) -> int:
+def run_class(table: pd.DataFrame) -> int:
     """The run's most common label (-1 when unlabelled): the class its rejections are counted under."""
     if "terrain" not in table.columns or not len(table):
         return -1

@@ -39,7 +39,7 @@ from terrainml.stream.predictor import Predictor
 from terrainml.stream.runner import CLASSIFY_LAG_TICKS, MOVING_MPS
 
 __all__ = ["make_course", "replay_course", "replay_refusal", "pooled_replay", "REPLAY_SEGMENT_S",
-           "MIN_CLASSIFIED_SHARE", "SETTLE_S"]
+           "MIN_CLASSIFIED_SHARE", "SETTLE_S", "ReplayRefused"]
 
 #: seconds of every held-out run replayed (from its middle)
 REPLAY_SEGMENT_S = 30.0
@@ -47,6 +47,17 @@ REPLAY_SEGMENT_S = 30.0
 MIN_CLASSIFIED_SHARE = 0.5
 #: seconds after a label change left out of ``right_share_settled``
 SETTLE_S = 3.0
+
+
+class ReplayRefused(RuntimeError):
+    """The served replay of the held-out runs does not prove the model (reason in the message).
+
+    ``report_dir``: the folder whose ``report.md`` shows the replay (no model saved in it).
+    """
+
+    def __init__(self, message: str, report_dir: str | Path | None = None):
+        super().__init__(message)
+        self.report_dir = None if report_dir is None else Path(report_dir)
 
 
 def _rate_hz(df: pd.DataFrame) -> float:

@@ -17,8 +17,17 @@ settings of the BorealTC protocols (``experiments/borealtc.py``), so ``train`` a
 and the sensor groups the model needs (``sensors``).
 
 A class with fewer than :data:`MIN_RUNS_PER_CLASS` runs cannot be tested on a run it was not
-trained on: it is named, left out of the cross-validation (``report.json``:
-``excluded_classes``) and kept in the final fit.
+trained on: it is named, left out of the cross-validation and of the served replay
+(``report.json``: ``excluded_classes``) and kept in the final fit
+(:data:`~terrainml.pipeline.preflight.SINGLE_RUN_RULE`).
+
+With a :class:`ServePlan` holding the ingested runs, :func:`train` also proves the served model
+on the served path before it saves it: every fold's model (fitted without the fold's runs) is
+saved and loaded as ``terrainml predict`` loads it and serves a course of the fold's held-out
+runs (:func:`replay_folds`, :mod:`terrainml.pipeline.replay`, the same replay as the selecting
+``train``); a model whose replay classifies too little is refused
+(:class:`~terrainml.pipeline.replay.ReplayRefused`, report written, no model saved) unless
+``allow_unproven``.
 
 :func:`evaluate` loads a verified model folder and scores it on another dataset.
 """
@@ -28,6 +37,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from tempfile import TemporaryDirectory
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -42,26 +52,27 @@ from terrainml.evaluation.report import write_report
 from terrainml.features.sets import FEATURE_SUBSETS, FeatureSet
 from terrainml.features.side_channel import SideChannelFeatures, track_of
 from terrainml.features.windows import is_side_channel_set
-from terrainml.lookup.catalogue import BUILTIN_CATALOGUES
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import (Artifact, ArtifactError, load_artifact, save_artifact,
                                         write_manifest)
+from terrainml.models.calibration import Temperature
 from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.models.novelty import DEFAULT_FALSE_ALARM, NoveltyError, check_false_alarm, fit_model_novelty
 from terrainml.models.svm import SVMClassifier
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.dataset import Dataset
 from terrainml.pipeline.progress import report
+from terrainml.pipeline.preflight import MIN_RUNS_PER_CLASS, SINGLE_RUN_RULE, table_for_classes
+from terrainml.pipeline.replay import (MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S, ReplayRefused, make_course,
+                                       pooled_replay, replay_course, replay_refusal)
 
 __all__ = ["MODEL_KINDS", "TABLE_FILE", "make_factory", "train", "evaluate", "TrainResult",
            "desired_slip_table_for", "served_table", "parse_models", "feature_family",
            "MIN_RUNS_PER_CLASS", "ClassMismatchError", "parse_class_map", "served_novelty",
-           "evaluate_open_set"]
+           "evaluate_open_set", "ServePlan", "FoldModel", "replay_folds", "class_names_of"]
 
 #: base model kinds; ``A+B`` averages the probabilities of A and B
 MODEL_KINDS = ("svm", "cnn", "hgb")
-#: fewer runs than this and grouped CV never tests the class on a run it was not trained on
-MIN_RUNS_PER_CLASS = 2
 #: SVM search grid of the side-channel family (the BorealTC protocols' ``svm``)
 SIDE_C_GRID = (3.0, 10.0, 30.0, 100.0)
 SIDE_GAMMA_GRID = ("scale", 0.001, 0.002)
@@ -142,26 +153,19 @@ def make_factory(kind: str, ds: Dataset, seed: int = 0, subset: str = "all", n_j
     raise ValueError(f"unknown model kind {kind!r}; expected one of {MODEL_KINDS}")
 
 
-def desired_slip_table_for(ds: Dataset | None, robot: Any) -> Any:
+def desired_slip_table_for(ds: Dataset | None, robot: Any, catalogue: str | None = None) -> Any:
     """The desired-slip table of the dataset's class set for ``robot`` (design §10), or None.
 
-    Our eight classes (design §6.1) get :meth:`DesiredSlipTable.build`; a dataset that brings
-    its own class names gets the table of the first built-in terrain catalogue that has every
-    one of them (BorealTC's five: the ``borealtc`` catalogue), ids in the dataset's order. With
-    no such catalogue the desired-slip error is n/a and no table is stored with the model.
+    ``catalogue`` (``train --catalogue``: a YAML path or built-in name) must have every class
+    (ValueError naming it). Without it, our eight classes (design §6.1) get
+    :meth:`DesiredSlipTable.build`; a dataset that brings its own class names gets the table of
+    the first built-in terrain catalogue that has every one of them (BorealTC's five: the
+    ``borealtc`` catalogue), ids in the dataset's order. With no such catalogue the desired-slip
+    error is n/a, no table is stored with the model and serving gives every class the class-free
+    safe cap (:class:`~terrainml.lookup.table.ClassFreeTargets`).
     """
     all_names = None if ds is None else ds.windows.attrs.get("all_class_names")
-    if all_names is not None and list(all_names) != list(TERRAIN_CLASSES):
-        for cat in BUILTIN_CATALOGUES:
-            try:
-                return DesiredSlipTable.from_catalogue(cat, robot, list(all_names))
-            except Exception:  # noqa: BLE001 - a catalogue without these classes: try the next
-                continue
-        return None
-    try:
-        return DesiredSlipTable.build(robot)
-    except Exception:  # noqa: BLE001 - the metric is then reported as n/a
-        return None
+    return table_for_classes(robot, list(TERRAIN_CLASSES) if all_names is None else list(all_names), catalogue)[0]
 
 
 def served_table(art: Artifact) -> DesiredSlipTable | None:
@@ -195,6 +199,100 @@ class TrainResult:
     open_set: Any = None
     manifest: dict = field(default_factory=dict)
     fitted: dict = field(default_factory=dict)
+    #: the served replay of every fold's held-out runs (``folds``, ``pooled``, ``refusal``, ...) or None
+    replay: dict | None = None
+    #: the checks before the long work (:meth:`~terrainml.pipeline.preflight.Preflight.doc`) or None
+    preflight: dict | None = None
+
+
+@dataclass
+class ServePlan:
+    """How :func:`train` proves and equips the model for serving.
+
+    Attributes
+    ----------
+    tables : the ingested run tables the dataset was cut from (None: no replay, e.g. a windows file).
+    segment_s : s of every held-out run replayed. allow_unproven : save a model the replay
+        refuses (the report says so). min_classified_share : the refusal threshold.
+    catalogue : terrain catalogue of the desired-slip table (``--catalogue``), None: built-in.
+    preflight : the report's entry of the checks run before (or None).
+    """
+
+    tables: Sequence[pd.DataFrame] | None = None
+    segment_s: float = REPLAY_SEGMENT_S
+    allow_unproven: bool = False
+    min_classified_share: float = MIN_CLASSIFIED_SHARE
+    catalogue: str | None = None
+    preflight: dict | None = None
+
+
+@dataclass
+class FoldModel:
+    """One fold's model, to serve on the fold's held-out runs (:func:`replay_folds`).
+
+    Attributes
+    ----------
+    runs : the held-out run ids. fitted : {name: fitted model} to save (an average's members too).
+    served : the name served. train_windows : the fold's training windows (its novelty score).
+    temperature : of the served model's probabilities (1: uncalibrated). label : report label.
+    """
+
+    runs: list
+    fitted: dict
+    served: str
+    train_windows: Any
+    temperature: float = 1.0
+    label: str = ""
+
+
+def class_names_of(ds: Dataset, classes: Sequence[int]) -> list[str]:
+    """Names of the class ids ``classes`` of a dataset (its full name list, else its own)."""
+    all_names = ds.windows.attrs.get("all_class_names")
+    own = dict(zip(ds.class_ids, ds.class_names))
+    return [str(all_names[c]) if all_names is not None and c < len(all_names) else own.get(c, str(c))
+            for c in classes]
+
+
+def replay_folds(folds: Sequence[FoldModel], ds: Dataset, tables: Sequence[pd.DataFrame], table: Any,
+                 segment_s: float, seed: int, say: Callable[[str], None],
+                 false_alarm: float = DEFAULT_FALSE_ALARM) -> list[dict]:
+    """Replay of every fold's held-out runs through its model and its novelty score (fitted on the
+    fold's training windows only), saved and loaded as ``terrainml predict`` loads them.
+
+    A fold model is saved with the classes it was fitted on (a class left out of the folds, e.g.
+    one with a single run, is neither known to it nor among its held-out runs).
+
+    Returns
+    -------
+    list of dicts per fold: ``fold``, ``chosen``, ``runs`` and :func:`~terrainml.pipeline.replay.
+    replay_course`'s figures, ``replay_s``.
+    """
+    out = []
+    by_id = {str(t["run_id"].iloc[0]): t for t in tables if len(t)}
+    for k, f in enumerate(folds):
+        runs = [r for r in f.runs if r in by_id]
+        report(say, "served replay", k, len(folds), "folds",
+               f"fold {k + 1}: {len(runs)} held-out runs through the online predictor")
+        if not runs:
+            out.append({"fold": k, "runs": 0, "moving_ticks": 0, "chosen": f.label or f.served})
+            continue
+        model = f.fitted[f.served]
+        novelty = served_novelty(model, f.served, f.train_windows, seed, say, false_alarm)
+        classes = sorted(int(c) for c in np.asarray(model.classes_).tolist())
+        with TemporaryDirectory() as tmp:
+            save_artifact(Path(tmp) / "m", f.fitted, classes=classes, class_names=class_names_of(ds, classes),
+                          channels=ds.windows.channels, window_spec=ds.spec, robot=ds.robot,
+                          training_fingerprint=ds.fingerprint, default_model=f.served, preset=ds.preset,
+                          sensors=ds.sensors, feature_family=feature_family(ds.windows.channels),
+                          attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
+                          calibration={f.served: Temperature(f.temperature).to_dict()}, novelty=novelty)
+            course = make_course([by_id[r] for r in runs], runs, segment_s=segment_s)
+            t0 = time.perf_counter()
+            res = replay_course(Path(tmp) / "m", course)
+        out.append({"fold": k, "chosen": f.label or f.served, "runs": len(runs), **res,
+                    "replay_s": time.perf_counter() - t0})
+    report(say, "served replay", len(folds), len(folds), "folds")
+    return out
 
 
 def _ablation(ds: Dataset, folds, seed: int, n_jobs: int, table, classes, cv_all=None,
@@ -224,7 +322,7 @@ def _ablation(ds: Dataset, folds, seed: int, n_jobs: int, table, classes, cv_all
 def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds: int = 5, seed: int = 0,
           n_jobs: int = 1, ablation: bool = True, model_params: dict | None = None,
           progress: Callable[[str], None] | None = None, open_set: bool = False,
-          novelty_false_alarm: float = DEFAULT_FALSE_ALARM) -> TrainResult:
+          novelty_false_alarm: float = DEFAULT_FALSE_ALARM, serve: ServePlan | None = None) -> TrainResult:
     """Cross-validate, fit, report and save models on a window dataset.
 
     Parameters
@@ -244,6 +342,8 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     novelty_false_alarm : the novelty threshold's target, the share of moving known windows of a
         held-out training run over it (default 0.05; higher finds more unknown ground and serves
         more known ground the safe cap: docs/models.md "Unknown ground").
+    serve : :class:`ServePlan`: the runs to replay every fold's held-out runs from (served path,
+        refusal), the terrain catalogue, the checks' report entry. None: no replay, built-in tables.
 
     The served model's novelty score (:mod:`terrainml.models.novelty`, threshold from inner
     grouped folds of the training windows) is fitted and saved with it when the model has a
@@ -251,17 +351,21 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
 
     Returns
     -------
-    TrainResult (its ``manifest`` is the written manifest).
+    TrainResult (its ``manifest`` is the written manifest). Raises
+    :class:`~terrainml.pipeline.replay.ReplayRefused` (after writing the report, no model saved)
+    when the served replay refuses the model and ``serve.allow_unproven`` is False.
     """
     say = progress or (lambda msg: None)
     out = Path(out)
     models = parse_models(models)
     check_false_alarm(novelty_false_alarm)
+    serve = serve or ServePlan()
     plan = _cv_plan(ds, folds, seed, say)
     W = plan.W
-    table = desired_slip_table_for(ds, ds.robot)
+    table = desired_slip_table_for(ds, ds.robot, serve.catalogue)
     bases = list(dict.fromkeys(q for m in models for q in m.split("+")))
-    results, fitted, factories = _fit_bases(ds, bases, plan, table, seed, n_jobs, model_params, say)
+    results, fitted, factories = _fit_bases(ds, bases, plan, table, seed, n_jobs, model_params, say,
+                                            keep_folds=serve.tables is not None)
     for name in models:
         if "+" in name:
             members = name.split("+")
@@ -284,7 +388,12 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
                   key=lambda k: (results[k]["cv"].summary["balanced_accuracy"]["mean"], -order.index(k)))
     summary = _dataset_summary(ds, plan)
     res = TrainResult(out, results, default, plan.classes.tolist(), plan.names, len(plan.folds), seed, summary,
-                      abl, fitted=fitted)
+                      abl, fitted=fitted, preflight=serve.preflight)
+    if serve.tables is not None:
+        res.replay = _served_replay(ds, plan, default, results, table, serve, seed, say, novelty_false_alarm)
+        if res.replay["refusal"] and not serve.allow_unproven:
+            write_report(out, res)
+            raise ReplayRefused(f"{res.replay['refusal']}; not saved; override with --allow-unproven", out)
     novelty = served_novelty(fitted[default], default, W, seed, say, novelty_false_alarm)
     if open_set and novelty is not None:
         report(say, "open set", 0, None, "", f"each class of {default} held out in turn")
@@ -342,9 +451,8 @@ def _cv_plan(ds: Dataset, folds: int, seed: int, say: Callable[[str], None]) -> 
         raise ValueError(f"grouped CV needs at least 2 classes with >= {MIN_RUNS_PER_CLASS} runs; runs per "
                          f"class: { {name_of[c]: n for c, n in runs_per_class.items()} }; record more runs")
     for c in excluded:
-        say(f"warning: class {name_of[c]!r} has {runs_per_class[c]} run(s): excluded from the "
-            f"cross-validation mean (grouped CV cannot test it on an unseen run; record another run "
-            f"of it), kept in the final model")
+        say(f"warning: class {name_of[c]!r} has {runs_per_class[c]} run(s): {SINGLE_RUN_RULE}; record "
+            "another run of it to score it")
     keep = np.isin(y, cv_classes)
     Wcv = W.subset(np.flatnonzero(keep)) if not keep.all() else W
     fold_list = grouped_folds(Wcv.y, Wcv.groups, folds, seed)
@@ -353,8 +461,10 @@ def _cv_plan(ds: Dataset, folds: int, seed: int, say: Callable[[str], None]) -> 
 
 
 def _fit_bases(ds: Dataset, bases: list[str], plan: _CVPlan, table, seed: int, n_jobs: int,
-               model_params: dict | None, say: Callable[[str], None]) -> tuple[dict, dict, dict]:
-    """Cross-validate and fit every base model kind on all windows: (results, fitted, factories) by kind."""
+               model_params: dict | None, say: Callable[[str], None],
+               keep_folds: bool = False) -> tuple[dict, dict, dict]:
+    """Cross-validate and fit every base model kind on all windows: (results, fitted, factories) by kind;
+    ``keep_folds``: the CV results keep their fold models (the served replay serves them)."""
     W, Wcv = plan.W, plan.Wcv
     results: dict[str, dict] = {}
     fitted: dict[str, Any] = {}
@@ -369,7 +479,7 @@ def _fit_bases(ds: Dataset, bases: list[str], plan: _CVPlan, table, seed: int, n
         n_cv, before = len(bases) * len(plan.folds), len(results) * len(plan.folds)
         report(say, "cross-validation", before, n_cv, "fits", f"{kind}: grouped {len(plan.folds)}-fold CV")
         cv = cross_validate(factory, Wcv, Wcv.y, Wcv.groups, folds=plan.folds, n_jobs=n_jobs, table=table,
-                            classes=plan.cv_classes, class_names=plan.cv_names, name=kind,
+                            classes=plan.cv_classes, class_names=plan.cv_names, name=kind, keep_models=keep_folds,
                             progress=lambda i, n: report(say, "cross-validation", before + i, n_cv, "fits", kind))
         report(say, "final fit", len(results), len(bases), "models", f"{kind} on {len(W)} windows")
         model = factory()
@@ -385,6 +495,28 @@ def _fit_bases(ds: Dataset, bases: list[str], plan: _CVPlan, table, seed: int, n
     return results, fitted, factories
 
 
+def _served_replay(ds: Dataset, plan: _CVPlan, default: str, results: dict, table: Any, serve: ServePlan,
+                   seed: int, say: Callable[[str], None], false_alarm: float) -> dict:
+    """The served model's fold models replayed on their folds' held-out runs (:func:`replay_folds`):
+    the report's ``replay`` entry (per fold, pooled, the refusal or "")."""
+    Wcv = plan.Wcv
+    groups = np.asarray(Wcv.groups).astype(str)
+    parts = default.split("+")
+    folds = []
+    for k, (tr, te) in enumerate(plan.folds):
+        fold_models = [results[q]["cv"].fold_models[k] for q in parts]
+        fitted = dict(zip(parts, fold_models))
+        if len(parts) > 1:
+            fitted[default] = ProbabilityAverage.from_fitted(fold_models)
+        folds.append(FoldModel(sorted(set(groups[te].tolist())), fitted, default, Wcv.subset(tr)))
+    per_fold = replay_folds(folds, ds, serve.tables, table, serve.segment_s, seed, say, false_alarm)
+    pooled = pooled_replay([f for f in per_fold if f.get("moving_ticks")])
+    refusal = replay_refusal(pooled, serve.min_classified_share)
+    return {"folds": per_fold, "pooled": pooled, "refusal": refusal,
+            "overridden": bool(refusal and serve.allow_unproven), "segment_s": serve.segment_s,
+            "min_classified_share": serve.min_classified_share}
+
+
 def _dataset_summary(ds: Dataset, plan: _CVPlan) -> dict:
     """The report's dataset summary: runs, windows and runs per class, excluded classes, provenance."""
     W = plan.W
@@ -394,8 +526,7 @@ def _dataset_summary(ds: Dataset, plan: _CVPlan) -> dict:
             "windows_per_class": {str(n): int((y == c).sum()) for c, n in zip(plan.classes, plan.names)},
             "runs_per_class": {name_of[c]: n for c, n in runs_per_class.items()},
             "excluded_classes": [{"class": name_of[c], "runs": runs_per_class[c],
-                                  "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: grouped CV cannot "
-                                            "test it on an unseen run; excluded from the CV mean"}
+                                  "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: {SINGLE_RUN_RULE}"}
                                  for c in plan.excluded],
             "feature_family": feature_family(W.channels), "sensors": ds.sensors,
             "window_spec": ds.spec.name,

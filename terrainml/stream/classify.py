@@ -33,7 +33,7 @@ import pandas as pd
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.features.windows import RULES, Windows, WindowSpec, channel_column, cut_windows
 from terrainml.lookup.catalogue import BUILTIN_CATALOGUES
-from terrainml.lookup.table import DesiredSlipTable
+from terrainml.lookup.table import ClassFreeTargets, DesiredSlipTable
 from terrainml.models.artifacts import load_artifact
 from terrainml.models.novelty import NoveltyScorer, moving_windows, proba_and_features
 from terrainml.robot import RobotSpec
@@ -87,7 +87,9 @@ def _raw_columns(channel: str, robot: RobotSpec) -> tuple[str, ...]:
 
 def _table_for(art: Any, robot: RobotSpec, names: Sequence[str]) -> Any:
     """The table for a folder without a stored one: the reference table for our classes, else the
-    first built-in catalogue with every class (ModelLoadError when none has them)."""
+    first built-in catalogue with every class, else (class names no catalogue knows, e.g. a team's
+    own) :class:`~terrainml.lookup.table.ClassFreeTargets`: every class served the class-free safe
+    cap, flagged on every tick (design §10)."""
     if all(n in TERRAIN_CLASSES for n in names):
         return DesiredSlipTable.build(robot)
     for cat in BUILTIN_CATALOGUES:
@@ -95,8 +97,10 @@ def _table_for(art: Any, robot: RobotSpec, names: Sequence[str]) -> Any:
             return DesiredSlipTable.from_catalogue(cat, robot, list(names))
         except Exception:  # noqa: BLE001 - this catalogue lacks a class: try the next
             continue
-    raise ModelLoadError(f"{art.path}: no desired-slip table for the model's classes {list(names)}; "
-                         "store one with the model (build it from a terrain catalogue)")
+    log.warning("%s: no terrain parameters for the model's classes %s (no built-in catalogue has them): "
+                "every class is served the class-free safe cap (retrain with `train --catalogue CAT.yaml` "
+                "for class targets)", art.path, list(names))
+    return ClassFreeTargets.for_robot(robot, list(names))
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,9 @@ estimator_ok         bool            estimator healthy (no silent sensor group, 
 processing_ms        float, ms       wall time spent on this tick inside the predictor
 fallback_detail      str             for ``windows_rejected``: the window rule that rejected the
                                      most windows since the last classification, with the channels
-                                     it found invalid (``"channel_valid: imu_wx"``); else ""
+                                     it found invalid (``"channel_valid: imu_wx"``); on a class served
+                                     without terrain parameters (class-free safe cap, design §10)
+                                     ``"class_free_targets: ..."``; else ""
 sensors              str[]           sensor groups (``wheels``, ``currents``, ``imu``, ``cam``) of the
                                      model member serving the tick: the artifact's model, or the
                                      best member whose groups are healthy (design §11, issue #28)
@@ -191,7 +193,8 @@ def json_schema(n_wheels: int | None = None, n_classes: int | None = None) -> di
             "fallback_reason": {"type": "string", "enum": ["", *FALLBACK_REASONS]},
             "estimator_ok": {"type": "boolean"},
             "processing_ms": {"type": "number", "description": "predictor time for this tick, ms"},
-            "fallback_detail": {"type": "string", "description": "what the fallback reason names: for "
+            "fallback_detail": {"type": "string", "description": "what the fallback reason names (or a class served "
+                                "without terrain parameters: class_free_targets): for "
                                 "windows_rejected the window rule (and invalid channels); else empty"},
             "sensors": arr({"type": "string"}, None, "sensor groups of the model member serving this tick"),
             "novelty": {"type": "number", "minimum": -1, "description": "latest window's novelty score "

@@ -47,6 +47,7 @@ from typing import Any, Protocol, Sequence
 import numpy as np
 
 from terrainml.lookup.policy import desired_slip_per_wheel, safe_cap_per_wheel
+from terrainml.lookup.table import CLASS_FREE_DETAIL
 
 __all__ = ["FALLBACK_REASONS", "NO_CLASS_ID", "NO_CLASS_NAME", "SERVE_P", "GenericSafeCap",
            "PolicyDecision", "ServingPolicy", "safe_cap_for"]
@@ -74,7 +75,9 @@ class PolicyDecision:
     slip_desired : tuple of N floats, signed per-wheel desired slip.
     fallback : True when the safe cap is served.
     reason : "" or one of :data:`FALLBACK_REASONS`.
-    detail : for ``windows_rejected``, the rule (and channels) that rejects the windows; else "".
+    detail : for ``windows_rejected``, the rule (and channels) that rejects the windows; for a
+        class served without terrain parameters, :data:`~terrainml.lookup.table.CLASS_FREE_DETAIL`;
+        else "".
     novelty : the latest window's novelty score over the model's threshold (> 1: unlike the
         training windows), -1.0 without one (no novelty scorer, or no window scored yet).
     """
@@ -215,8 +218,11 @@ class ServingPolicy:
                                       reason=reason or "no_classification", detail=detail, novelty=nov)
             cid = self.class_ids[k]
             slip = desired_slip_per_wheel(cid, states, v_long, self.table)
+            # a class without terrain parameters is served by name with the class-free safe cap
+            # (lookup.table.ClassFreeTargets): said on every such tick, so no one reads it as a class target
+            flag = CLASS_FREE_DETAIL if getattr(self.table, "class_free", False) else ""
             return PolicyDecision(class_id=cid, class_name=self.name(cid), confidence=float(post),
-                                  slip_desired=tuple(slip), fallback=False, reason="", novelty=nov)
+                                  slip_desired=tuple(slip), fallback=False, reason="", detail=flag, novelty=nov)
         except Exception as exc:  # noqa: BLE001 - a broken table/policy must not stop serving
             log.warning("policy failed at t=%.3f s (serving zero slip): %s", t_s, exc)
             return PolicyDecision(class_id=NO_CLASS_ID, class_name=NO_CLASS_NAME, confidence=0.0,
