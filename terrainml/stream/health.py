@@ -25,7 +25,11 @@ Rules
   (``terrainml predict``: stderr) the tick it does, with its columns, "never seen" when it has
   not been fresh since the start (e.g. a log without its IMU topic), and again when it returns;
   each group's silent episodes are counted (``silent_episodes``). The first
-  :data:`WARN_EPISODES` episodes of a group are warned, then every 100th.
+  :data:`WARN_EPISODES` episodes of a group are warned, then every 100th. When the source knows
+  that the group's topic publishes NaN or infinite values (``invalid_hint``, a live ROS 2
+  source's :meth:`~terrainml.stream.inputs.InputWatch.group_invalid`), the episode is said as
+  *invalid values* ("... valid again"), not as a silence. A group the source does not map is
+  removed from ``monitored`` by the predictor (:meth:`Predictor.set_mapped_groups`).
 """
 
 from __future__ import annotations

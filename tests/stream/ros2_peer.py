@@ -241,6 +241,20 @@ def _nan_joint(m, joints: str):
     return _Msg(m, velocity=[float("nan") if n in bad else v for n, v in zip(m.name, m.velocity)])
 
 
+def _faults(a) -> list[dict]:
+    """The fault plan: ``--faults FILE`` (JSON list of {kind: pause|nan|restart, at_s, dur_s, topic|joint},
+    log seconds from the start of the first loop) and the single-fault options."""
+    faults = json.load(open(a.faults)) if a.faults else []
+    if a.pause_topic:
+        faults.append({"kind": "pause", "topic": a.pause_topic, "at_s": a.pause_at_s, "dur_s": a.pause_s})
+    if a.restart_at_s is not None:
+        faults.append({"kind": "restart", "at_s": a.restart_at_s, "dur_s": a.restart_s})
+    if a.nan_joint:
+        for j in a.nan_joint.split(","):
+            faults.append({"kind": "nan", "joint": j, "at_s": a.nan_at_s, "dur_s": a.nan_s})
+    return faults
+
+
 def _stamp_ns(h) -> int:
     return h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
 
@@ -276,49 +290,59 @@ def publish(a) -> None:
     print("peer: writers up", file=sys.stderr, flush=True)
     _wait_matched(writers, a.match_timeout_s)
     time.sleep(a.settle_s)
-    t0_log = None
-    t0_wall = time.monotonic()
     held: list = []
     imu_prev = None
     n = 0
-    fh = open(a.mcap, "rb")
-    reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+    with open(a.mcap, "rb") as fh:
+        log = [(ch.topic, rec.log_time, m) for _, ch, rec, m in make_reader(
+            fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(topics=list(INPUTS), log_time_order=True)]
+    t0_log = log[0][1]
+    span_ns = log[-1][1] - t0_log + 10_000_000      # one loop of the log, the next starts a period later
+    faults = _faults(a)
     late_writer = None
-    restarted = False
-    for _, channel, rec, ros_msg in reader.iter_decoded_messages(topics=list(INPUTS), log_time_order=True):
-        topic = channel.topic
-        if t0_log is None:
-            t0_log = rec.log_time
-        rel_s = (rec.log_time - t0_log) * 1e-9
+    restarted: set[int] = set()
+    print("peer: publishing", file=sys.stderr, flush=True)
+    t0_wall = time.monotonic()
+    for loop, (topic, log_time, ros_msg) in ((k, m) for k in range(a.loop) for m in log):
+        log_time += loop * span_ns
+        rel_s = (log_time - t0_log) * 1e-9
         if a.stop_topic == topic and rel_s >= a.stop_at_s:
             continue
-        if a.pause_topic in (topic, "all") and a.pause_at_s <= rel_s < a.pause_at_s + a.pause_s:
+        active = [f for f in faults if f["at_s"] <= rel_s < f["at_s"] + f["dur_s"]]
+        if any(f["kind"] == "pause" and f["topic"] in (topic, "all") for f in active):
             continue
-        if a.restart_at_s is not None and not restarted and rel_s >= a.restart_at_s:
+        restart = next((k for k, f in enumerate(faults) if f["kind"] == "restart" and k not in restarted
+                        and f["at_s"] <= rel_s), None)
+        if restart is not None:
             # the publisher restarts as a new participant (a driver restart): writers gone, back after a while
-            restarted = True
+            restarted.add(restart)
             held, late_writer = [], None
             writers.clear()
             writers, dp = {}, None
             gc.collect()                      # the old participant leaves the domain
-            time.sleep(a.restart_s)
+            time.sleep(faults[restart]["dur_s"] / a.speed if a.speed > 0 else 0.0)
             dp = DomainParticipant(a.domain)
             writers = {tp: DataWriter(dp, Topic(dp, "rt" + tp, cls), qos=_qos(a.reliable)) for tp, cls in types.items()}
             _wait_matched(writers, 10.0)
             print("peer: restarted", file=sys.stderr, flush=True)
-        if restarted and rel_s < a.restart_at_s + a.restart_s:
+        if any(f["kind"] == "restart" for f in active):
             continue                          # what the driver would have sent while it was down
         if a.late_wrong_type_topic and late_writer is None and rel_s >= a.late_at_s:
-            late_writer = DataWriter(dp, Topic(dp, "rt" + a.late_wrong_type_topic, Float64), qos=_qos(a.reliable))
+            late_dp = DomainParticipant(a.domain)    # a second node: one participant holds one type per topic
+            late_writer = DataWriter(late_dp, Topic(late_dp, "rt" + a.late_wrong_type_topic, Float64),
+                                     qos=_qos(a.reliable))
+            late_writer.write(Float64(1.0))
             print("peer: wrong type up", file=sys.stderr, flush=True)
-        if a.nan_joint and topic == "/wheels/joint_states" and a.nan_at_s <= rel_s < a.nan_at_s + a.nan_s:
-            ros_msg = _nan_joint(ros_msg, a.nan_joint)
+        nan = [f["joint"] for f in active if f["kind"] == "nan"]
+        if nan and topic == "/wheels/joint_states":
+            ros_msg = _nan_joint(ros_msg, ",".join(nan))
         shift = int(a.jump_s * 1e9) if a.jump_at_s is not None and rel_s >= a.jump_at_s else 0
+        shift += loop * span_ns
         if a.wrong_type_topic == topic:
             msg = Float64(1.0)
         else:
             msg = _convert(topic, ros_msg, shift)
-        item = (writers[topic], msg, rec.log_time + shift)
+        item = (writers[topic], msg, log_time - loop * span_ns + shift)
         if a.swap_every and topic == "/imu":
             n_imu = getattr(publish, "_n_imu", 0) + 1
             publish._n_imu = n_imu
@@ -422,6 +446,8 @@ def main() -> None:
     ap.add_argument("--nan-joint", help="joint names (comma-separated) whose velocity is NaN for a while")
     ap.add_argument("--nan-at-s", type=float, default=0.0)
     ap.add_argument("--nan-s", type=float, default=0.0)
+    ap.add_argument("--faults", help="JSON file: a list of faults (see _faults)")
+    ap.add_argument("--loop", type=int, default=1, help="replay the log this many times, stamps continuing")
     ap.add_argument("--idle-s", type=float, default=5.0)
     ap.add_argument("--max-s", type=float, default=300.0)
     a = ap.parse_args()

@@ -70,6 +70,8 @@ log = logging.getLogger("terrainml.stream")
 SOURCE_OPTIONS = ("qos", "discovery_s", "warmup_s", "reorder_s")
 DISCOVERY_S = 2.0
 WAITING_WARN_S = 10.0
+#: how often the discovery of publications is read while serving, s
+DISCOVERY_POLL_S = 1.0
 TAKE_MAX = 256
 #: the loop's longest wait for a message, s (a pass later than this is the process's own lag)
 WAIT_S = 0.1
@@ -275,7 +277,7 @@ def _serve(dp: DomainParticipant, subs: list[_Sub], disc: _Discovery, aligner: L
     for sub in subs:
         ws.attach(ReadCondition(sub.reader, SampleState.NotRead))
     use_header = tmap.stamp == "header"
-    last_warn = watch.started_s = time.monotonic()    # silence counts from here (not from discovery)
+    last_warn = last_disc = watch.started_s = time.monotonic()    # silence counts from here, not discovery
     try:
         while True:
             ws.wait(duration(seconds=WAIT_S))
@@ -285,10 +287,12 @@ def _serve(dp: DomainParticipant, subs: list[_Sub], disc: _Discovery, aligner: L
             watch.update(now)
             if counters is not None:
                 counters.received += n
-            if not n:
+            if now - last_disc >= DISCOVERY_POLL_S:     # publishers that appear later, with traffic or not
+                last_disc = now
                 found = disc.poll()
                 if found:
                     log.error("%s", _mismatch_text(spec, disc.by_topic, found))
+            if not n:
                 idle = watch.idle_s(now)
                 if idle_timeout_s and idle >= idle_timeout_s:
                     line = (f"{spec}: idle timeout: no message for {idle:.1f} s (--idle-timeout-s "
