@@ -99,7 +99,7 @@ class InputWatch:
         self._last_loop_s: float | None = None
         self.lags = 0
         self.max_lag_s = 0.0
-        self.lock = threading.Lock()
+        self.lock = threading.RLock()   # the diagnostics timer reads while the source writes
 
     # ------------------------------------------------------------------ the source's side
     def add_topic(self, topic: str, type_name: str, optional: bool = False) -> None:
@@ -147,8 +147,8 @@ class InputWatch:
                 tw.rate_hz_seen = (len(tw.recent) - 1) / max(tw.recent[-1] - tw.recent[0], 1e-9)
             if tw.silent:
                 self._fresh_again(tw, now)
-        if part is not None:
-            self._count_invalid(tw, part, empty)
+            if part is not None:
+                self._count_invalid(tw, part, empty)
 
     @staticmethod
     def _count_invalid(tw: TopicWatch, part: dict, empty: frozenset[str]) -> None:
@@ -202,12 +202,11 @@ class InputWatch:
                 age = now - max(ref, self._resume_s)
                 if age > tw.timeout_s():
                     out.append((tw.topic, now - ref))
-                    if not tw.silent:
+                    if not tw.silent and tw.last_rx_s is not None:   # (never seen: the source warns)
                         tw.silent, tw.silent_since_s = True, ref
                         tw.episodes += 1
-                        if tw.last_rx_s is not None:
-                            log.warning("topic %s silent: no message for %.1f s (timeout %.2f s at %.0f Hz)",
-                                        tw.topic, now - ref, tw.timeout_s(), tw.rate_hz_seen)
+                        log.warning("topic %s silent: no message for %.1f s (timeout %.2f s at %.0f Hz)",
+                                    tw.topic, now - ref, tw.timeout_s(), tw.rate_hz_seen)
         return out
 
     def _fresh_again(self, tw: TopicWatch, now: float) -> None:
@@ -247,6 +246,10 @@ class InputWatch:
     def statuses(self, now: float | None = None) -> list[dict[str, Any]]:
         """One status per topic for ``/diagnostics``: level (0 OK, 1 WARN), message and values."""
         now = self.clock() if now is None else now
+        with self.lock:
+            return self._statuses(now)
+
+    def _statuses(self, now: float) -> list[dict[str, Any]]:
         silent = dict(self.update(now))
         out = []
         for tw in self.topics.values():

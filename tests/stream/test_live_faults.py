@@ -301,3 +301,43 @@ def test_no_flapping_after_a_recovery():
     assert 1.0 in changes and 1.2 in changes          # the pause, and the recovery, at once
     soft = [t for t in changes if t > 1.2]
     assert soft and all(b - a >= 1.0 - 1e-9 for a, b in zip([1.2] + soft, soft))
+
+
+def test_odometry_comes_from_the_valid_wheels(monkeypatch):
+    """Husky, 1 m/s straight: with the left-front wheel NaN the twist comes from the other three
+    (flagged, larger variance, never NaN); with no valid wheel the IMU gives the yaw rate and the
+    speed is unknown; with neither nothing is published."""
+    from test_ros2_interop import LOOPBACK
+
+    from terrainml.stream.ros2.sink import UNKNOWN_VAR, Ros2Sink
+    from terrainml.stream.ros2.types import Header
+
+    monkeypatch.setenv("CYCLONEDDS_URI", LOOPBACK)
+    robot = load_robot("husky")
+    sink = Ros2Sink("ros2://211?desired_slip=&terrain=&diagnostics=", robot)
+    try:
+        omega = 1.0 / robot.wheel_radius_m
+
+        def sample(bad=(), imu=True):
+            s = {"wheels_valid": not bad, "imu_valid": imu, "imu_yaw_rate_radps": 0.1}
+            for i in range(1, 5):
+                s[f"wheel{i}_omega_radps"] = math.nan if i in bad else omega
+                s[f"wheel{i}_steer_rad"] = 0.0
+            return s
+
+        def odo(k, s):
+            m = _msg(k * 0.01, "estimator_unhealthy", ok=False)
+            return sink._odometry(m, s, Header())
+
+        full = odo(0, sample())
+        part = odo(1, sample(bad=(1,)))
+        assert sink.odometry_note == "from 3 of 4 wheels (wheel1 invalid)"
+        assert part.twist.twist.linear.x == pytest.approx(1.0, abs=0.02)
+        assert part.twist.covariance[0] > full.twist.covariance[0]
+        imu_only = odo(2, sample(bad=(1, 2, 3, 4)))
+        assert imu_only.twist.twist.angular.z == pytest.approx(0.1)
+        assert imu_only.twist.covariance[0] == UNKNOWN_VAR
+        assert all(math.isfinite(v) for v in (imu_only.pose.pose.position.x, imu_only.twist.twist.linear.x))
+        assert odo(3, sample(bad=(1, 2, 3, 4), imu=False)) is None
+    finally:
+        sink.close()

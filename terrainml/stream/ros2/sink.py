@@ -172,7 +172,8 @@ class Ros2Sink:
             odo = self._odometry(msg, sample, header)
             if odo is not None:
                 w["odometry"].write(odo)
-        self.diagnostics.tick(msg, sample, stamp_ns, self.odometry_note)
+        with self._lock:    # the timer thread reads the same state
+            self.diagnostics.tick(msg, sample, stamp_ns, self.odometry_note)
         if "diagnostics" in w and msg.fallback_reason != self._last_reason:
             self._last_reason = msg.fallback_reason
             self._publish_diagnostics()
