@@ -80,6 +80,12 @@ class TopicWatch:
         return max(MIN_TIMEOUT_S, TIMEOUT_PERIODS / r) if r > 0 else MIN_TIMEOUT_S
 
 
+def _stamp_s(part: dict | None, now: float) -> float:
+    """A message's stamp (s) from its decoded part; the arrival time when it has none."""
+    t = None if part is None else part.get("t_ns")
+    return float(t[0]) * 1e-9 if t is not None and len(t) else now
+
+
 class InputWatch:
     """Freshness, rates and invalid values of a live source's topics (module docstring).
 
@@ -137,14 +143,16 @@ class InputWatch:
             tw.rx.append(now)
             while tw.rx and tw.rx[0] < now - RATE_WINDOW_S:
                 tw.rx.popleft()
-            # the rate it publishes at, from its last arrivals however slow (a pause does not lower it)
-            if tw.recent and now - tw.recent[-1] <= 2.0 * max(tw.timeout_s(), MIN_TIMEOUT_S):
-                tw.recent.append(now)
-            else:
+            # the rate it publishes at, from its own stamps (arrivals come in bursts when delivery
+            # stalls) over its last messages, however slow; a pause does not lower it
+            stamp = _stamp_s(part, now)
+            if tw.recent and 0 <= stamp - tw.recent[-1] <= 2.0 * tw.timeout_s():
+                tw.recent.append(stamp)
+            elif not tw.recent or stamp > tw.recent[-1]:
                 tw.recent.clear()
-                tw.recent.append(now)
-            if len(tw.recent) >= 3:
-                tw.rate_hz_seen = (len(tw.recent) - 1) / max(tw.recent[-1] - tw.recent[0], 1e-9)
+                tw.recent.append(stamp)
+            if len(tw.recent) >= 3 and tw.recent[-1] > tw.recent[0]:
+                tw.rate_hz_seen = (len(tw.recent) - 1) / (tw.recent[-1] - tw.recent[0])
             if tw.silent:
                 self._fresh_again(tw, now)
             if part is not None:
@@ -168,19 +176,14 @@ class InputWatch:
             tw.last_invalid_s = tw.last_rx_s
 
     # ------------------------------------------------------------------ judgement
-    @staticmethod
-    def _rate(tw: TopicWatch, now: float) -> float:
-        if len(tw.rx) < 2:
-            return 0.0
-        span = max(now - tw.rx[0], tw.rx[-1] - tw.rx[0], 1e-9)
-        return (len(tw.rx) - 1) / span
+    def _rate(self, tw: TopicWatch, now: float) -> float:
+        """Messages received per second over the last :data:`RATE_WINDOW_S` (or since the start)."""
+        span = min(RATE_WINDOW_S, max(now - self.started_s, 1e-9))
+        return sum(1 for t in tw.rx if t >= now - RATE_WINDOW_S) / span
 
     def rate_hz(self, topic: str, now: float | None = None) -> float:
         now = self.clock() if now is None else now
-        tw = self.topics[topic]
-        if tw.last_rx_s is None or now - tw.last_rx_s > RATE_WINDOW_S:
-            return 0.0
-        return self._rate(tw, now)
+        return self._rate(self.topics[topic], now)
 
     def age_s(self, topic: str, now: float | None = None) -> float | None:
         """Wall seconds since the topic's last message (None: never), not counting a loop lag."""
@@ -195,12 +198,18 @@ class InputWatch:
         now = self.clock() if now is None else now
         out = []
         with self.lock:
+            ages = {tw.topic: now - max(self.started_s if tw.last_rx_s is None else tw.last_rx_s, self._resume_s)
+                    for tw in self.topics.values() if not tw.optional}
+            # every topic late together for less than NO_INPUT_S: a stall of delivery, the
+            # publisher's or this process's, not one topic's silence (total silence is said at 1 s)
+            collective = bool(ages) and all(ages[t] > self.topics[t].timeout_s() for t in ages) \
+                and min(ages.values()) <= NO_INPUT_S
             for tw in self.topics.values():
                 if tw.optional:
                     continue
                 ref = self.started_s if tw.last_rx_s is None else tw.last_rx_s
-                age = now - max(ref, self._resume_s)
-                if age > tw.timeout_s():
+                age = ages[tw.topic]
+                if age > tw.timeout_s() and not collective:
                     out.append((tw.topic, now - ref))
                     if not tw.silent and tw.last_rx_s is not None:   # (never seen: the source warns)
                         tw.silent, tw.silent_since_s = True, ref
@@ -214,15 +223,14 @@ class InputWatch:
         tw.silent, tw.silent_since_s = False, None
         log.warning("topic %s fresh again after %.1f s without messages", tw.topic, now - since)
 
-    def group_invalid(self, group: str, now: float | None = None) -> bool:
-        """Whether a topic feeding ``group`` brought invalid values (NaN, inf) in the last
-        :data:`INVALID_RECENT_S` while it published: the group is invalid, not silent."""
-        now = self.clock() if now is None else now
+    def group_invalid(self, group: str) -> bool:
+        """Whether a topic feeding ``group`` brought invalid values (NaN, inf) in its last
+        :data:`INVALID_RECENT_S` of messages: the group is invalid, not silent. (Judged against
+        the topic's own last message, not the wall clock: a stall of delivery changes nothing.)"""
         for topic, groups in self.topic_groups.items():
             tw = self.topics.get(topic)
             if (group in groups and tw is not None and tw.last_invalid_s is not None
-                    and now - tw.last_invalid_s <= INVALID_RECENT_S and tw.last_rx_s is not None
-                    and now - tw.last_rx_s <= tw.timeout_s()):
+                    and tw.last_rx_s is not None and tw.last_rx_s - tw.last_invalid_s <= INVALID_RECENT_S):
                 return True
         return False
 

@@ -294,16 +294,24 @@ def publish(a) -> None:
     imu_prev = None
     n = 0
     with open(a.mcap, "rb") as fh:
-        log = [(ch.topic, rec.log_time, m) for _, ch, rec, m in make_reader(
-            fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(topics=list(INPUTS), log_time_order=True)]
-    t0_log = log[0][1]
-    span_ns = log[-1][1] - t0_log + 10_000_000      # one loop of the log, the next starts a period later
+        stats = make_reader(fh).get_summary().statistics
+    # one loop of the log; the next starts a period after its last message
+    span_ns = stats.message_end_time - stats.message_start_time + 10_000_000
+
+    def log_messages():
+        """The log's mapped messages, decoded one at a time (a long log starts at once)."""
+        with open(a.mcap, "rb") as fh:
+            reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+            for _, ch, rec, m in reader.iter_decoded_messages(topics=list(INPUTS), log_time_order=True):
+                yield ch.topic, rec.log_time, m
+
+    t0_log = next(log_messages())[1]
     faults = _faults(a)
     late_writer = None
     restarted: set[int] = set()
     print("peer: publishing", file=sys.stderr, flush=True)
     t0_wall = time.monotonic()
-    for loop, (topic, log_time, ros_msg) in ((k, m) for k in range(a.loop) for m in log):
+    for loop, (topic, log_time, ros_msg) in ((k, m) for k in range(a.loop) for m in log_messages()):
         log_time += loop * span_ns
         rel_s = (log_time - t0_log) * 1e-9
         if a.stop_topic == topic and rel_s >= a.stop_at_s:

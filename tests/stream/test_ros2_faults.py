@@ -50,7 +50,7 @@ def _offline(model_dir, log):
 class Run:
     """predict (ros2 source and sink + stdout), a listener and the peer, all to their end."""
 
-    def __init__(self, model_dir, log, tmp, *peer_args, idle_s=4.0, source_opts="qos=reliable", hogs=0,
+    def __init__(self, model_dir, log, tmp, *peer_args, idle_s=8.0, source_opts="qos=reliable", hogs=0,
                  predict_args=()):
         domain = _domain()
         self.listener = _Proc([sys.executable, PEER, "listen", "--domain", str(domain), "--out",

@@ -172,6 +172,11 @@ class LiveAligner:
             return
         self._timeline(topic, part)
 
+    def lag_s(self, topic: str) -> float | None:
+        """How far ``topic``'s latest stamp is behind the stream's latest, s (None: not on the timeline)."""
+        last = self._last.get(topic)
+        return None if last is None or self._latest_ns is None else (self._latest_ns - last) * 1e-9
+
     def poll(self, wait_all: bool = False) -> list[dict]:
         """Samples of the ticks settled so far (in order); starts the stream after the warm-up.
 

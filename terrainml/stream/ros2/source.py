@@ -70,6 +70,8 @@ log = logging.getLogger("terrainml.stream")
 SOURCE_OPTIONS = ("qos", "discovery_s", "warmup_s", "reorder_s")
 DISCOVERY_S = 2.0
 WAITING_WARN_S = 10.0
+#: a topic that lags the others by more than this (stamps, s) is no longer waited for, alive or not
+MAX_WAIT_LAG_S = 1.0
 #: how often the discovery of publications is read while serving, s
 DISCOVERY_POLL_S = 1.0
 TAKE_MAX = 256
@@ -271,6 +273,23 @@ def iter_ros2_samples(spec: str = "ros2://0", robot: RobotSpec | str | None = No
     return _serve(dp, subs, disc, aligner, tmap, spec, idle_timeout_s, counters, watch)
 
 
+def _lagging_alive(aligner: LiveAligner, watch: InputWatch, subs: list[_Sub], now: float) -> bool:
+    """A required topic whose stamps lag the others' by more than ``reorder_s`` (at most
+    :data:`MAX_WAIT_LAG_S`) while it still delivers on the wall clock (not silent by its own
+    timeout): its messages are on their way (a reader's queue, a retransmission, a loaded
+    machine), so no tick is decided without it yet."""
+    for sub in subs:
+        if sub.src.options.get("optional"):
+            continue
+        lag = aligner.lag_s(sub.src.topic)
+        if lag is None or not aligner.reorder_ns * 1e-9 < lag <= MAX_WAIT_LAG_S:
+            continue
+        age = watch.age_s(sub.src.topic, now)
+        if age is not None and age <= watch.topics[sub.src.topic].timeout_s():
+            return True
+    return False
+
+
 def _serve(dp: DomainParticipant, subs: list[_Sub], disc: _Discovery, aligner: LiveAligner, tmap: TopicMap,
            spec: str, idle_timeout_s: float | None, counters: Any, watch: InputWatch) -> Iterator[dict]:
     ws = WaitSet(dp)
@@ -306,7 +325,7 @@ def _serve(dp: DomainParticipant, subs: list[_Sub], disc: _Discovery, aligner: L
                                 idle, ", ".join(s.src.topic for s in subs))
                     _no_match_help(disc, subs, spec)
                     last_warn = now
-            for s in aligner.poll(wait_all=watch.in_grace(now)):
+            for s in aligner.poll(wait_all=watch.in_grace(now) or _lagging_alive(aligner, watch, subs, now)):
                 s[STAMP_ORIGIN_KEY] = aligner.t0_ns
                 yield s
         for s in aligner.finish():
