@@ -176,13 +176,13 @@ def analyse(res: dict, offline: dict[int, str]) -> dict[str, dict]:
     lost = sum(k not in by_tick for k in expected)
     silences = re.findall(r"topic (\S+) silent: no message", res["stderr"]) + re.findall(
         r"sensor group '(\w+)' silent at t=([\d.]+)", res["stderr"])
-    false = 0
+    false = []
     for s in silences:
         if isinstance(s, tuple):
             t = float(s[1])
             if not any(f["at_s"] - 0.5 <= t <= f["at_s"] + f["dur_s"] + 1.0 for f in res["plan"]
                        if f["kind"] in ("pause", "restart")):
-                false += 1
+                false.append(f"{s[0]} at t={t:.2f} s")
     return {"kinds": out, "lost": lost, "expected": len(expected), "false_silences": false,
             "tracebacks": res["stderr"].count("Traceback")}
 
@@ -203,6 +203,11 @@ def run(quick: bool = False, minutes: float | None = None, seed: int = 7) -> str
         offline = _offline(model, log)
         res = soak(model, log, tmp, loops, seed, domain=60 + os.getpid() % 40)
         a = analyse(res, offline)
+        keep = os.environ.get("TERRAINML_SOAK_KEEP")
+        if keep:   # predict's stderr and the plan, to read the episodes
+            Path(keep).mkdir(parents=True, exist_ok=True)
+            (Path(keep) / "predict.err").write_text(res["stderr"])
+            (Path(keep) / "plan.json").write_text(json.dumps(res["plan"], indent=1))
     rows = ["| fault kind | faults | recovery p50 / p99 (s) | not recovered | served right before / after |",
             "|---|---|---|---|---|"]
     for kind in KINDS:
@@ -222,7 +227,8 @@ def run(quick: bool = False, minutes: float | None = None, seed: int = 7) -> str
         "",
         *rows,
         "",
-        f"False silences: {a['false_silences']} (goal 0). Ticks lost outside total pauses: {a['lost']} of "
+        f"False silences: {len(a['false_silences'])} (goal 0){': ' if a['false_silences'] else ''}"
+        f"{', '.join(a['false_silences'][:10])}. Ticks lost outside total pauses: {a['lost']} of "
         f"{a['expected']}. Tracebacks: {a['tracebacks']} (goal 0).",
     ])
 
