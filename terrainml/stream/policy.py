@@ -56,10 +56,12 @@ log = logging.getLogger("terrainml.stream")
 NO_CLASS_ID = -1        # no class served (CAN: 255)
 NO_CLASS_NAME = "none"
 SERVE_P = 0.6           # design §10: serve the fused argmax at or above this posterior
-#: s of ticks a served state is held before an age or confidence rule changes it (no flapping)
+#: s of ticks a served state is held before the distance rule turns it stale (no flapping)
 HOLD_S = 1.0
-#: the reasons of the age and confidence of the class ("" : a class served), held :data:`HOLD_S`
+#: the reasons of the age and confidence of the class ("" : a class served)
 SOFT_REASONS = ("", "stale_classification", "uncertain_classification")
+#: the one whose entry is held :data:`HOLD_S` (:meth:`ServingPolicy._held`)
+STALE = "stale_classification"
 #: the fallback reasons, highest priority first
 FALLBACK_REASONS = ("clock_jump", "estimator_unhealthy", "classifier_error", "unknown_terrain",
                     "windows_rejected", "no_classification", "stale_classification",
@@ -176,17 +178,21 @@ class ServingPolicy:
     def _held(self, key: Any, soft: bool, t_s: float) -> Any:
         """The served state with hysteresis (:data:`HOLD_S`): a class id, or a fallback reason.
 
-        A change between states of the age and confidence rules (:data:`SOFT_REASONS`: a class
-        served, ``stale_classification``, ``uncertain_classification``) happens at most once per
-        second of ticks; the state served is held until then. The other reasons (a clock jump,
-        an unhealthy estimator, unknown ground ...) apply on their tick, and the state after them
-        is then held a second too: after a sensor pause, the class and the fallback state change
-        at most once per second instead of alternating on every classification hop.
+        A change into ``stale_classification`` from another state of the age and confidence rules
+        (:data:`SOFT_REASONS`: a class served, ``uncertain_classification``) waits until that
+        state has been served a second of ticks; leaving it for a fresh class, and every other
+        change (one class to another, a clock jump, an unhealthy estimator, unknown ground ...),
+        apply on their tick. After a sensor pause the distance rule thus turns the class stale at
+        most once per second, instead of alternating with it on every classification hop, and a
+        fresh classification is never held back (the mixed-terrain course keeps its accuracy).
         ``t_s`` NaN: no hysteresis.
         """
         if not math.isfinite(t_s):
             return key
-        if key != self._state and (not soft or self._state_soft is False
+        # only entering staleness is held: a fresh class is served at once, a stale one waits
+        # until the state it replaces has been served a second
+        entering_stale = key == STALE and self._state != STALE
+        if key != self._state and (not soft or not entering_stale or self._state_soft is False
                                    or not 0 <= t_s - self._state_since < HOLD_S):
             self._state, self._state_since, self._state_soft = key, t_s, soft
         return self._state
