@@ -379,3 +379,31 @@ def test_the_built_in_map_that_fits_the_graph_is_named():
     assert fitting_maps(husky) == ["husky_ros2"]
     assert fitting_maps({"/imu/data": "sensor_msgs/msg/Imu"}) == []
     assert fitting_maps({**husky, "/imu/data": "std_msgs/msg/Float64"}) == []
+
+
+def test_a_return_after_total_silence_starts_a_new_timeline_at_once(sand_msgs, monkeypatch):
+    """Every topic stops at 3 s; 5 s of wall time later they return (stamps 5 s on), the camera
+    delivered 1.5 s ahead of the others: one new timeline, nothing dropped off it."""
+    import terrainml.stream.ros2.align as align
+
+    wall = [1000.0]
+    monkeypatch.setattr(align.time, "monotonic", lambda: wall[0])
+    al = LiveAligner(load_topic_map(None), load_robot(), name="t", warmup_wait_s=0.0)
+    t0 = min(int(p["t_ns"][0]) for _, p in sand_msgs)
+    rel = [(tp, p, (int(p["t_ns"][0]) - t0) * 1e-9) for tp, p in sand_msgs]
+    out = []
+    for tp, p, r in rel:
+        if r < 3.0:
+            wall[0] += 0.001
+            al.add(tp, p)
+            out += al.poll()
+    wall[0] += 5.0
+    back = [(tp, p, r) for tp, p, r in rel if r >= 8.0]
+    cam = [x for x in back if x[0] == "/camera/odom/sample" and x[2] < 9.5]
+    for tp, p, _ in cam + [x for x in back if x not in cam]:
+        al.add(tp, p)
+        out += al.poll()
+    out += al.finish()
+    assert al.stats()["timelines"] == 2 and not al.stats()["off_timeline"]
+    late = [s for s in out if s["t_s"] > 10.0]
+    assert late and all(s["imu_valid"] and s["wheels_valid"] for s in late if s["t_s"] < 11.9)

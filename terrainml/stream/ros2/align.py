@@ -40,10 +40,15 @@ other message is off the timeline and held. ``reanchor_after`` (K, 5) consistent
 from two topics or more start a new timeline there: the old one is finished and the grid
 continues at the new stamps (same time origin), so the predictor sees the jump in ``t_s`` and applies its clock policy
 (:mod:`terrainml.stream.clock`). Held messages are dropped and counted when their topic comes back
-on its timeline (one publisher with a wild clock), and so are the old timeline's stragglers. When
-every topic was silent and the stamps moved forward, at most twice as far as the wall clock, the
-new timeline is a return after total silence, and the log says so instead of "clock jump" (the predictor re-anchors
-the same way: its estimator and windows restart on the fresh data).
+on its timeline (one publisher with a wild clock), and so are the old timeline's stragglers.
+
+Return after total silence: when every topic has been silent on the wall clock for at least
+:data:`RESUME_WALL_S` and half as long as a new message's stamp is ahead of the stream's latest,
+that message starts the new timeline at once (no K candidates: topics delivered unevenly after a
+stall would otherwise be dropped as inconsistent), and the log says so instead of "clock jump";
+the predictor re-anchors the same way (its estimator and windows restart on the fresh data). A
+topic new to a timeline is on it from the timeline's first stamp minus G on, so one that lags
+the others after the return joins it late instead of being held.
 """
 
 from __future__ import annotations
@@ -67,6 +72,8 @@ from terrainml.stream.clock import MAX_GAP_S, REANCHOR_AFTER
 log = logging.getLogger("terrainml.stream")
 
 WARMUP_S = 0.5
+#: every topic silent this long on the wall clock (s) before stamps far ahead are a return, not a jump
+RESUME_WALL_S = 0.5
 WARMUP_WAIT_S = 2.0
 REORDER_S = 0.05
 #: grid length of a live timeline until it ends
@@ -146,6 +153,7 @@ class LiveAligner:
         self._cand: dict[str, list[tuple[str, dict]]] = {}
         self._latest_ns: int | None = None
         self._last_wall = time.monotonic()   # when the latest stamp arrived (total silence vs. clock jump)
+        self._start_ns = -_UNBOUNDED         # first stamp of the current timeline
         self._last: dict[str, int] = {}      # per topic: last stamp on the current timeline
         self._old: dict[str, int] = {}       # ... on the previous one (its stragglers are dropped)
 
@@ -257,6 +265,7 @@ class LiveAligner:
                 self.watch.topic_groups.setdefault(r.topic, set()).update(
                     spec[c].group for c in r.cols if c in spec and spec[c].group in VALID_GROUPS)
         self.counters.timelines = 1
+        self._start_ns = self._plan.t0_ns
         early, self._early = self._early, []
         for topic, part in early:
             self._feed(topic, part)
@@ -294,7 +303,9 @@ class LiveAligner:
         last = self._last.get(topic)
         ref = last if last is not None else self._latest_ns
         latest = self._latest_ns
-        if ref is None or abs(t - ref) <= g or (latest is not None and abs(t - latest) <= g):
+        # a topic new to this timeline that lags the others (a backlog after a new timeline)
+        joins = last is None and latest is not None and self._start_ns - g <= t <= latest + g
+        if ref is None or abs(t - ref) <= g or (latest is not None and abs(t - latest) <= g) or joins:
             # within G of its own last stamp, or of the stream's latest: a topic that paused
             # while the others went on rejoins the timeline where they are
             if last is not None and t - last > g:
@@ -307,6 +318,14 @@ class LiveAligner:
         if last is None and topic in self._old and abs(t - self._old[topic]) <= g:
             self.counters.bump(self.counters.late, topic)    # a straggler of the previous timeline
             return
+        if latest is not None and t > latest and not self._cand:
+            wall_s = time.monotonic() - self._last_wall
+            if wall_s >= max(RESUME_WALL_S, 0.5 * (t - latest) * 1e-9):
+                # every topic was silent on the wall clock about as long as the stamps moved: a
+                # return after total silence, not a wild clock; the new timeline starts here
+                self._cand = {topic: [(topic, part)]}
+                self._new_timeline()
+                return
         held = [p for ps in self._cand.values() for _, p in ps]
         if held and abs(t - max(int(p["t_ns"][0]) for p in held)) > g:
             self._drop([c for ps in self._cand.values() for c in ps], "inconsistent stamps")
@@ -329,6 +348,7 @@ class LiveAligner:
         self._cand = {}
         self._end_timeline()
         first = int(cand[0][1]["t_ns"][0])
+        self._start_ns = first
         step_s = (first - self._latest_ns) * 1e-9
         wall_s = time.monotonic() - self._last_wall
         if step_s > 0 and wall_s >= 0.5 * step_s:   # (a loaded publisher catches up: not exactly as far)
