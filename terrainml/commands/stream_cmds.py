@@ -106,7 +106,8 @@ def register(app: typer.Typer) -> None:
         preset: Optional[str] = typer.Option(None, "--preset", help="EKF preset; default: the model's."),
         idle_timeout_s: Optional[float] = typer.Option(
             None, "--idle-timeout-s",
-            help="UDP / ROS 2 source: stop after this many seconds without a datagram or message."),
+            help="UDP / ROS 2 source: stop after this many seconds without a datagram or message, with a "
+                 "line naming the silent topics, and exit code 3."),
         verbose: bool = typer.Option(False, "--verbose", "-v", help="More log output on stderr."),
         max_clock_gap_s: float = typer.Option(
             1.0, "--max-clock-gap-s", min=1e-3,

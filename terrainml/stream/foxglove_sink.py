@@ -98,7 +98,8 @@ def live_message(msg: DesiredSlip, class_names: Sequence[str]) -> dict[str, Any]
     d["wheels"] = [
         {"wheel": i + 1, "slip_desired": sd, "slip_measured": sm, "state": st,
          "state_code": WHEEL_STATE_CODES.get(st, 0)}
-        for i, (sd, sm, st) in enumerate(zip(d["slip_desired"], d["slip_measured"], d["wheel_state"]))
+        for i, (sd, sm, st) in enumerate(zip(d["slip_desired"], d["slip_measured"] or [None] * len(d["slip_desired"]),
+                                             d["wheel_state"]))
     ]
     names = class_names_for(len(d["class_probabilities"]), class_names)
     d["class_probabilities_by_name"] = dict(zip(names, d["class_probabilities"]))

@@ -25,7 +25,11 @@ Rules
   (``terrainml predict``: stderr) the tick it does, with its columns, "never seen" when it has
   not been fresh since the start (e.g. a log without its IMU topic), and again when it returns;
   each group's silent episodes are counted (``silent_episodes``). The first
-  :data:`WARN_EPISODES` episodes of a group are warned, then every 100th.
+  :data:`WARN_EPISODES` episodes of a group are warned, then every 100th. When the source knows
+  that the group's topic publishes NaN or infinite values (``invalid_hint``, a live ROS 2
+  source's :meth:`~terrainml.stream.inputs.InputWatch.group_invalid`), the episode is said as
+  *invalid values* ("... valid again"), not as a silence. A group the source does not map is
+  removed from ``monitored`` by the predictor (:meth:`Predictor.set_mapped_groups`).
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ import logging
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -148,6 +152,10 @@ class HealthMonitor:
         self._t0: float | None = None
         self._silent_now: set[str] = set()   # groups said silent and not yet back
         self.counters: InputCounters | None = None
+        #: ``group -> bool``: the group's input brings invalid values (NaN, inf) rather than nothing
+        #: (a live source's :meth:`~terrainml.stream.inputs.InputWatch.group_invalid`); None: unknown
+        self.invalid_hint: Callable[[str], bool] | None = None
+        self._invalid_now: set[str] = set()  # groups said invalid (not silent) and not yet back
 
     def reset(self) -> None:
         self.last_fresh_t.clear()
@@ -247,7 +255,9 @@ class HealthMonitor:
             elif g in self._silent_now:
                 self._silent_now.discard(g)
                 if self._episodes(g) <= WARN_EPISODES:
-                    log.warning("sensor group %r fresh again at t=%.3f s", g, t_s)
+                    log.warning("sensor group %r %s again at t=%.3f s", g,
+                                "valid" if g in self._invalid_now else "fresh", t_s)
+                self._invalid_now.discard(g)
         return (not silent), silent
 
     def _episodes(self, g: str) -> int:
@@ -259,9 +269,17 @@ class HealthMonitor:
         n = self._episodes(g) + 1
         if self.counters is not None:
             self.counters.silent_episodes[g] = n
+        invalid = self.invalid_hint is not None and self.invalid_hint(g)
+        if invalid:
+            self._invalid_now.add(g)
         if n <= WARN_EPISODES or n % 100 == 0:
             since = (f"last fresh at t={self.last_fresh_t[g]:.3f} s" if g in self.last_fresh_t
                      else "never seen since the start")
-            log.warning("sensor group %r silent at t=%.3f s (%s; columns %s): serving "
-                        "estimator_unhealthy until it returns (episode %d)", g, t_s, since,
-                        ", ".join(self.group_cols[g]), n)
+            if invalid:   # its topic publishes, with NaN or infinite values: not a silence
+                log.warning("sensor group %r has invalid values (NaN or infinite) at t=%.3f s (%s; columns %s): "
+                            "serving estimator_unhealthy until they are valid (episode %d)", g, t_s, since,
+                            ", ".join(self.group_cols[g]), n)
+            else:
+                log.warning("sensor group %r silent at t=%.3f s (%s; columns %s): serving "
+                            "estimator_unhealthy until it returns (episode %d)", g, t_s, since,
+                            ", ".join(self.group_cols[g]), n)

@@ -32,6 +32,10 @@ novelty              float           the latest classified window's novelty scor
                                      ground turns ``unknown_terrain`` after a few such windows);
                                      -1 when the model has no novelty scorer or no window is scored
 
+slip_measured_note   str             only when slip is not observable (a live source whose topic map
+                                     feeds no body-velocity reference): why; ``slip_measured`` is then
+                                     null (absent) in JSON, "n/a" (-32768) on CAN, never 0.0
+
 The last three are additions to design §11's field list (issue #28: say which sensors served and
 why the windows are rejected; issue #30: how unlike the training windows the ground is); a
 message without them (an older log) still reads. CAN carries ``unknown_terrain`` as reason code
@@ -109,6 +113,7 @@ class DesiredSlip:
     fallback_detail: str = ""
     sensors: list[str] = field(default_factory=list)
     novelty: float = -1.0
+    slip_measured_note: str = ""
     extra: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     # ------------------------------------------------------------------ json
@@ -134,7 +139,8 @@ class DesiredSlip:
             "fallback_detail": str(self.fallback_detail),
             "sensors": [str(g) for g in self.sensors],
             "novelty": max(-1.0, _finite(self.novelty, SAFE_VALUES["novelty"])),
-        }
+        } | ({"slip_measured": None, "slip_measured_note": str(self.slip_measured_note)}
+             if self.slip_measured_note else {})
 
     def to_json(self) -> str:
         """One compact JSON object (no newline); raises if anything non-finite slipped through."""
@@ -144,18 +150,24 @@ class DesiredSlip:
     def from_dict(cls, d: dict[str, Any]) -> "DesiredSlip":
         keys = [f for f in cls.__dataclass_fields__ if f != "extra"]
         # the fields added after design §11's list (they have defaults) may be absent
-        missing = [k for k in keys if k not in d and k not in ADDED_FIELDS]
+        missing = [k for k in keys if k not in d and k not in ADDED_FIELDS + OPTIONAL_FIELDS]
         keys = [k for k in keys if k in d]
         if missing:
             raise ValueError(f"DesiredSlip: missing field(s) {', '.join(missing)}")
-        return cls(**{k: d[k] for k in keys})
+        kw = {k: d[k] for k in keys}
+        if kw.get("slip_measured") is None:   # not observable: absent
+            kw["slip_measured"] = [math.nan] * len(kw.get("slip_desired") or [])
+        return cls(**kw)
 
     @classmethod
     def from_json(cls, text: str | bytes) -> "DesiredSlip":
         return cls.from_dict(json.loads(text))
 
 
-FIELD_NAMES: tuple[str, ...] = tuple(f for f in DesiredSlip.__dataclass_fields__ if f != "extra")
+#: fields present only when they say something (``slip_measured_note``: slip not observable)
+OPTIONAL_FIELDS: tuple[str, ...] = ("slip_measured_note",)
+FIELD_NAMES: tuple[str, ...] = tuple(f for f in DesiredSlip.__dataclass_fields__
+                                     if f != "extra" and f not in OPTIONAL_FIELDS)
 #: fields added to design §11's list (issues #28, #30): a message written before them still reads
 ADDED_FIELDS: tuple[str, ...] = ("fallback_detail", "sensors", "novelty")
 
@@ -179,7 +191,10 @@ def json_schema(n_wheels: int | None = None, n_classes: int | None = None) -> di
             "t_s": {"type": "number", "description": "tick time, s"},
             "seq": {"type": "integer", "description": "output sequence number"},
             "slip_desired": arr(num, n_wheels, "desired slip per wheel (signed)"),
-            "slip_measured": arr(num, n_wheels, "measured slip per wheel"),
+            "slip_measured": {**arr(num, n_wheels, "measured slip per wheel; null when not observable "
+                                    "(slip_measured_note says why)"), "type": ["array", "null"]},
+            "slip_measured_note": {"type": "string", "description": "present only when slip is not "
+                                   "observable: why (no body-velocity reference)"},
             "wheel_state": arr({"type": "string", "enum": list(WHEEL_STATES)}, n_wheels,
                                "dynamic state per wheel"),
             "terrain_class": {"type": "integer", "minimum": -1,

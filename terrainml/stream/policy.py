@@ -57,6 +57,12 @@ log = logging.getLogger("terrainml.stream")
 NO_CLASS_ID = -1        # no class served (CAN: 255)
 NO_CLASS_NAME = "none"
 SERVE_P = 0.6           # design §10: serve the fused argmax at or above this posterior
+#: s of ticks a served state is held before the distance rule turns it stale (no flapping)
+HOLD_S = 1.0
+#: the reasons of the age and confidence of the class ("" : a class served)
+SOFT_REASONS = ("", "stale_classification", "uncertain_classification")
+#: the one whose entry is held :data:`HOLD_S` (:meth:`ServingPolicy._held`)
+STALE = "stale_classification"
 #: the fallback reasons, highest priority first
 FALLBACK_REASONS = ("clock_jump", "estimator_unhealthy", "classifier_error", "unknown_terrain",
                     "windows_rejected", "no_classification", "stale_classification",
@@ -151,6 +157,9 @@ class ServingPolicy:
         self.class_names = list(class_names)
         self.serve_p = float(serve_p)
         self.max_age_s = None if max_age_s is None else float(max_age_s)
+        self._state: Any = None              # the state served (hysteresis, :meth:`_held`)
+        self._state_since = -math.inf
+        self._state_soft: bool | None = None
         cap_names = [self.name(c) for c in self.class_ids]
         self.cap_classes = cap_names if hasattr(table, "class_names") else None
         self.cap_table = safe_cap_for(table, self.class_ids, cap_names)
@@ -165,8 +174,35 @@ class ServingPolicy:
         """Traction target of the safe cap served on fallback (design §10)."""
         return float(self.cap_table.safe_cap(self.cap_classes).target("traction"))
 
+    def reset(self) -> None:
+        """A new timeline: no state held."""
+        self._state, self._state_since, self._state_soft = None, -math.inf, None
+
+    def _held(self, key: Any, soft: bool, t_s: float) -> Any:
+        """The served state with hysteresis (:data:`HOLD_S`): a class id, or a fallback reason.
+
+        A change into ``stale_classification`` from another state of the age and confidence rules
+        (:data:`SOFT_REASONS`: a class served, ``uncertain_classification``) waits until that
+        state has been served a second of ticks; leaving it for a fresh class, and every other
+        change (one class to another, a clock jump, an unhealthy estimator, unknown ground ...),
+        apply on their tick. After a sensor pause the distance rule thus turns the class stale at
+        most once per second, instead of alternating with it on every classification hop, and a
+        fresh classification is never held back (the mixed-terrain course keeps its accuracy).
+        ``t_s`` NaN: no hysteresis.
+        """
+        if not math.isfinite(t_s):
+            return key
+        # only entering staleness is held: a fresh class is served at once, a stale one waits
+        # until the state it replaces has been served a second
+        entering_stale = key == STALE and self._state != STALE
+        if key != self._state and (not soft or not entering_stale or self._state_soft is False
+                                   or not 0 <= t_s - self._state_since < HOLD_S):
+            self._state, self._state_since, self._state_soft = key, t_s, soft
+        return self._state
+
     def reason(self, fused: FusedClass, *, estimator_ok: bool, classifier_error: bool,
-               age_s: float | None, clock_jump: bool = False, rejected_by: str | None = None) -> str:
+               age_s: float | None, clock_jump: bool = False, rejected_by: str | None = None,
+               t_s: float = math.nan) -> str:
         """The reason this tick cannot serve a class ("" when it can), by priority (design §11).
 
         ``rejected_by``: the window rule that rejected every window while the robot moved more
@@ -184,8 +220,7 @@ class ServingPolicy:
             return "unknown_terrain"
         if fused.posterior is None:
             return "windows_rejected" if rejected_by else "no_classification"
-        if fused.stale or (self.max_age_s is not None and age_s is not None
-                           and age_s > self.max_age_s):
+        if fused.stale or (self.max_age_s is not None and age_s is not None and age_s > self.max_age_s):
             return "windows_rejected" if rejected_by else "stale_classification"
         if fused.best()[1] < self.serve_p:
             return "uncertain_classification"
@@ -206,11 +241,20 @@ class ServingPolicy:
         t_s : s, the tick's time (for the log line when the table fails).
         """
         reason = self.reason(fused, estimator_ok=estimator_ok, classifier_error=classifier_error,
-                             age_s=age_s, clock_jump=clock_jump, rejected_by=rejected_by)
+                             age_s=age_s, clock_jump=clock_jump, rejected_by=rejected_by, t_s=t_s)
         detail = str(rejected_by) if reason == "windows_rejected" else ""
         nov = float(getattr(fused, "novelty", -1.0))
         try:
             k, post = fused.best()
+            soft = reason in SOFT_REASONS and (reason or k >= 0)
+            held = self._held(reason or ("class", k), bool(soft), t_s)
+            if soft and held != (reason or ("class", k)):
+                if isinstance(held, tuple):          # a class held: served with its own posterior
+                    k = held[1]
+                    post = float(fused.posterior[k]) if fused.posterior is not None else 0.0
+                    reason = ""
+                else:                                 # a fallback held
+                    reason = held
             if reason or k < 0:
                 slip = safe_cap_per_wheel(states, v_long, self.cap_table, self.cap_classes)
                 return PolicyDecision(class_id=NO_CLASS_ID, class_name=NO_CLASS_NAME,

@@ -130,6 +130,8 @@ class Predictor:
         self.wheels = WheelRow(robot.n_wheels, tuple(dict.fromkeys(
             c for m in self.switch.candidates for c in getattr(m.classifier, "raw_columns", ()) or ())))
         self.n = robot.n_wheels
+        #: why measured slip is not observable ("" when it is; :meth:`set_mapped_groups`)
+        self.slip_note = ""
         self.seq = 0
         self.n_estimator_errors = 0
         # wheel states and speeds of the last estimated tick (what a clock_jump tick serves with)
@@ -254,13 +256,41 @@ class Predictor:
         return self._message(t, self._decide(age, est_ok, states, v_long, t, rejected_by=rejected),
                              slips, states, age, est_ok, t_start)
 
-    def _serve_with(self, c: Candidate, silent: Sequence[str], t: float) -> None:
+    def set_mapped_groups(self, groups: Sequence[str]) -> None:
+        """The source feeds only these sensor groups (a live topic map's): the others are *not
+        mapped*. Said once; they are no longer monitored (never a silent episode), and serving
+        moves to the best of the model and its members that needs none of them. When every
+        candidate needs one, nothing changes (the ticks stay unhealthy, as the group is silent)."""
+        if "cam" not in groups and not self.slip_note:
+            self.slip_note = "not observable: the source maps no body-velocity reference (cam group)"
+            log.warning("measured slip %s; served as absent (null), odometry from raw wheel speeds", self.slip_note)
+        unmapped = {g for g in self.health.monitored if g not in set(groups)} - {"wheels"}
+        if not unmapped:
+            return
+        usable = [c for c in self.switch.candidates if not c.groups & unmapped]
+        if not usable:
+            log.warning("sensor group(s) %s not mapped by the source's topic map, and the model and every "
+                        "member need them: ticks stay estimator_unhealthy", ", ".join(sorted(unmapped)))
+            return
+        for g in sorted(unmapped):
+            log.warning("sensor group %r not mapped by the source's topic map (columns %s): not monitored", g,
+                        ", ".join(self.health.group_cols[g]))
+        self.health.monitored = [g for g in self.health.monitored if g not in unmapped]
+        self.switch.candidates = usable
+        if self.switch.active not in usable:
+            self.switch.active = usable[0]
+            self._serve_with(usable[0], [], 0.0, announce=False)
+            log.warning("serving %s on sensors %s (the mapped ones)", "the model" if usable[0].name == "model"
+                        else f"member {usable[0].name!r}", ",".join(usable[0].sensors))
+
+    def _serve_with(self, c: Candidate, silent: Sequence[str], t: float, announce: bool = True) -> None:
         """Classify with the model or member ``c`` from this tick on (its groups are fresh)."""
         self.scheduler.use(c.classifier, c.window_spec.online_hop_s, c.window_spec.n_samples)
         self._estimator_flag = "imu" in c.groups
         self.odometer.lateral_observed = self.robot.has_steering or self._estimator_flag
         self.served_sensors = list(c.sensors)
-        self.switch.announce(c, silent, t)
+        if announce:
+            self.switch.announce(c, silent, t)
 
     def _clock_jump_tick(self, t: float, t_start: float) -> DesiredSlip:
         """A stamp off the timeline: the fallback row for the last estimated wheel states.
@@ -292,6 +322,7 @@ class Predictor:
             classification_age_s=-1.0 if age is None else float(age),
             fallback=dec.fallback, fallback_reason=dec.reason, estimator_ok=est_ok,
             fallback_detail=dec.detail, sensors=list(self.served_sensors), novelty=dec.novelty,
+            slip_measured_note=self.slip_note,
         )
         self.seq += 1
         msg.processing_ms = (time.perf_counter() - t_start) * 1e3
@@ -318,6 +349,7 @@ class Predictor:
         self.scheduler.reset()  # a window of the old timeline: its result is never applied
         self.filter.reset()
         self.odometer.reset()
+        self.policy.reset()
 
     # ------------------------------------------------------------------ parts
     def _estimate(self, clean: dict) -> dict | None:

@@ -23,6 +23,7 @@ from rich.table import Table
 from terrainml.robot import RobotSpec
 from terrainml.stream.classify import ModelLoadError
 from terrainml.stream.config import ServingConfig
+from terrainml.stream.inputs import InputWatch
 from terrainml.stream.predictor import Predictor
 from terrainml.stream.recorder import RECORD_FORMATS, UnknownGroundRecorder
 from terrainml.stream.sample import InvalidSample
@@ -33,19 +34,28 @@ log = logging.getLogger("terrainml.stream")
 
 #: ``terrainml predict`` classifies in a background thread; results apply 10 ticks (0.1 s) later
 CLASSIFY_LAG_TICKS = 10
+#: exit code of ``terrainml predict`` when a live source ended on ``--idle-timeout-s``
+EXIT_IDLE = 3
 #: a tick counts as moving (served-class accuracy of ``replay_summary``) at this body speed, m/s
 MOVING_MPS = 0.05
 
 
 def serve(predictor: Predictor, samples: Iterable[dict], sinks: Sequence[Any],
-          on_message: Any = None) -> int:
+          on_message: Any = None, watch: InputWatch | None = None) -> int:
     """Feed every sample to the predictor and every message to every sink; return #messages.
 
     A sample the predictor refuses (:class:`~terrainml.stream.sample.InvalidSample`, already
-    counted in ``predictor.counters``) is skipped; serving goes on.
+    counted in ``predictor.counters``) is skipped; serving goes on. ``watch``: a live source's
+    topics; once it knows the sensor groups the source maps, the predictor is told
+    (:meth:`Predictor.set_mapped_groups`) before the first tick.
     """
     n = 0
+    told = False
     for sample in samples:
+        if not told and watch is not None and watch.mapped_groups is not None:
+            predictor.set_mapped_groups(watch.mapped_groups)
+            predictor.health.invalid_hint = watch.group_invalid
+            told = True
         try:
             msg = predictor.step(sample)
         except InvalidSample as exc:
@@ -96,7 +106,9 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
                 trusted_keys: Sequence[str | Path] | None = None, topics: Any = None,
                 dataset: Any = None, record_unknown: str | Path | None = None,
                 record_format: str = RECORD_FORMATS[0]) -> int:
-    """Run ``terrainml predict``; return the process exit code (0 ok, 2 unusable input).
+    """Run ``terrainml predict``; return the process exit code (0 ok, 2 unusable input,
+    :data:`EXIT_IDLE` (3) a live source silent for ``idle_timeout_s``: the line before says which
+    topics and how long).
 
     ``robot`` (default the model's) and ``config`` (default: the model's preset, classification
     in the background thread :data:`CLASSIFY_LAG_TICKS` ticks behind) are resolved by the
@@ -144,14 +156,15 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
         console.print(f"terrainml predict: ready, reading {where}, serving to {', '.join(sinks)}",
                       highlight=False)
 
+    watch = InputWatch()   # the live source's topics, for the ROS 2 sink's /diagnostics
     try:
         for spec in sinks:
             opened.append(open_sink(spec, n_wheels=predictor.n, n_classes=len(predictor.class_names),
                                     class_names=predictor.class_names, robot=predictor.robot,
-                                    sensors=predictor.sensors))
+                                    sensors=predictor.sensors, watch=watch))
         samples = open_source(source, robot=predictor.robot, realtime=realtime, counters=counters,
                               idle_timeout_s=idle_timeout_s, ready=ready, topic_map=topics,
-                              dataset=dataset)
+                              dataset=dataset, clock=config, watch=watch)
     except (SinkError, SourceError) as exc:
         console.print(f"[red]error:[/] {exc}")
         for s in opened:
@@ -163,7 +176,10 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
     gc.freeze()
     t0 = time.perf_counter()
     code = _serve_until_done(predictor, samples, opened + ([recorder] if recorder is not None else []), console,
-                             progress=None if realtime or not _is_log(source) else Path(source).name)
+                             progress=None if realtime or not _is_log(source) else Path(source).name,
+                             watch=watch)
+    if code == 0 and counters.idle is not None:
+        code = EXIT_IDLE
     _print_summary(console, predictor, opened, counters, source, time.perf_counter() - t0)
     if recorder is not None:
         console.print(f"terrainml predict: {recorder.summary()}", highlight=False)
@@ -175,7 +191,7 @@ def _is_log(source: str) -> bool:
 
 
 def _serve_until_done(predictor: Predictor, samples: Iterable[dict], opened: list[Any],
-                      console: Console, progress: str | None) -> int:
+                      console: Console, progress: str | None, watch: InputWatch | None = None) -> int:
     """:func:`serve` until the source ends, SIGTERM or Ctrl-C; close everything; the exit code.
 
     ``progress``: the log's name, for a spinner counting ticks (a log replayed at full speed).
@@ -194,7 +210,7 @@ def _serve_until_done(predictor: Predictor, samples: Iterable[dict], opened: lis
                 serve(predictor, samples, opened,
                       on_message=lambda m: bar.advance(task, 100) if m.seq % 100 == 99 else None)
         else:
-            serve(predictor, samples, opened)
+            serve(predictor, samples, opened, watch=watch)
     except KeyboardInterrupt:
         log.info("interrupted")
     except SourceError as exc:

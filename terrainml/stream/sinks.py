@@ -28,7 +28,7 @@ Summary frame, id ``BASE``::
 Wheel frame i (1..N), id ``BASE + i``::
 
     bytes 0-1  int16   slip_desired x 1e4 (saturated to +-32767, i.e. +-3.2767)
-    bytes 2-3  int16   slip_measured x 1e4
+    bytes 2-3  int16   slip_measured x 1e4 (-32768: not observable)
     byte  4    uint8   wheel state code: 0 idle, 1 steady, 2 traction, 3 braking
     byte  5    uint8   terrain_class (255 = none)
     byte  6    uint8   flags (as in the summary frame)
@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import socket
 import struct
@@ -67,6 +68,8 @@ log = logging.getLogger("terrainml.stream")
 
 DEFAULT_UDP_SINK = ("127.0.0.1", 9871)
 CAN_BASE_ID = 0x300
+#: CAN slip_measured when slip is not observable (int16 minimum; a real slip is clipped to +-32767)
+SLIP_NA = -32768
 REASON_CODES = {"": 0, **{r: i + 1 for i, r in enumerate(FALLBACK_REASONS)}}
 _STATE_BY_CODE = {v: k for k, v in WHEEL_STATE_CODES.items()}
 _REASON_BY_CODE = {v: k for k, v in REASON_CODES.items()}
@@ -135,9 +138,10 @@ def encode_can_frames(msg: DesiredSlip | dict, base_id: int = CAN_BASE_ID) -> li
     def q(v: float) -> int:
         return max(-32767, min(32767, int(round(v * 1e4))))
 
+    measured = d["slip_measured"]    # None: not observable (sent as SLIP_NA)
     for i in range(n):
         frames.append((base_id + i + 1, struct.pack(
-            "<hhBBBB", q(d["slip_desired"][i]), q(d["slip_measured"][i]),
+            "<hhBBBB", q(d["slip_desired"][i]), SLIP_NA if measured is None else q(measured[i]),
             WHEEL_STATE_CODES.get(d["wheel_state"][i], 0), cls, flags, d["seq"] & 0xFF)))
     return frames
 
@@ -156,7 +160,7 @@ def decode_can_frames(frames: list[tuple[int, bytes]], base_id: int = CAN_BASE_I
     for i in range(n):
         sd, sm, st, _c, _f, _s = struct.unpack("<hhBBBB", by_id[base_id + i + 1])
         out["slip_desired"].append(sd / 1e4)
-        out["slip_measured"].append(sm / 1e4)
+        out["slip_measured"].append(math.nan if sm == SLIP_NA else sm / 1e4)
         out["wheel_state"].append(_STATE_BY_CODE.get(st, "idle"))
     return out
 
@@ -330,12 +334,14 @@ def _scheme_rest(s: str, scheme: str) -> str | None:
 
 def open_sink(spec: str, *, n_wheels: int | None = None, n_classes: int | None = None,
               class_names: list[str] | None = None, stdout: IO[str] | None = None,
-              robot: Any = None, sensors: list[str] | None = None) -> GuardedSink:
+              robot: Any = None, sensors: list[str] | None = None, watch: Any = None) -> GuardedSink:
     """Open one sink from its spec string (see the module docstring); raises SinkError.
 
     ``class_names`` names the class ids 0..K-1 where a sink shows names (Foxglove); default the
     eight classes of design §6.1. ``robot`` (wheel names and geometry) and ``sensors`` (the model's
-    sensor groups) are what the ROS 2 sink states in its layout, odometry and diagnostics.
+    sensor groups) are what the ROS 2 sink states in its layout, odometry and diagnostics;
+    ``watch`` (:class:`~terrainml.stream.inputs.InputWatch`) gives its ``/diagnostics`` the input
+    topics' freshness.
     """
     s = spec.strip()
     if s in ("stdout", "-"):
@@ -352,7 +358,7 @@ def open_sink(spec: str, *, n_wheels: int | None = None, n_classes: int | None =
                             class_names=class_names_for(n_classes, class_names))
     elif is_ros2_spec(s):
         try:
-            sink = Ros2Sink(s, robot, sensors)
+            sink = Ros2Sink(s, robot, sensors, watch=watch)
         except Ros2NameError as exc:
             raise SinkError(f"sink {spec!r}: {exc}") from None
     elif s.startswith("can://"):

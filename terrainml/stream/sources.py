@@ -91,6 +91,7 @@ class SourceCounters:
     malformed: int = 0
     malformed_by_reason: dict[str, int] = field(default_factory=dict)
     damage: DamageSummary | None = None   # what a recorded log's ingest could not read
+    idle: str | None = None   # the line saying why a live source ended on --idle-timeout-s
 
     def count_malformed(self, reason: str, data: Any) -> None:
         """Count one skipped input; warn for the first 3, then every 1000th."""
@@ -292,7 +293,9 @@ def iter_udp_samples(host: str = DEFAULT_UDP_SOURCE[0], port: int = DEFAULT_UDP_
             try:
                 data, _ = sock.recvfrom(65535)
             except socket.timeout:
-                log.info("udp source idle for %.1f s: end of stream", idle_timeout_s)
+                counters.idle = (f"udp://{host}:{port}: idle timeout: no datagram for {idle_timeout_s:.1f} s "
+                                 f"(--idle-timeout-s {idle_timeout_s:g})")
+                log.warning("%s", counters.idle)
                 return
             s = parse_sample(data, counters)
             if s is _EOS:
@@ -339,11 +342,14 @@ def iter_line_samples(stream: IO[Any] | None = None, *, counters: SourceCounters
 def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
                 counters: SourceCounters | None = None, idle_timeout_s: float | None = None,
                 rate_hz: float = 100.0, ready: Any = None, topic_map: Any = None,
-                dataset: Any = None) -> Iterator[dict]:
+                dataset: Any = None, clock: Any = None, watch: Any = None) -> Iterator[dict]:
     """Iterator of samples for a ``--source`` spec (see the module docstring).
 
     ``topic_map`` / ``dataset``: how a log file is read (:func:`iter_log_samples`); refused
-    (SourceError) for UDP and stdin, whose samples already carry canonical names.
+    (SourceError) for UDP and stdin, whose samples already carry canonical names. ``clock``
+    (a :class:`~terrainml.stream.config.ServingConfig`: its ``max_clock_gap_s`` and
+    ``reanchor_after``) and ``watch`` (:class:`~terrainml.stream.inputs.InputWatch`, shared with
+    the ROS 2 sink's ``/diagnostics``) reach the ROS 2 source.
     """
     s = spec.strip()
     if (topic_map is not None or dataset is not None) and (s == "-" or s == "udp" or s.startswith("udp://")):
@@ -367,8 +373,10 @@ def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
                                 sock=sock, ready=ready)
     if is_ros2_spec(s):  # the topic map says which topics feed which columns, as for a log
         try:
+            clock_opts = {} if clock is None else {"max_gap_s": clock.max_clock_gap_s,
+                                                   "reanchor_after": clock.reanchor_after}
             return iter_ros2_samples(s, robot, topic_map=topic_map, rate_hz=rate_hz, counters=counters,
-                                     idle_timeout_s=idle_timeout_s, ready=ready)
+                                     idle_timeout_s=idle_timeout_s, ready=ready, watch=watch, **clock_opts)
         except (Ros2SourceError, ValueError) as exc:
             raise SourceError(str(exc)) from None
     path = Path(s)

@@ -8,6 +8,11 @@ libraries, and the recorder writes what it receives as JSON lines.
 publish: every message of the mapped topics, in log order, at ``--speed`` x real time (source
 timestamp = the log time), after every topic has a matched subscriber (or ``--match-timeout-s``).
 Fault injections: ``--stop-topic T --stop-at-s S`` (T goes silent S s into the log),
+``--pause-topic T|all --pause-at-s S --pause-s D`` (T's messages of [S, S + D) not sent),
+``--restart-at-s S --restart-s D`` (the publisher leaves the domain at S and joins again as a new
+participant D s later), ``--late-wrong-type-topic T --late-at-s S`` (a second publisher of T with
+type std_msgs/Float64 appears at S), ``--nan-joint J1,J2 --nan-at-s S --nan-s D`` (those joints'
+velocities NaN for D s),
 ``--wrong-type-topic T`` (T published as std_msgs/Float64 instead), ``--jump-at-s S --jump-s J``
 (every stamp after S s shifted by J s), ``--swap-every K`` (every K-th pair of IMU messages
 published in reverse order), ``--burst-every K`` (K ticks held, then sent at once).
@@ -20,6 +25,7 @@ exits after ``--idle-s`` without a message (or ``--max-s``).
 """
 
 import argparse
+import gc
 import json
 import sys
 import time
@@ -221,6 +227,34 @@ def _convert(topic: str, m, shift_ns: int):
     return Twist(_vec(Vector3, m.linear), _vec(Vector3, m.angular))
 
 
+class _Msg:
+    """A decoded message with some fields replaced."""
+
+    def __init__(self, m, **kw):
+        self.__dict__.update({k: getattr(m, k) for k in ("header", "name", "position", "velocity", "effort")})
+        self.__dict__.update(kw)
+
+
+def _nan_joint(m, joints: str):
+    """The JointState with NaN velocities on the joints ``joints`` (comma-separated)."""
+    bad = set(joints.split(","))
+    return _Msg(m, velocity=[float("nan") if n in bad else v for n, v in zip(m.name, m.velocity)])
+
+
+def _faults(a) -> list[dict]:
+    """The fault plan: ``--faults FILE`` (JSON list of {kind: pause|nan|restart, at_s, dur_s, topic|joint},
+    log seconds from the start of the first loop) and the single-fault options."""
+    faults = json.load(open(a.faults)) if a.faults else []
+    if a.pause_topic:
+        faults.append({"kind": "pause", "topic": a.pause_topic, "at_s": a.pause_at_s, "dur_s": a.pause_s})
+    if a.restart_at_s is not None:
+        faults.append({"kind": "restart", "at_s": a.restart_at_s, "dur_s": a.restart_s})
+    if a.nan_joint:
+        for j in a.nan_joint.split(","):
+            faults.append({"kind": "nan", "joint": j, "at_s": a.nan_at_s, "dur_s": a.nan_s})
+    return faults
+
+
 def _stamp_ns(h) -> int:
     return h.stamp.sec * 1_000_000_000 + h.stamp.nanosec
 
@@ -256,26 +290,67 @@ def publish(a) -> None:
     print("peer: writers up", file=sys.stderr, flush=True)
     _wait_matched(writers, a.match_timeout_s)
     time.sleep(a.settle_s)
-    t0_log = None
-    t0_wall = time.monotonic()
     held: list = []
     imu_prev = None
     n = 0
-    fh = open(a.mcap, "rb")
-    reader = make_reader(fh, decoder_factories=[DecoderFactory()])
-    for _, channel, rec, ros_msg in reader.iter_decoded_messages(topics=list(INPUTS), log_time_order=True):
-        topic = channel.topic
-        if t0_log is None:
-            t0_log = rec.log_time
-        rel_s = (rec.log_time - t0_log) * 1e-9
+    with open(a.mcap, "rb") as fh:
+        stats = make_reader(fh).get_summary().statistics
+    # one loop of the log; the next starts a period after its last message
+    span_ns = stats.message_end_time - stats.message_start_time + 10_000_000
+
+    def log_messages():
+        """The log's mapped messages, decoded one at a time (a long log starts at once)."""
+        with open(a.mcap, "rb") as fh:
+            reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+            for _, ch, rec, m in reader.iter_decoded_messages(topics=list(INPUTS), log_time_order=True):
+                yield ch.topic, rec.log_time, m
+
+    t0_log = next(log_messages())[1]
+    faults = _faults(a)
+    late_writer = None
+    restarted: set[int] = set()
+    print("peer: publishing", file=sys.stderr, flush=True)
+    t0_wall = time.monotonic()
+    for loop, (topic, log_time, ros_msg) in ((k, m) for k in range(a.loop) for m in log_messages()):
+        log_time += loop * span_ns
+        rel_s = (log_time - t0_log) * 1e-9
         if a.stop_topic == topic and rel_s >= a.stop_at_s:
             continue
+        active = [f for f in faults if f["at_s"] <= rel_s < f["at_s"] + f["dur_s"]]
+        if any(f["kind"] == "pause" and f["topic"] in (topic, "all") for f in active):
+            continue
+        restart = next((k for k, f in enumerate(faults) if f["kind"] == "restart" and k not in restarted
+                        and f["at_s"] <= rel_s), None)
+        if restart is not None:
+            # the publisher restarts as a new participant (a driver restart): writers gone, back after a while
+            restarted.add(restart)
+            held, late_writer = [], None
+            writers.clear()
+            writers, dp = {}, None
+            gc.collect()                      # the old participant leaves the domain
+            time.sleep(faults[restart]["dur_s"] / a.speed if a.speed > 0 else 0.0)
+            dp = DomainParticipant(a.domain)
+            writers = {tp: DataWriter(dp, Topic(dp, "rt" + tp, cls), qos=_qos(a.reliable)) for tp, cls in types.items()}
+            _wait_matched(writers, 10.0)
+            print("peer: restarted", file=sys.stderr, flush=True)
+        if any(f["kind"] == "restart" for f in active):
+            continue                          # what the driver would have sent while it was down
+        if a.late_wrong_type_topic and late_writer is None and rel_s >= a.late_at_s:
+            late_dp = DomainParticipant(a.domain)    # a second node: one participant holds one type per topic
+            late_writer = DataWriter(late_dp, Topic(late_dp, "rt" + a.late_wrong_type_topic, Float64),
+                                     qos=_qos(a.reliable))
+            late_writer.write(Float64(1.0))
+            print("peer: wrong type up", file=sys.stderr, flush=True)
+        nan = [f["joint"] for f in active if f["kind"] == "nan"]
+        if nan and topic == "/wheels/joint_states":
+            ros_msg = _nan_joint(ros_msg, ",".join(nan))
         shift = int(a.jump_s * 1e9) if a.jump_at_s is not None and rel_s >= a.jump_at_s else 0
+        shift += loop * span_ns
         if a.wrong_type_topic == topic:
             msg = Float64(1.0)
         else:
             msg = _convert(topic, ros_msg, shift)
-        item = (writers[topic], msg, rec.log_time + shift)
+        item = (writers[topic], msg, log_time - loop * span_ns + shift)
         if a.swap_every and topic == "/imu":
             n_imu = getattr(publish, "_n_imu", 0) + 1
             publish._n_imu = n_imu
@@ -317,7 +392,9 @@ def _out_row(topic: str, m) -> dict:
     if topic == "/diagnostics":
         st = m.status[0]
         return {"stamp_ns": m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, "level": st.level,
-                "name": st.name, "message": st.message, "values": {kv.key: kv.value for kv in st.values}}
+                "name": st.name, "message": st.message, "values": {kv.key: kv.value for kv in st.values},
+                "wall_s": time.monotonic(),
+                "all": [{"level": s.level, "name": s.name, "message": s.message} for s in m.status]}
     tw = m.twist.twist
     return {"stamp_ns": m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, "frame": m.header.frame_id,
             "child": m.child_frame_id, "vx": tw.linear.x, "vy": tw.linear.y, "wz": tw.angular.z,
@@ -367,6 +444,18 @@ def main() -> None:
     ap.add_argument("--swap-every", type=int, default=0)
     ap.add_argument("--burst-every", type=int, default=0)
     ap.add_argument("--wheel-array")
+    ap.add_argument("--pause-topic", help="a topic, or all: its messages from --pause-at-s for --pause-s are not sent")
+    ap.add_argument("--pause-at-s", type=float, default=0.0)
+    ap.add_argument("--pause-s", type=float, default=0.0)
+    ap.add_argument("--restart-at-s", type=float)
+    ap.add_argument("--restart-s", type=float, default=1.0)
+    ap.add_argument("--late-wrong-type-topic")
+    ap.add_argument("--late-at-s", type=float, default=0.0)
+    ap.add_argument("--nan-joint", help="joint names (comma-separated) whose velocity is NaN for a while")
+    ap.add_argument("--nan-at-s", type=float, default=0.0)
+    ap.add_argument("--nan-s", type=float, default=0.0)
+    ap.add_argument("--faults", help="JSON file: a list of faults (see _faults)")
+    ap.add_argument("--loop", type=int, default=1, help="replay the log this many times, stamps continuing")
     ap.add_argument("--idle-s", type=float, default=5.0)
     ap.add_argument("--max-s", type=float, default=300.0)
     a = ap.parse_args()

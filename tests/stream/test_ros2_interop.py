@@ -24,6 +24,7 @@ from mcap.reader import make_reader
 
 from terrainml.sim.generate import simulate
 from terrainml.sim.output import write_mcap
+from terrainml.stream.runner import EXIT_IDLE
 
 PEER = str(Path(__file__).with_name("ros2_peer.py"))
 PREDICT = [sys.executable, "-m", "terrainml.cli", "predict"]
@@ -121,7 +122,7 @@ def _serve(model_dir, sand_log, tmp, *peer_args, source_opts="qos=reliable", sin
     pred.wait_for("ready")
     peer = _publish(domain, sand_log, tmp, *peer_args)
     assert peer.finish() == 0, peer.err.read_text()
-    assert pred.finish() == 0, pred.err.read_text()
+    assert pred.finish() == EXIT_IDLE, pred.err.read_text()     # ends on --idle-timeout-s
     return pred
 
 
@@ -143,7 +144,7 @@ def test_served_decisions_equal_offline_replay_tick_for_tick(model_dir, sand_log
     pred.wait_for("ready")
     peer = _publish(domain, sand_log, tmp_path)
     assert peer.finish() == 0, peer.err.read_text()
-    assert pred.finish() == 0, pred.err.read_text()
+    assert pred.finish() == EXIT_IDLE, pred.err.read_text()
     assert listener.finish() == 0, listener.err.read_text()
 
     served = pred.lines()
@@ -196,9 +197,11 @@ def test_type_mismatch_is_refused_at_start_naming_topic_and_types(model_dir, san
 
 def test_no_publisher_warns_and_serves_nothing(model_dir, tmp_path):
     pred = _predict(model_dir, _domain(), tmp_path, "discovery_s=1", idle_s=3.0)
-    assert pred.finish() == 0
+    assert pred.finish() == EXIT_IDLE
     err = pred.err.read_text()
     assert "no publisher on /imu" in err and "no publisher on /wheels/joint_states" in err
+    # the idle line names the silent topics and the time
+    assert "idle timeout: no message for 3." in err and "/imu (3." in err and "never seen" in err
     assert pred.lines() == []
 
 

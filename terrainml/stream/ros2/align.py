@@ -31,14 +31,24 @@ What a whole log tells ingest and a live stream cannot know, and how the aligner
 * **end**: :meth:`LiveAligner.finish` ends the grid at the last stamp, as ingest ends it at the
   log's last message.
 
-Clock jumps: a message stamped more than ``max_gap_s`` (the clock policy's G, 1 s) away from its
-own topic's last stamp (a topic new to the timeline: from the stream's latest stamp) is off the
-timeline and held -- per topic, so one topic's backlog delivered after another's is never taken
-for a jump. ``reanchor_after`` (K, 5) consistent held messages from two topics or more start a new
-timeline there: the old one is finished and the grid continues at the new stamps (same time
-origin), so the predictor sees the jump in ``t_s`` and applies its clock policy
+Pauses and clock jumps: a message stamped within ``max_gap_s`` (the clock policy's G, 1 s) of its
+own topic's last stamp, or of the stream's latest stamp, is on the timeline -- so one topic's
+backlog delivered after another's is never taken for a jump, and a topic that paused (a driver
+restart, a USB IMU that dropped out, for any length of time) rejoins the timeline where the other
+topics are with its first message, logged (``topic /imu publishes again after 10.0 s``). Any
+other message is off the timeline and held. ``reanchor_after`` (K, 5) consistent held messages
+from two topics or more start a new timeline there: the old one is finished and the grid
+continues at the new stamps (same time origin), so the predictor sees the jump in ``t_s`` and applies its clock policy
 (:mod:`terrainml.stream.clock`). Held messages are dropped and counted when their topic comes back
 on its timeline (one publisher with a wild clock), and so are the old timeline's stragglers.
+
+Return after total silence: when every topic has been silent on the wall clock for at least
+:data:`RESUME_WALL_S` and half as long as a new message's stamp is ahead of the stream's latest,
+that message starts the new timeline at once (no K candidates: topics delivered unevenly after a
+stall would otherwise be dropped as inconsistent), and the log says so instead of "clock jump";
+the predictor re-anchors the same way (its estimator and windows restart on the fresh data). A
+topic new to a timeline is on it from the timeline's first stamp minus G on, so one that lags
+the others after the return joins it late instead of being held.
 """
 
 from __future__ import annotations
@@ -52,15 +62,18 @@ from typing import Any
 
 from terrainml.io.ingest.logs import Buffer, Plan, Scan, plan
 from terrainml.io.ingest.report import IngestReport
+from terrainml.io.ingest.signals import validity_members
 from terrainml.io.ingest.ticks import TickProducer
 from terrainml.io.topicmap import TopicMap
 from terrainml.robot import RobotSpec
-from terrainml.schema import DEFAULT_RATE_HZ
+from terrainml.schema import DEFAULT_RATE_HZ, VALID_GROUPS, column_map
 from terrainml.stream.clock import MAX_GAP_S, REANCHOR_AFTER
 
 log = logging.getLogger("terrainml.stream")
 
 WARMUP_S = 0.5
+#: every topic silent this long on the wall clock (s) before stamps far ahead are a return, not a jump
+RESUME_WALL_S = 0.5
 WARMUP_WAIT_S = 2.0
 REORDER_S = 0.05
 #: grid length of a live timeline until it ends
@@ -128,6 +141,9 @@ class LiveAligner:
         self.reorder_ns, self.max_gap_ns = int(reorder_s * 1e9), int(max_gap_s * 1e9)
         self.reanchor_after = int(reanchor_after)
         self.counters = AlignCounters()
+        #: sensor groups a topic of the map feeds (known when the warm-up ends)
+        self.mapped_groups: list[str] | None = None
+        self.watch: Any = None   # an InputWatch told the mapped groups (the source sets it)
         self.report = IngestReport(source=name, format="ros2", rate_hz=self.rate_hz)
         self._early: list[tuple[str, dict]] = []
         self._first_wall: float | None = None
@@ -136,6 +152,8 @@ class LiveAligner:
         self._out: list[dict] = []
         self._cand: dict[str, list[tuple[str, dict]]] = {}
         self._latest_ns: int | None = None
+        self._last_wall = time.monotonic()   # when the latest stamp arrived (total silence vs. clock jump)
+        self._start_ns = -_UNBOUNDED         # first stamp of the current timeline
         self._last: dict[str, int] = {}      # per topic: last stamp on the current timeline
         self._old: dict[str, int] = {}       # ... on the previous one (its stragglers are dropped)
 
@@ -162,12 +180,29 @@ class LiveAligner:
             return
         self._timeline(topic, part)
 
-    def poll(self) -> list[dict]:
-        """Samples of the ticks settled so far (in order); starts the stream after the warm-up."""
+    def lag_s(self, topic: str) -> float | None:
+        """How far ``topic``'s latest stamp is behind the stream's latest, s (None: not on the timeline)."""
+        last = self._last.get(topic)
+        return None if last is None or self._latest_ns is None else (self._latest_ns - last) * 1e-9
+
+    def poll(self, wait_all: bool = False) -> list[dict]:
+        """Samples of the ticks settled so far (in order); starts the stream after the warm-up.
+
+        ``wait_all``: decide no tick without a topic that lags the others (the process just
+        lagged, :meth:`terrainml.stream.inputs.InputWatch.in_grace`: its messages may still be
+        on their way), instead of waiting only ``reorder_s`` of stamps for it.
+        """
         if self._prod is None:
             if not self._warmup_done():
                 return []
             self._start()
+        elif wait_all:
+            scan = self._prod.scan
+            saved, scan.cross_late = scan.cross_late, _UNBOUNDED
+            try:
+                self._prod.drain(final=False)
+            finally:
+                scan.cross_late = saved
         else:
             self._prod.drain(final=False)
         out, self._out[:] = self._out[:], []
@@ -220,7 +255,17 @@ class LiveAligner:
         scan.cross_late = max(scan.cross_late, self.reorder_ns)
         self._plan = _fresh(p)
         self._prod = TickProducer(self._plan, self.tmap, self.robot, self.rate_hz, self._out)
+        present = sorted({c for r in self._prod.rings for c in r.cols})
+        self.mapped_groups = [g for g, cols in validity_members(present, column_map(self.robot.n_wheels)).items()
+                              if cols and g in VALID_GROUPS]
+        if self.watch is not None:
+            self.watch.mapped_groups = list(self.mapped_groups)
+            spec = column_map(self.robot.n_wheels)
+            for r in self._prod.rings:
+                self.watch.topic_groups.setdefault(r.topic, set()).update(
+                    spec[c].group for c in r.cols if c in spec and spec[c].group in VALID_GROUPS)
         self.counters.timelines = 1
+        self._start_ns = self._plan.t0_ns
         early, self._early = self._early, []
         for topic, part in early:
             self._feed(topic, part)
@@ -234,7 +279,8 @@ class LiveAligner:
             if n <= 3 or n % 1000 == 0:
                 log.warning("%s: topic %s: message stamped %.3f s arrived after its tick was served "
                             "(%d late so far)", self.name, topic, (t - self._plan.t0_ns) * 1e-9, n)
-        self._latest_ns = t if self._latest_ns is None else max(self._latest_ns, t)
+        if self._latest_ns is None or t >= self._latest_ns:
+            self._latest_ns, self._last_wall = t, time.monotonic()
         self._last[topic] = max(self._last.get(topic, t), t)
         self._prod.on_part(topic, part)
 
@@ -256,13 +302,30 @@ class LiveAligner:
         g = self.max_gap_ns
         last = self._last.get(topic)
         ref = last if last is not None else self._latest_ns
-        if ref is None or abs(t - ref) <= g:
+        latest = self._latest_ns
+        # a topic new to this timeline that lags the others (a backlog after a new timeline)
+        joins = last is None and latest is not None and self._start_ns - g <= t <= latest + g
+        if ref is None or abs(t - ref) <= g or (latest is not None and abs(t - latest) <= g) or joins:
+            # within G of its own last stamp, or of the stream's latest: a topic that paused
+            # while the others went on rejoins the timeline where they are
+            if last is not None and t - last > g:
+                log.warning("%s: topic %s publishes again after %.1f s without messages (stamps %.3f -> %.3f s)",
+                            self.name, topic, (t - last) * 1e-9, (last - self._plan.t0_ns) * 1e-9,
+                            (t - self._plan.t0_ns) * 1e-9)
             self._drop(self._cand.pop(topic, []), f"topic {topic} back on its timeline")
             self._feed(topic, part)
             return
         if last is None and topic in self._old and abs(t - self._old[topic]) <= g:
             self.counters.bump(self.counters.late, topic)    # a straggler of the previous timeline
             return
+        if latest is not None and t > latest and not self._cand:
+            wall_s = time.monotonic() - self._last_wall
+            if wall_s >= max(RESUME_WALL_S, 0.5 * (t - latest) * 1e-9):
+                # every topic was silent on the wall clock about as long as the stamps moved: a
+                # return after total silence, not a wild clock; the new timeline starts here
+                self._cand = {topic: [(topic, part)]}
+                self._new_timeline()
+                return
         held = [p for ps in self._cand.values() for _, p in ps]
         if held and abs(t - max(int(p["t_ns"][0]) for p in held)) > g:
             self._drop([c for ps in self._cand.values() for c in ps], "inconsistent stamps")
@@ -285,8 +348,14 @@ class LiveAligner:
         self._cand = {}
         self._end_timeline()
         first = int(cand[0][1]["t_ns"][0])
-        log.warning("%s: clock jump: stamps moved %.3f s; a new timeline starts there", self.name,
-                    (first - self._latest_ns) * 1e-9)
+        self._start_ns = first
+        step_s = (first - self._latest_ns) * 1e-9
+        wall_s = time.monotonic() - self._last_wall
+        if step_s > 0 and wall_s >= 0.5 * step_s:   # (a loaded publisher catches up: not exactly as far)
+            log.warning("%s: every topic publishes again after %.1f s of silence (stamps moved %.3f s, about as "
+                        "far as the wall clock); a new timeline starts there", self.name, wall_s, step_s)
+        else:
+            log.warning("%s: clock jump: stamps moved %.3f s; a new timeline starts there", self.name, step_s)
         self._plan = _fresh(self._plan)
         self._prod = TickProducer(self._plan, self.tmap, self.robot, self.rate_hz, self._out)
         self._prod.next_tick = int(math.ceil((first - self._plan.t0_ns) * 1e-9 * self.rate_hz - 1e-6))

@@ -34,17 +34,23 @@ dead-reckoned from a stale encoder).
 
 from __future__ import annotations
 
+import logging
 import math
+import threading
+import time
 from collections import deque
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.topic import Topic
 
-from terrainml.estimation.slip_odometry import SlipAwareOdometry
+from terrainml.estimation.slip_odometry import OdometryEstimate, SlipAwareOdometry
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import VALID_GROUPS, valid_column, wheel_col
+from terrainml.stream.inputs import NO_INPUT_S, InputWatch
 from terrainml.stream.message import DesiredSlip
 from terrainml.stream.ros2.names import dds_topic_name, parse_url, qos_for
 from terrainml.stream.ros2.source import STAMP_ORIGIN_KEY
@@ -52,6 +58,8 @@ from terrainml.stream.ros2.types import (Classification, DiagnosticArray, Diagno
                                          Header, KeyValue, MultiArrayDimension, MultiArrayLayout,
                                          ObjectHypothesis, Odometry, Point, Pose, PoseWithCovariance,
                                          Quaternion, Time, Twist, TwistWithCovariance, Vector3)
+
+log = logging.getLogger("terrainml.stream")
 
 DEFAULT_TOPICS = {"desired_slip": "/terrainml/desired_slip", "terrain": "/terrainml/terrain",
                   "diagnostics": "/diagnostics", "odometry": "/terrainml/odometry"}
@@ -101,10 +109,22 @@ class _Rates:
 
 
 class Ros2Sink:
-    """Publish each served tick on the four topics of the module docstring."""
+    """Publish each served tick on the four topics of the module docstring; ``/diagnostics`` on a
+    wall-clock timer.
+
+    Parameters
+    ----------
+    spec : ``ros2://DOMAIN[?options]``.
+    robot : RobotSpec or name (wheel names and geometry).
+    sensors : the model's sensor groups (before the first tick: ``sensors_used``).
+    watch : the live source's :class:`~terrainml.stream.inputs.InputWatch` (one status per input
+        topic, mapped groups, silence); None: a fresh one (no input topics, silence judged by ticks).
+    period_s : the diagnostics timer's period, s (wall clock).
+    """
 
     def __init__(self, spec: str = "ros2://0", robot: RobotSpec | str | None = None,
-                 sensors: list[str] | None = None):
+                 sensors: list[str] | None = None, watch: InputWatch | None = None,
+                 period_s: float = DIAGNOSTICS_PERIOD_S):
         url = parse_url(spec, SINK_OPTIONS)
         self.robot = robot if isinstance(robot, RobotSpec) else load_robot(robot)
         self.name = spec.strip()
@@ -120,9 +140,19 @@ class Ros2Sink:
         n = len(names)
         self._layout = MultiArrayLayout(dim=[MultiArrayDimension(f"wheels:{','.join(names)}", n, n)], data_offset=0)
         self.odometry = SlipAwareOdometry(self.robot)
-        self._rates = _Rates()
-        self._last_diag_t: float | None = None
+        self._sub_odometry: dict[tuple[bool, ...], SlipAwareOdometry] = {}
+        self.odometry_note = ""
+        self.watch = watch if watch is not None else InputWatch()
+        self.diagnostics = DiagnosticsState(self.robot, self.sensors, self.watch)
+        self._rates = self.diagnostics.rates
         self._last_reason: str | None = None
+        self._lock = threading.Lock()
+        self._timer: threading.Thread | None = None
+        self._stop = threading.Event()
+        if "diagnostics" in self.writers:
+            self._timer = threading.Thread(target=self._diagnostics_loop, args=(float(period_s),),
+                                           name="terrainml-diagnostics", daemon=True)
+            self._timer.start()
 
     # ------------------------------------------------------------------ per tick
     def send(self, msg: DesiredSlip) -> None:
@@ -138,53 +168,215 @@ class Ros2Sink:
             score = 0.0 if msg.fallback else float(msg.confidence)
             w["terrain"].write(Classification(header=header,
                                               results=[ObjectHypothesis(str(msg.terrain_name), score)]))
-        self._rates.add(msg.t_s, sample)
         if "odometry" in w:
             odo = self._odometry(msg, sample, header)
             if odo is not None:
                 w["odometry"].write(odo)
-        if "diagnostics" in w and self._diagnostics_due(msg):
-            w["diagnostics"].write(DiagnosticArray(header=header, status=[self._status(msg, sample)]))
+        with self._lock:    # the timer thread reads the same state
+            self.diagnostics.tick(msg, sample, stamp_ns, self.odometry_note)
+        if "diagnostics" in w and msg.fallback_reason != self._last_reason:
+            self._last_reason = msg.fallback_reason
+            self._publish_diagnostics()
+
+    def _diagnostics_loop(self, period_s: float) -> None:
+        """``diagnostic_updater``'s timer: one DiagnosticArray per period of wall time, ticks or not."""
+        while not self._stop.wait(period_s):
+            try:
+                self._publish_diagnostics()
+            except Exception as exc:  # noqa: BLE001 - the timer must outlive one failed write
+                log.warning("%s: /diagnostics not published: %s", self.name, exc)
+
+    def _publish_diagnostics(self) -> None:
+        with self._lock:
+            writer = self.writers.get("diagnostics")
+            if writer is None:
+                return
+            stamp_ns, statuses = self.diagnostics.statuses()
+            writer.write(DiagnosticArray(header=Header(stamp=ros_time(stamp_ns), frame_id=self.base_frame),
+                                         status=[_status_msg(st, self.robot.name) for st in statuses]))
 
     def _odometry(self, msg: DesiredSlip, sample: dict, header: Header) -> Odometry | None:
+        """Slip-aware odometry from the wheels whose speed is valid on this tick (all of them:
+        the full solution; some: theirs, with the larger covariance that fewer wheels give, and
+        ``odometry_note`` naming the others; none but a valid IMU: zero speed with an unknown
+        variance and the IMU's yaw rate). None when neither is valid."""
         n = self.robot.n_wheels
-        if not sample.get(valid_column("wheels").name, False):
+        omega = [_num(sample.get(wheel_col("omega", i))) for i in range(1, n + 1)]
+        steer = [_num(sample.get(wheel_col("steer", i)), 0.0) for i in range(1, n + 1)]
+        ok = tuple(math.isfinite(o) and math.isfinite(d) for o, d in zip(omega, steer))
+        if not sample.get(valid_column("wheels").name, False) and all(ok):
+            ok = (False,) * n    # the group said invalid for a reason the values do not show
+        imu_ok = bool(sample.get(valid_column("imu").name, False))
+        r = _num(sample.get("imu_yaw_rate_radps")) if imu_ok else math.nan
+        r = r if math.isfinite(r) else None
+        unobserved = bool(msg.slip_measured_note)
+        slip = msg.slip_measured if msg.estimator_ok and not unobserved else None
+        if all(ok) and not unobserved:
+            self.odometry_note = ""
+            est = self.odometry.step(msg.t_s, omega, steer, slip, r)
+            twist_cov = est.twist_cov
+        elif any(ok) and self._sides_covered(ok):
+            keep = [i for i in range(n) if ok[i]]
+            bad = [self.robot.wheels[i].name for i in range(n) if not ok[i]]
+            self.odometry_note = (f"from {len(keep)} of {n} wheels ({', '.join(bad)} invalid)" if bad else
+                                  "raw wheel speeds (slip not observable)")
+            # an unobserved slip is an unknown one: its variance widens each wheel's speed
+            var = np.full(len(keep), UNOBSERVED_SLIP_VAR) if unobserved or slip is None else None
+            sub = self.odometry if not bad else self._sub(ok)
+            x, twist_cov = sub.twist([omega[i] for i in keep], [steer[i] for i in keep],
+                                     None if slip is None else [slip[i] for i in keep], r, var)
+            est = _integrate(self.odometry, msg.t_s, x, twist_cov)
+        elif r is not None:
+            self.odometry_note = "no valid wheel: yaw rate from the IMU, speed unknown"
+            cov = np.diag([UNKNOWN_VAR, UNKNOWN_VAR, SIGMA_IMU_YAW_RATE ** 2])
+            est = _integrate(self.odometry, msg.t_s, np.array([0.0, 0.0, r]), cov)
+            twist_cov = cov
+        else:
+            self.odometry_note = "no valid wheel or IMU: not published"
             return None
-        omega = [sample.get(wheel_col("omega", i), math.nan) for i in range(1, n + 1)]
-        steer = [sample.get(wheel_col("steer", i), 0.0) for i in range(1, n + 1)]
-        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in omega + steer):
-            return None
-        r = sample.get("imu_yaw_rate_radps") if sample.get(valid_column("imu").name, False) else None
-        slip = msg.slip_measured if msg.estimator_ok else None
-        est = self.odometry.step(msg.t_s, omega, steer, slip, r)
         half = 0.5 * est.yaw_rad
         pose = Pose(position=Point(est.x_m, est.y_m, 0.0),
                     orientation=Quaternion(0.0, 0.0, math.sin(half), math.cos(half)))
         twist = Twist(linear=Vector3(est.vx_mps, est.vy_mps, 0.0), angular=Vector3(0.0, 0.0, est.yaw_rate_radps))
         return Odometry(header=Header(stamp=header.stamp, frame_id=self.odom_frame), child_frame_id=self.base_frame,
                         pose=PoseWithCovariance(pose=pose, covariance=_cov6(est.pose_cov)),
-                        twist=TwistWithCovariance(twist=twist, covariance=_cov6(est.twist_cov)))
+                        twist=TwistWithCovariance(twist=twist, covariance=_cov6(twist_cov)))
 
-    def _diagnostics_due(self, msg: DesiredSlip) -> bool:
-        due = (self._last_diag_t is None or msg.t_s - self._last_diag_t >= DIAGNOSTICS_PERIOD_S
-               or msg.t_s < self._last_diag_t or msg.fallback_reason != self._last_reason)
-        if due:
-            self._last_diag_t, self._last_reason = msg.t_s, msg.fallback_reason
-        return due
+    def _sides_covered(self, ok: tuple[bool, ...]) -> bool:
+        """At least one valid wheel on each side (y > 0 and y < 0); a robot with wheels on the
+        centre line (a tricycle's) needs any one."""
+        sides = {int(np.sign(w.y_m)) for w, good in zip(self.robot.wheels, ok) if good}
+        need = {int(np.sign(w.y_m)) for w in self.robot.wheels} - {0}
+        return need <= sides or 0 in sides
 
-    def _status(self, msg: DesiredSlip, sample: dict) -> DiagnosticStatus:
-        level = ERROR if not msg.estimator_ok else WARN if msg.fallback else OK
-        text = ("estimator unhealthy" if not msg.estimator_ok else
-                f"fallback: {msg.fallback_reason}" if msg.fallback else f"serving {msg.terrain_name}")
-        valid = [g for g in VALID_GROUPS if sample.get(valid_column(g).name, False)]
-        values = {"estimator_ok": str(bool(msg.estimator_ok)).lower(), "fallback": str(bool(msg.fallback)).lower(),
-                  "fallback_reason": msg.fallback_reason, "classification_age_s": f"{msg.classification_age_s:.3f}",
-                  "terrain": msg.terrain_name, "confidence": f"{msg.confidence:.3f}",
-                  "sensors_used": ",".join(self.sensors), "sensors_valid": ",".join(valid)}
-        values.update({f"rate_{g}_hz": f"{v:.1f}" for g, v in self._rates.rates().items()})
-        return DiagnosticStatus(level=level, name=DIAGNOSTIC_NAME, message=text, hardware_id=self.robot.name,
-                                values=[KeyValue(k, v) for k, v in values.items()])
+    def _sub(self, ok: tuple[bool, ...]) -> SlipAwareOdometry:
+        sub = self._sub_odometry.get(ok)
+        if sub is None:
+            wheels = tuple(w for w, good in zip(self.robot.wheels, ok) if good)
+            sub = self._sub_odometry[ok] = SlipAwareOdometry(replace(self.robot, wheels=wheels))
+        return sub
 
     def close(self) -> None:
-        self.writers = {}
-        self.dp = None
+        self._stop.set()
+        if self._timer is not None:
+            self._timer.join(timeout=2.0)
+        with self._lock:
+            self.writers = {}
+            self.dp = None
+
+
+#: slip variance assumed where slip is not measured (not observable, or the estimator unhealthy
+#: on a degraded tick): sigma 0.15, about the traction peak of loose ground
+UNOBSERVED_SLIP_VAR = 0.15 ** 2
+#: yaw-rate sigma of the IMU when it alone gives the twist (rad/s)
+SIGMA_IMU_YAW_RATE = 0.02
+
+
+def _num(v: Any, default: float = math.nan) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return default
+    return float(v)
+
+
+def _integrate(odo: SlipAwareOdometry, t_s: float, x: np.ndarray, cov: np.ndarray) -> OdometryEstimate:
+    """Dead-reckon ``odo``'s pose with twist ``x`` (vx, vy, r) as its own ``step`` does."""
+    dt = 0.0 if odo._t is None else t_s - odo._t
+    odo._t = t_s
+    if 0 < dt <= 1.0:
+        yaw_mid = odo.yaw_rad + 0.5 * x[2] * dt
+        cy, sy = math.cos(yaw_mid), math.sin(yaw_mid)
+        odo.x_m += (cy * x[0] - sy * x[1]) * dt
+        odo.y_m += (sy * x[0] + cy * x[1]) * dt
+        odo.yaw_rad = math.atan2(math.sin(odo.yaw_rad + x[2] * dt), math.cos(odo.yaw_rad + x[2] * dt))
+        rot = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+        odo.pose_cov = odo.pose_cov + rot @ cov @ rot.T * dt * dt
+    return OdometryEstimate(float(x[0]), float(x[1]), float(x[2]), cov, odo.x_m, odo.y_m, odo.yaw_rad,
+                            odo.pose_cov.copy())
+
+
+def _status_msg(st: dict, hardware_id: str) -> DiagnosticStatus:
+    return DiagnosticStatus(level=st["level"], name=st["name"], message=st["message"], hardware_id=hardware_id,
+                            values=[KeyValue(k, str(v)) for k, v in st["values"].items()])
+
+
+class DiagnosticsState:
+    """What ``/diagnostics`` says: the serving status (first) and one status per input topic.
+
+    Fed per tick (:meth:`tick`), read by the wall-clock timer (:meth:`statuses`); the clock is
+    the watch's, so tests drive it by hand.
+
+    Serving status ``terrainml: predict``: when every input has been silent for more than
+    :data:`~terrainml.stream.inputs.NO_INPUT_S` (1 s; no input topic message, or no tick for a
+    source without topics), level ERROR, "no input for N s", whatever the last tick said; else
+    the last tick's: OK "serving CLASS", WARN "fallback: REASON", ERROR "estimator unhealthy".
+    An input topic silent beyond its timeout is its own status at WARN, naming it.
+    """
+
+    def __init__(self, robot: RobotSpec, sensors: list[str], watch: InputWatch):
+        self.robot, self.sensors, self.watch = robot, list(sensors), watch
+        self.rates = _Rates()
+        self.msg: DesiredSlip | None = None
+        self.sample: dict = {}
+        self.stamp_ns: int | None = None
+        self.tick_wall_s: float | None = None
+        self.odometry_note = ""
+        self.started_s = watch.clock()
+
+    def tick(self, msg: DesiredSlip, sample: dict, stamp_ns: int, odometry_note: str = "") -> None:
+        self.rates.add(msg.t_s, sample)
+        self.msg, self.sample, self.stamp_ns = msg, sample, stamp_ns
+        self.tick_wall_s = self.watch.clock()
+        self.odometry_note = odometry_note
+
+    def groups(self) -> list[str]:
+        """The robot's sensor groups that the source maps: no steering on a fixed-wheel robot."""
+        mapped = self.watch.mapped_groups
+        return [g for g in VALID_GROUPS if (g != "steer" or self.robot.has_steering)
+                and (mapped is None or g in mapped)]
+
+    def silence_s(self, now: float) -> float:
+        """How long every input has been silent (wall s)."""
+        if self.watch.topics:
+            return self.watch.idle_s(now)
+        return now - (self.tick_wall_s if self.tick_wall_s is not None else self.started_s)
+
+    def statuses(self) -> tuple[int, list[dict]]:
+        """(stamp ns, statuses): the stamp is the last tick's ROS time plus the wall time since."""
+        now = self.watch.clock()
+        stamp = (time.time_ns() if self.stamp_ns is None else
+                 self.stamp_ns + int(round((now - (self.tick_wall_s or now)) * 1e9)))
+        return stamp, [self._serving(now)] + self.watch.statuses(now)
+
+    def _serving(self, now: float) -> dict:
+        msg, sample = self.msg, self.sample
+        groups = self.groups()
+        values: dict[str, str] = {}
+        silence = self.silence_s(now)
+        if msg is not None:
+            valid = [g for g in groups if sample.get(valid_column(g).name, False)]
+            values = {"estimator_ok": str(bool(msg.estimator_ok)).lower(), "fallback": str(bool(msg.fallback)).lower(),
+                      "fallback_reason": msg.fallback_reason,
+                      "classification_age_s": f"{msg.classification_age_s:.3f}",
+                      "terrain": msg.terrain_name, "confidence": f"{msg.confidence:.3f}",
+                      "sensors_used": ",".join(msg.sensors), "sensors_valid": ",".join(valid),
+                      "slip_measured": msg.extra.get("slip_unobservable") or "observed",
+                      "odometry": self.odometry_note or "all wheels"}
+            rates = self.rates.rates()
+            values.update({f"rate_{g}_hz": f"{rates[g]:.1f}" for g in groups})
+        else:
+            values = {"sensors_used": ",".join(self.sensors)}
+        values["input_silent_s"] = f"{silence:.1f}"
+        values["loop_lags"] = str(self.watch.lags)
+        values["max_loop_lag_s"] = f"{self.watch.max_lag_s:.3f}"
+        if silence > NO_INPUT_S:
+            level, text = ERROR, f"no input for {silence:.1f} s"
+            silent = self.watch.silent_text(now)
+            if silent:
+                text += f" ({silent})"
+        elif msg is None:
+            level, text = WARN, "waiting for the first tick"
+        else:
+            level = ERROR if not msg.estimator_ok else WARN if msg.fallback else OK
+            text = ("estimator unhealthy" if not msg.estimator_ok else
+                    f"fallback: {msg.fallback_reason}" if msg.fallback else f"serving {msg.terrain_name}")
+        return {"level": level, "name": DIAGNOSTIC_NAME, "message": text, "values": values}

@@ -55,9 +55,11 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from terrainml.io import cdr
-from terrainml.io.topicmap import Source, TopicMap, load_topic_map
+from terrainml.io.topicmap import BUILTIN_MAPS, Source, TopicMap, load_topic_map
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import DEFAULT_RATE_HZ
+from terrainml.stream.clock import MAX_GAP_S, REANCHOR_AFTER
+from terrainml.stream.inputs import InputWatch
 from terrainml.stream.ros2.align import REORDER_S, WARMUP_S, LiveAligner
 from terrainml.stream.ros2.names import (QOS_PROFILES, Ros2NameError, dds_topic_name, dds_type_name, parse_url,
                                          qos_for, ros_topic_name, ros_type_name)
@@ -68,7 +70,13 @@ log = logging.getLogger("terrainml.stream")
 SOURCE_OPTIONS = ("qos", "discovery_s", "warmup_s", "reorder_s")
 DISCOVERY_S = 2.0
 WAITING_WARN_S = 10.0
+#: a topic that lags the others by more than this (stamps, s) is no longer waited for, alive or not
+MAX_WAIT_LAG_S = 1.0
+#: how often the discovery of publications is read while serving, s
+DISCOVERY_POLL_S = 1.0
 TAKE_MAX = 256
+#: the loop's longest wait for a message, s (a pass later than this is the process's own lag)
+WAIT_S = 0.1
 #: key of the sample's ROS time origin (ns): ROS time = stamp_origin_ns + t_s
 STAMP_ORIGIN_KEY = "stamp_origin_ns"
 
@@ -119,6 +127,7 @@ class _Discovery:
         self.by_topic = {s.src.topic: s for s in subs}
         self.publishers: dict[str, int] = {}
         self.mismatched: dict[str, str] = {}
+        self.graph: dict[str, str] = {}      # every ROS topic published on the domain -> its ROS type
 
     def poll(self) -> dict[str, str]:
         """Take new publications; returns the mismatches found this time (topic -> DDS type)."""
@@ -126,6 +135,8 @@ class _Discovery:
         for pub in self.reader.take(TAKE_MAX):
             name = getattr(pub, "topic_name", None)
             topic = ros_topic_name(name) if name else None
+            if topic and not topic.startswith("/terrainml/") and topic != "/diagnostics":
+                self.graph[topic] = ros_type_name(pub.type_name)
             sub = self.by_topic.get(topic) if topic else None
             if sub is None:
                 continue
@@ -157,9 +168,46 @@ def _discover(disc: _Discovery, subs: list[_Sub], spec: str, discovery_s: float)
     for topic in required:
         if topic not in disc.publishers:
             log.warning("%s: no publisher on %s (%s) yet: waiting for it", spec, topic, disc.by_topic[topic].src.type)
+    if not any(t in disc.publishers for t in required):
+        _no_match_help(disc, subs, spec)
 
 
-def _take(subs: list[_Sub], use_header: bool, aligner: LiveAligner, spec: str) -> int:
+def fitting_maps(graph: dict[str, str]) -> list[str]:
+    """The built-in topic maps whose every required topic is published with its type in ``graph``."""
+    fits = []
+    for name in BUILTIN_MAPS:
+        tm = load_topic_map(name)
+        need = [s for s in tm.sources if not s.options.get("optional")]
+        if need and all(graph.get(s.topic) == s.type for s in need):
+            fits.append(name)
+    return fits
+
+
+def _no_match_help(disc: _Discovery, subs: list[_Sub], spec: str) -> None:
+    """No mapped topic has a publisher: what the DDS graph does publish, and the map that fits it."""
+    disc.poll()
+    if any(s.src.topic in disc.publishers for s in subs):
+        return
+    if not disc.graph:
+        log.warning("%s: no ROS 2 topic is published on this domain (check ROS_DOMAIN_ID and the network, "
+                    "docs/ros2.md)", spec)
+        return
+    listed = ", ".join(f"{t} ({ty})" for t, ty in sorted(disc.graph.items())[:40])
+    fits = fitting_maps(disc.graph)
+    hint = (f"; the built-in topic map {' / '.join(fits)} fits them: --topics {fits[0]}" if fits else
+            "; no built-in topic map fits them: write one (docs/io.md) and pass --topics MAP.yaml")
+    log.warning("%s: no mapped topic has a publisher; the domain publishes: %s%s", spec, listed, hint)
+
+
+def _empty_fields(kind: str, msg: Any) -> frozenset[str]:
+    """JointState fields the message left empty (the decoder fills them with NaN: not invalid)."""
+    if kind != "joint_state":
+        return frozenset()
+    return frozenset(f for f in ("position", "velocity", "effort") if len(getattr(msg, f)) == 0)
+
+
+def _take(subs: list[_Sub], use_header: bool, aligner: LiveAligner, spec: str,
+          watch: InputWatch | None = None) -> int:
     """Every waiting message of every reader into the aligner; returns how many."""
     n = 0
     for sub in subs:
@@ -175,6 +223,8 @@ def _take(subs: list[_Sub], use_header: bool, aligner: LiveAligner, spec: str) -
                 except cdr.LayoutError as exc:
                     log.warning("%s: topic %s: message skipped (%s)", spec, sub.src.topic, exc)
                     continue
+                if watch is not None:
+                    watch.on_message(sub.src.topic, part, empty=_empty_fields(sub.src.decode_kind, msg))
                 aligner.add(sub.src.topic, part)
                 n += 1
             if len(batch) < TAKE_MAX:
@@ -185,12 +235,16 @@ def _take(subs: list[_Sub], use_header: bool, aligner: LiveAligner, spec: str) -
 def iter_ros2_samples(spec: str = "ros2://0", robot: RobotSpec | str | None = None, *,
                       topic_map: Any = None, rate_hz: float = DEFAULT_RATE_HZ,
                       idle_timeout_s: float | None = None, ready: Callable[[Any], None] | None = None,
-                      counters: Any = None) -> Iterator[dict]:
+                      counters: Any = None, max_gap_s: float = MAX_GAP_S, reanchor_after: int = REANCHOR_AFTER,
+                      watch: InputWatch | None = None) -> Iterator[dict]:
     """Samples from the ROS 2 topics of ``topic_map`` on the domain of ``spec`` (module docstring).
 
     Raises :class:`Ros2SourceError` before the first sample when the URL, the map or a publisher's
     type is wrong. ``counters`` (a :class:`~terrainml.stream.sources.SourceCounters`) counts the
-    messages received.
+    messages received; its ``idle`` is set to the idle-timeout line when the stream ends on it.
+    ``max_gap_s`` / ``reanchor_after``: the clock policy's G and K (``predict --max-clock-gap-s``,
+    ``--reanchor-after``). ``watch``: per-topic freshness (:class:`~terrainml.stream.inputs.InputWatch`;
+    one is made when None), shared with a ROS 2 sink's ``/diagnostics``.
     """
     try:
         url = parse_url(spec, SOURCE_OPTIONS)
@@ -204,45 +258,74 @@ def iter_ros2_samples(spec: str = "ros2://0", robot: RobotSpec | str | None = No
     discovery_s = _float_opt(url.options, "discovery_s", DISCOVERY_S, spec)
     aligner = LiveAligner(tmap, robot, rate_hz, name=spec,
                           warmup_s=_float_opt(url.options, "warmup_s", WARMUP_S, spec),
-                          reorder_s=_float_opt(url.options, "reorder_s", REORDER_S, spec))
+                          reorder_s=_float_opt(url.options, "reorder_s", REORDER_S, spec),
+                          max_gap_s=max_gap_s, reanchor_after=reanchor_after)
     dp = DomainParticipant(url.domain_id)
     subs = _subscribe(dp, tmap, default_qos, spec)
     disc = _Discovery(dp, subs)
     _discover(disc, subs, spec, discovery_s)
+    watch = watch if watch is not None else InputWatch()
+    for sub in subs:
+        watch.add_topic(sub.src.topic, sub.src.type, bool(sub.src.options.get("optional")))
+    aligner.watch = watch
     if ready is not None:
         ready(None)
-    return _serve(dp, subs, disc, aligner, tmap, spec, idle_timeout_s, counters)
+    return _serve(dp, subs, disc, aligner, tmap, spec, idle_timeout_s, counters, watch)
+
+
+def _lagging_alive(aligner: LiveAligner, watch: InputWatch, subs: list[_Sub], now: float) -> bool:
+    """A required topic whose stamps lag the others' by more than ``reorder_s`` (at most
+    :data:`MAX_WAIT_LAG_S`) while it still delivers on the wall clock (not silent by its own
+    timeout): its messages are on their way (a reader's queue, a retransmission, a loaded
+    machine), so no tick is decided without it yet."""
+    for sub in subs:
+        if sub.src.options.get("optional"):
+            continue
+        lag = aligner.lag_s(sub.src.topic)
+        if lag is None or not aligner.reorder_ns * 1e-9 < lag <= MAX_WAIT_LAG_S:
+            continue
+        age = watch.age_s(sub.src.topic, now)
+        if age is not None and age <= watch.topics[sub.src.topic].timeout_s():
+            return True
+    return False
 
 
 def _serve(dp: DomainParticipant, subs: list[_Sub], disc: _Discovery, aligner: LiveAligner, tmap: TopicMap,
-           spec: str, idle_timeout_s: float | None, counters: Any) -> Iterator[dict]:
+           spec: str, idle_timeout_s: float | None, counters: Any, watch: InputWatch) -> Iterator[dict]:
     ws = WaitSet(dp)
     for sub in subs:
         ws.attach(ReadCondition(sub.reader, SampleState.NotRead))
     use_header = tmap.stamp == "header"
-    last_msg = time.monotonic()
-    last_warn = last_msg
+    last_warn = last_disc = watch.started_s = time.monotonic()    # silence counts from here, not discovery
     try:
         while True:
-            ws.wait(duration(milliseconds=100))
-            n = _take(subs, use_header, aligner, spec)
+            ws.wait(duration(seconds=WAIT_S))
+            watch.loop(WAIT_S)     # the process's own lag: silence restarts after it (inputs.py)
+            n = _take(subs, use_header, aligner, spec, watch)
             now = time.monotonic()
+            watch.update(now)
             if counters is not None:
                 counters.received += n
-            if n:
-                last_msg = now
-            else:
+            if now - last_disc >= DISCOVERY_POLL_S:     # publishers that appear later, with traffic or not
+                last_disc = now
                 found = disc.poll()
                 if found:
                     log.error("%s", _mismatch_text(spec, disc.by_topic, found))
-                if idle_timeout_s and now - last_msg >= idle_timeout_s:
-                    log.info("%s idle for %.1f s: end of stream", spec, idle_timeout_s)
+            if not n:
+                idle = watch.idle_s(now)
+                if idle_timeout_s and idle >= idle_timeout_s:
+                    line = (f"{spec}: idle timeout: no message for {idle:.1f} s (--idle-timeout-s "
+                            f"{idle_timeout_s:g}); silent: {watch.silent_text(now)}")
+                    log.warning("%s", line)
+                    if counters is not None:
+                        counters.idle = line
                     break
-                if now - last_warn >= WAITING_WARN_S and now - last_msg >= WAITING_WARN_S:
+                if now - last_warn >= WAITING_WARN_S and idle >= WAITING_WARN_S:
                     log.warning("%s: no message for %.0f s; waiting for publishers on %s", spec,
-                                now - last_msg, ", ".join(s.src.topic for s in subs))
+                                idle, ", ".join(s.src.topic for s in subs))
+                    _no_match_help(disc, subs, spec)
                     last_warn = now
-            for s in aligner.poll():
+            for s in aligner.poll(wait_all=watch.in_grace(now) or _lagging_alive(aligner, watch, subs, now)):
                 s[STAMP_ORIGIN_KEY] = aligner.t0_ns
                 yield s
         for s in aligner.finish():
