@@ -64,6 +64,7 @@ def test_course_interleaves_classes_and_keeps_time_continuous():
         make_course(tables, ["zz"])
 
 
+@pytest.mark.acceptance
 def test_cli_train_auto_selects_replays_and_saves_a_calibrated_model(tmp_path):
     from terrainml.cli import app
     from terrainml.models.calibration import CalibratedModel

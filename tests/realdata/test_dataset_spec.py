@@ -18,7 +18,8 @@ from terrainml.io.ingest.dataset_spec import load_dataset_spec
 
 BOREAL = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "borealtc"
 
-pytestmark = pytest.mark.skipif(not BOREAL.is_dir(), reason=f"real dataset not present at {BOREAL}")
+pytestmark = [pytest.mark.acceptance,
+              pytest.mark.skipif(not BOREAL.is_dir(), reason=f"real dataset not present at {BOREAL}")]
 RUNS = ("ASPHALT_00", "FLOORING_04", "SNOW_10")     # FLOORING_04 has no IMU file
 CLASSES = ["ASPHALT", "FLOORING", "ICE", "SANDY_LOAM", "SNOW"]
 

@@ -20,6 +20,7 @@ BOREAL = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "b
 
 
 # ----------------------------------------------------------------------------- real data
+@pytest.mark.acceptance
 def test_chunks_follow_raw_durations_and_skip_runs_without_imu(boreal_tables, boreal_windows):
     tables, report = boreal_tables
     chunks, _ = boreal_windows
@@ -38,6 +39,7 @@ def test_chunks_follow_raw_durations_and_skip_runs_without_imu(boreal_tables, bo
             assert expected - 1 <= got <= expected, (cls_dir.name, key, overlap_s, got)
 
 
+@pytest.mark.acceptance
 def test_protocol_a_never_splits_a_chunk_but_mixes_runs(boreal_windows):
     _, w = boreal_windows
     folds, chunk_ids = protocol_folds(w, "a", n_splits=5, seed=21)
@@ -58,6 +60,7 @@ def test_protocol_a_never_splits_a_chunk_but_mixes_runs(boreal_windows):
         assert (np.abs(got - n_class / 5) <= 1).all()
 
 
+@pytest.mark.acceptance
 def test_protocol_b_never_splits_a_run(boreal_windows):
     _, w = boreal_windows
     folds, _ = protocol_folds(w, "b", n_splits=5, seed=0)
@@ -70,6 +73,7 @@ def test_protocol_b_never_splits_a_run(boreal_windows):
         check_groups_not_split(protocol_folds(w, "a")[0], runs)
 
 
+@pytest.mark.acceptance
 def test_windows_stay_inside_their_chunk_and_are_homogeneous(boreal_windows):
     chunks, w = boreal_windows
     start = chunks.meta.set_index("chunk_id")["start_index"]

@@ -19,6 +19,8 @@ from terrainml.robot import load_robot
 from terrainml.stream.classify import ModelLoadError, load_serving_model
 from terrainml.stream.predictor import Predictor
 
+pytestmark = pytest.mark.acceptance  # BorealTC builds and serves: `make test-all`
+
 HUSKY = load_robot("husky")
 NAMES = ["ASPHALT", "FLOORING", "ICE", "SANDY_LOAM", "SNOW"]
 

@@ -52,6 +52,7 @@ def _wait_ready(proc, timeout_s=60.0) -> str:
     raise AssertionError(f"predict did not become ready; stderr:\n{seen}{proc.stderr.read()}")
 
 
+@pytest.mark.acceptance
 def test_udp_in_udp_out_one_message_per_tick_in_order(model_dir):
     samples = _drive(5, 10.0)
     assert len(samples) == 1000
@@ -94,6 +95,7 @@ def test_udp_in_udp_out_one_message_per_tick_in_order(model_dir):
     assert "1000 messages" in err
 
 
+@pytest.mark.acceptance
 def test_stdin_in_stdout_out_json_lines_only(model_dir):
     samples = _drive(2, 3.0)
     lines = [json.dumps(s) for s in samples]
@@ -108,6 +110,7 @@ def test_stdin_in_stdout_out_json_lines_only(model_dir):
     assert "malformed input: 1" in proc.stderr and "1 duplicate" in proc.stderr
 
 
+@pytest.mark.acceptance
 def test_unusable_model_or_sink_exits_2_with_a_clear_message(tmp_path, model_dir, capsys):
     from terrainml.stream.runner import run_predict
 
@@ -137,6 +140,7 @@ def test_tampered_model_is_refused(tmp_path, model_dir, capsys):
     assert "desired_slip_table.json" in capsys.readouterr().err
 
 
+@pytest.mark.acceptance
 def test_hostile_stdin_never_stops_predict(model_dir):
     """Issue 21: deep nesting, huge numbers, binary, NaN, an over-long line, a wild and an absurd
     first stamp: no traceback, exit 0, one finite message per tick, live warnings, counts."""
@@ -176,6 +180,7 @@ def test_hostile_stdin_never_stops_predict(model_dir):
                           for m in cruise)
 
 
+@pytest.mark.acceptance
 def test_predict_says_what_a_damaged_log_lost(tmp_path, model_dir, capsys):
     """Issue 21: the damage counts of a log's ingest reach predict, before serving and in the summary."""
     from terrainml.io.ingest import load_run

@@ -185,6 +185,7 @@ def test_bad_foxglove_spec_is_a_clear_error(spec):
         open_sink(spec)
 
 
+@pytest.mark.acceptance
 def test_predict_cli_serves_foxglove_with_the_models_class_names(model_dir):
     """`terrainml predict --sink foxglove://...` end to end: samples on stdin, a client on the port."""
     with socket.socket() as s:  # a free TCP port (the CLI prints no port it picked)

@@ -92,8 +92,15 @@ def _sklearn_proba(model, wins):
     return model.model_.predict_proba(model.features_.transform(wins))
 
 
-@pytest.mark.parametrize("calibrated", [False, True], ids=["raw", "calibrated"])
-@pytest.mark.parametrize("name", NAMES)
+# the fast tier checks the SVM alone and the calibrated average of both models (the boosted trees
+# included); the other six combinations, about 20 s of CPU each, run in `make test-all`
+_FAST_CASES = {("svm", False), ("svm+hgb", True)}
+_CASES = [pytest.param(n, c, id=f"{n}-{'calibrated' if c else 'raw'}",
+                       marks=() if (n, c) in _FAST_CASES else pytest.mark.acceptance)
+          for c in (False, True) for n in NAMES]
+
+
+@pytest.mark.parametrize("name,calibrated", _CASES)
 def test_serving_gives_the_two_call_probabilities_and_novelty_exactly(fitted, drive, name, calibrated):
     model, scorer = _case(fitted, name, calibrated)
     clf = WindowClassifier(model, ROBOT, None, SPEC, novelty=scorer)

@@ -26,6 +26,8 @@ from terrainml.sim.generate import simulate
 from terrainml.sim.output import write_mcap
 from terrainml.stream.runner import EXIT_IDLE
 
+pytestmark = pytest.mark.acceptance  # real-time DDS with a peer process: `make test-all`
+
 PEER = str(Path(__file__).with_name("ros2_peer.py"))
 PREDICT = [sys.executable, "-m", "terrainml.cli", "predict"]
 LOOPBACK = ('<CycloneDDS><Domain><General><Interfaces><NetworkInterface name="lo"/></Interfaces>'
