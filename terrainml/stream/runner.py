@@ -309,6 +309,7 @@ def replay_summary(model: str | Path, log_path: str | Path, *, console: Console 
                 seg["moving_right"] += int(not msg.fallback and msg.terrain_class == int(lab))
         if segments:
             _close_segment(segments[-1], labels)
+        names = predictor.class_names  # by class id, as the served messages name them
     finally:
         predictor.close()
     table = Table(title=f"served by {Path(model).name} on {Path(log_path).name}")
@@ -318,9 +319,14 @@ def replay_summary(model: str | Path, log_path: str | Path, *, console: Console 
         table.add_row(f"{seg['t_start_s']:.2f}-{seg['t_end_s']:.2f}", seg["terrain_name"],
                       seg["fallback_reason"] or "-",
                       " ".join(f"{v:+.3f}" for v in seg["mean_slip_desired"]),
-                      "-" if seg["true_class"] is None else str(seg["true_class"]))
+                      "-" if seg["true_class"] is None else _label_name(seg["true_class"], names))
     console.print(table)
     return segments
+
+
+def _label_name(cid: int, names: Sequence[str]) -> str:
+    """A logged class id by name (the model's names by id), the id itself where it has none."""
+    return names[cid] if 0 <= cid < len(names) else str(cid)
 
 
 def _close_segment(seg: dict[str, Any], labels: list[int]) -> None:
