@@ -94,7 +94,7 @@ class RobotSpec:
     imu: ImuSpec = field(default_factory=ImuSpec)
     track_width_range_m: tuple[float, float] | None = None
     description: str = ""
-    # optional (issue 18); None = the documented default (MotorSpec(), ground clearance 0.10 m) and
+    # optional; None = the documented default (MotorSpec(), ground clearance 0.10 m) and
     # left out of to_dict(), so specs without them keep their hash
     ground_clearance_m: float | None = None
     motor: MotorSpec | None = None

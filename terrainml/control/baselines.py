@@ -1,4 +1,4 @@
-"""Traction-control policies for the mission suite, all with one interface (design §12; issue 20).
+"""Traction-control policies for the mission suite, all with one interface (design §12).
 
 Every controller is a callable ``ctrl(sample) -> offsets or None``, like
 :class:`terrainml.control.traction.SlipController`: ``sample`` is one measured sample (canonical
@@ -261,7 +261,7 @@ def _cap_class(ctrl: LimiterController, s_cap: float) -> int | None:
 
 
 def _unknown_ground_targets(ctrl: LimiterController) -> tuple[np.ndarray, np.ndarray, int | None]:
-    """The safe cap on unknown ground (``unknown_terrain``, issue #30), refined online.
+    """The safe cap on unknown ground (``unknown_terrain``), refined online.
 
     No class names the ground, so the cap refiner reads the shift of the measured thrust-slip
     rise against the nominal curve of the class that sets the safe cap (its traction peak is the
@@ -336,7 +336,7 @@ class ServedTargets:
         Tuning seeds, every mission: worst energy change against none +2.5 -> +0.1%
         (greenhouse), +1.4 -> +0.0% (field); worst time +2.8 -> +0.3%, +2.0 -> +0.1%; step-start
         and spinning savings unchanged (28.1%, 68%).
-    refine_unknown : on a message saying ``unknown_terrain`` (issue #30) serve the safe cap
+    refine_unknown : on a message saying ``unknown_terrain`` serve the safe cap
         refined online (the controller's ``refine``; :func:`_unknown_ground_targets`), not while a
         stall escalation holds it (that serves the largest peak unrefined). Other fallbacks serve
         it unrefined (no class, no curve: design §12).
@@ -474,7 +474,7 @@ def terrain_aware(robot: RobotSpec, model: str | Path | None = None, *,
     its keyword arguments).
 
     ``refine``: True refines every served cap online, ``"unknown"`` only the safe cap served on
-    unknown ground (issue #30), False none. ``open_set``: :class:`ServingConfig` ``open_set``
+    unknown ground, False none. ``open_set``: :class:`ServingConfig` ``open_set``
     (False: the model's novelty score is not used, never ``unknown_terrain``).
     """
     if refine not in (True, False, "unknown"):

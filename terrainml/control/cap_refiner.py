@@ -1,4 +1,4 @@
-"""Online refinement of the slip cap from the robot's own thrust-slip data (design §12; issue 20).
+"""Online refinement of the slip cap from the robot's own thrust-slip data (design §12).
 
 The class target s_T is the traction peak of the class's *nominal* soil; a terrain draw shifts
 the true peak (sand: a draw at 0.392 against 0.421 nominal). The robot measures both axes of the
@@ -97,7 +97,7 @@ class CapRefinerConfig:
 
     Parameters
     ----------
-    band : largest departure of the served cap from the class target (*issue 20*: 0.1).
+    band : largest departure of the served cap from the class target (0.1).
     probe : cap above the class target served until a crossing is confirmed (default 0.0: the
         crossing lies on the rise, below any cap near the peak).
     bin_width : slip bin width (0.02).

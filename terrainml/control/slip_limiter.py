@@ -1,4 +1,4 @@
-"""Per-wheel slip limiter that works from rest to cruise (design §12; issue 20).
+"""Per-wheel slip limiter that works from rest to cruise (design §12).
 
 The thesis PID (:mod:`terrainml.control.pid`) is enabled only when the body and the wheel move
 (>= 0.05 m/s) and resets when disabled, so it lets go exactly at a stall, and its feed-forward

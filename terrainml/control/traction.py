@@ -9,7 +9,7 @@ per-wheel correction (rad/s, shape (N,)) to be added to the low-level wheel-spee
 
 Control law (``law``)
 ---------------------
-``"limiter"`` (default; issue 20)  the per-wheel slip limiter
+``"limiter"`` (default)  the per-wheel slip limiter
                    (:class:`terrainml.control.slip_limiter.SlipLimiter`): caps each wheel's
                    shear-displacement slip at the class's traction target s_T and floors it at the
                    braking target s_B; it keeps acting at a stall and from rest, releases smoothly

@@ -9,7 +9,7 @@ NIS as a diagnostic, not a tuning target.
 
 A mean NIS/dof outside :data:`NIS_SANE_BAND` (0.1-10, a decade either side of 1: far wider than
 the thesis's saturation, so only a filter that is badly mis-tuned for the robot leaves it) is
-reported as ``warning`` in :func:`consistency_report` with what to check (issue #17: real logs
+reported as ``warning`` in :func:`consistency_report` with what to check (real logs
 gave 0.011 and 17 with no word said), and logged.
 """
 

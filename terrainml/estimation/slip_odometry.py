@@ -1,4 +1,4 @@
-"""Slip-aware wheel odometry: body velocity from the wheels, corrected for estimated slip (issue 29).
+"""Slip-aware wheel odometry: body velocity from the wheels, corrected for estimated slip.
 
 What ``/terrainml/odometry`` publishes for robot_localization. Per wheel ``i`` (design §7.1 slip,
 SAE sign, ``s = (v_ang - v_long) / max(|v_ang|, |v_long|)``):

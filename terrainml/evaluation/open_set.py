@@ -1,4 +1,4 @@
-"""Leave-one-class-out (open-set) evaluation of the novelty score (issue #30).
+"""Leave-one-class-out (open-set) evaluation of the novelty score.
 
 Each class in turn plays the unknown: for every outer grouped fold (the same folds as the
 closed-set cross-validation), an :class:`~terrainml.models.novelty.OpenSetModel` is fitted on
@@ -45,7 +45,7 @@ from terrainml.models.novelty import (
 __all__ = ["leave_one_class_out", "OpenSetResult", "open_set_markdown", "flagged_at_false_alarm",
            "REACH_FALSE_ALARM"]
 
-#: the false-alarm line of issue #30 at which the score's reach is read (share of known windows)
+#: the false-alarm line at which the score's reach is read (share of known windows)
 REACH_FALSE_ALARM = 0.05
 
 

@@ -1,7 +1,7 @@
 """Traction-control policies of the mission suite: a name -> controller factory registry (design §12).
 
 A policy is a function ``factory(ctx) -> controller or None`` registered in :data:`POLICIES` under
-its CLI name (:func:`register_policy`; issue 20 adds ``accel-limit``, ``current-limit`` and others
+its CLI name (:func:`register_policy`; the slip limiter's variants add ``accel-limit``, ``current-limit`` and others
 the same way). The :class:`PolicyContext` gives the factory the robot, the running simulator
 (for the truth-based baselines), the mission and the ``--model`` folder. The controller is called
 every control tick with the *measured* sample plus the tick's low-level set-points
@@ -14,7 +14,7 @@ Registered here:
 ``fixed``         slip limiter at 0.1 (the "0.1 everywhere" baseline).
 ``terrain-aware`` the robot-side controller served by the online predictor from ``--model``.
 ``terrain-aware-closed`` the same, served closed-set (the model's novelty score unused: never
-                  ``unknown_terrain``; issue #30's comparison).
+                  ``unknown_terrain``; the open-set comparison).
 ``terrain-aware-refine-unknown`` the same, with the safe cap served on ``unknown_terrain``
                   refined online (:mod:`terrainml.control.cap_refiner`).
 ``oracle``        the same controller with the *true class* under the robot's origin and the
@@ -153,9 +153,9 @@ def _oracle_cap(ctx: PolicyContext):
     return OracleCapController(ctx.robot, ctx.sim)
 
 
-# ------------------------------------------------------------------ issue 20: the slip limiter
+# ------------------------------------------------------------------ the slip limiter
 # (terrainml.control.slip_limiter; acts at a stall and from rest). The SlipController versions
-# above stay reachable as ``*-pid``. The online cap refinement stays off: it meets issue 20's
+# above stay reachable as ``*-pid``. The online cap refinement stays off: it meets the mission suite's
 # dry-sand acceptance (tests/control/test_cap_refiner.py), but switched on for ``oracle`` on the
 # greenhouse tuning seeds it lost 8 missions that none completes (6 on wet mud, 12-22 s stalls).
 def _true_peak_per_wheel(sim: Simulator, robot: RobotSpec) -> Callable[[], np.ndarray]:
@@ -194,7 +194,7 @@ def _terrain_aware_limiter(ctx: PolicyContext):
 @register_policy("terrain-aware-closed")
 def _terrain_aware_closed(ctx: PolicyContext):
     """``terrain-aware`` served closed-set: the model's novelty score unused, every window one of
-    its classes (serving before issue #30; the open-set mission suite's comparison)."""
+    its classes (closed-set serving; the open-set mission suite's comparison)."""
     return bl.terrain_aware(ctx.robot, _needs_model(ctx, "terrain-aware-closed"), refine=False,
                             open_set=False)
 
@@ -203,7 +203,7 @@ def _terrain_aware_closed(ctx: PolicyContext):
 def _terrain_aware_refine_unknown(ctx: PolicyContext):
     """``terrain-aware`` with the safe cap served on ``unknown_terrain`` refined online from the
     robot's thrust-slip data (:func:`terrainml.control.baselines.terrain_aware` ``refine="unknown"``;
-    issue #30 §3); a served class's cap stays unrefined."""
+    unknown ground); a served class's cap stays unrefined."""
     return bl.terrain_aware(ctx.robot, _needs_model(ctx, "terrain-aware-refine-unknown"), refine="unknown")
 
 

@@ -62,7 +62,7 @@ __all__ = ["EVAL_SEEDS", "FAMILIES", "SEED_SETS", "TUNING_SEEDS", "Mission", "Mi
            "route_peaks", "run_mission", "run_suite", "suite", "suite_counts"]
 
 # ------------------------------------------------------------------ the suite (pre-registered)
-#: Evaluation seeds, fixed before any controller is tuned (issue 18); never used for tuning.
+#: Evaluation seeds, fixed before any controller is tuned; never used for tuning.
 EVAL_SEEDS: tuple[int, ...] = tuple(range(1000, 1012))
 #: Tuning seeds, disjoint from the evaluation seeds.
 TUNING_SEEDS: tuple[int, ...] = tuple(range(5000, 5012))
@@ -237,7 +237,7 @@ def suite(name: str, seeds: str = "eval", limit: int | None = None) -> list[Miss
     return specs if limit is None else specs[:max(int(limit), 0)]
 
 
-#: classes the open-set suite holds out of the served model's training, one at a time (issue #30 §5)
+#: classes the open-set suite holds out of the served model's training, one at a time
 OPEN_SET_CLASSES: tuple[str, ...] = ("dry_sand", "wet_mud", "tilled_loam")
 
 

@@ -265,7 +265,7 @@ class WindowSpec:
 
 # ------------------------------------------------------------------------------ named specs
 #: Named window specs (design §8): field overrides of :class:`WindowSpec`'s defaults.
-#: ``steady`` is today's rules (2 s steady windows, thesis §8.1). ``short`` (issue #19) is
+#: ``steady`` is today's rules (2 s steady windows, thesis §8.1). ``short`` is
 #: made for stop-and-go: 1 s windows in any wheel state (traction phases included, so the
 #: features see the soil while the robot accelerates), kept when the robot moves (mean body
 #: speed >= 0.3 m/s, i.e. >= 0.3 m travelled) and its net acceleration is moderate; online a
@@ -277,7 +277,7 @@ WINDOW_SPECS: dict[str, dict[str, Any]] = {
     "steady": {},
     "short": {"window_s": 1.0, "hop_s": 0.5, "online_hop_s": 0.1, "min_steady_fraction": 0.0,
               "min_speed_mps": 0.3, "max_mean_abs_accel_mps2": 0.5, "label_at": "end"},
-    # issue #17: the BorealTC authors' fixed windows, and windows conditioned on the dynamic state
+    # the BorealTC authors' fixed windows, and windows conditioned on the dynamic state
     "chunks": {"window_s": 1.7, "hop_s": 1.7, "online_hop_s": 0.5, "chunk_s": 5.0,
                "windows_per_chunk": 11, "homogeneous": True, "min_valid_fraction": 1.0,
                "rules": ("time_gap", "terrain_label", "channel_valid")},

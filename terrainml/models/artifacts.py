@@ -25,7 +25,7 @@ sha256. Then the SVM is loaded with ``skops.io.load`` after checking
 unknown type refuses), the CNN through safetensors + JSON. Nothing is unpickled. Every refusal
 raises :class:`ArtifactError` with a message naming the file.
 
-Sensor members (issue #28): a folder may hold, under ``members/NAME/``, complete model folders
+Sensor members: a folder may hold, under ``members/NAME/``, complete model folders
 of its own trained on subsets of its sensor groups (without IMU, without currents); the
 manifest lists them under ``sensor_members`` (:func:`attach_members`) with their sensors, window
 spec and manifest hash, and hashes their files like any other. Serving switches to the best
@@ -77,7 +77,7 @@ SKOPS_NAME = "model.skops"
 ALLOWED_SKOPS_TYPES: frozenset[str] = frozenset({
     "terrainml.models.svm.SVMClassifier",
     "terrainml.features.sets.FeatureSet",
-    # boosted trees and the side-channel feature family (design §9, issue #17)
+    # boosted trees and the side-channel feature family (design §9)
     "terrainml.models.trees.BoostedTrees",
     "terrainml.features.side_channel.SideChannelFeatures",
     "sklearn.ensemble._hist_gradient_boosting.gradient_boosting.HistGradientBoostingClassifier",
@@ -402,7 +402,7 @@ MEMBERS_DIR = "members"
 def attach_members(directory: str | Path, names: Sequence[str]) -> dict:
     """List the sensor members ``directory/members/NAME`` in the folder's manifest; rewrite it.
 
-    A sensor member (design §9, issue #28) is a complete model folder of its own (written by
+    A sensor member (design §9) is a complete model folder of its own (written by
     the same training as the folder's model, on a subset of its sensor groups) inside
     ``members/``. The manifest's ``sensor_members`` gets one entry per member, in the order
     given: ``name``, ``path``, ``sensors``, ``window_spec``, ``channels``, ``feature_family``,

@@ -1,4 +1,4 @@
-"""Calibrated class probabilities: temperature scaling fitted on out-of-fold probabilities (issue #28).
+"""Calibrated class probabilities: temperature scaling fitted on out-of-fold probabilities.
 
 Under run-grouped cross-validation the probabilities of the window classifiers are
 over-confident on a new run (expected calibration error 0.16-0.24 on real robots), and the

@@ -1,4 +1,4 @@
-"""Novelty score of a window: how unlike the model's training windows it is (issue #30).
+"""Novelty score of a window: how unlike the model's training windows it is.
 
 A closed-set classifier names every window one of its classes, also on ground it never saw
 (a model trained without SNOW serves SNOW as ASPHALT at confidence 0.73). :class:`NoveltyScorer`

@@ -1,4 +1,4 @@
-"""``terrainml train`` with ``--windows auto`` / ``--model auto``: select, prove, calibrate, save (issue #28).
+"""``terrainml train`` with ``--windows auto`` / ``--model auto``: select, prove, calibrate, save.
 
 :func:`train_auto` takes the user's ingested runs and
 

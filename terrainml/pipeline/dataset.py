@@ -46,7 +46,7 @@ __all__ = ["find_logs", "process_log", "build_dataset", "build_from_tables", "Da
            "sensors_of", "class_report", "LOSS_HINT_FRACTION", "DEFAULT_WINDOWS", "FORMAT_ROBOTS",
            "dataset_robot", "resolve_spec", "run_class"]
 
-#: window spec of a dataset built without one (design §8, issue #19): ``short`` windows exist in
+#: window spec of a dataset built without one (design §8): ``short`` windows exist in
 #: stop-and-go and after every transition, so a model trained by default serves through them
 #: (``steady`` 2 s windows rarely exist there); grouped CV on ``sim_default``: SVM 0.997 against
 #: 0.990 with ``steady``

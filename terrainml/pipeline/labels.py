@@ -1,4 +1,4 @@
-"""Label a run that was recorded unlabelled (issue #30 §4): ``terrainml dataset label``.
+"""Label a run that was recorded unlabelled: ``terrainml dataset label``.
 
 ``terrainml predict --record-unknown DIR`` writes every stretch of unknown ground as a run table
 (Parquet, ``terrain`` = -1) with the model's class names in its metadata (``classes``: the class

@@ -2,7 +2,7 @@
 
 A model trained on every sensor group a robot has serves nothing when one group is missing at
 serving (a robot without its IMU, a log without the currents): its windows need that group's
-channels. So ``terrainml train`` (design §9, issue #28) also trains, for each useful subset of
+channels. So ``terrainml train`` (design §9) also trains, for each useful subset of
 the model's groups (:func:`member_subsets`: without the IMU, without the currents), a member:
 a complete model folder of its own in ``members/NAME/``, made by the very training function
 that made the folder's model (the caller's ``fit``, on data built for that subset), and listed in

@@ -1,4 +1,4 @@
-"""Served-path validation: held-out runs replayed through the online predictor (issue #28).
+"""Served-path validation: held-out runs replayed through the online predictor.
 
 Window scores say how often a window is named right; a robot is served by
 :class:`~terrainml.stream.predictor.Predictor`, which cuts its own windows online, fuses them,

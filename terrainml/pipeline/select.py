@@ -1,4 +1,4 @@
-"""Nested run-grouped selection of the window spec and the model on the user's own data (issue #28).
+"""Nested run-grouped selection of the window spec and the model on the user's own data.
 
 ``terrainml train`` with ``--windows auto`` and ``--model auto`` (the defaults) does not trust
 settings chosen on the simulator: it scores every *candidate* (a window spec that the data can

@@ -1,4 +1,4 @@
-"""Mission physics of the simulator (design §6, §6.2; issue 18): grade, towed load and tool draft,
+"""Mission physics of the simulator (design §6, §6.2): grade, towed load and tool draft,
 sinkage as a per-wheel state, thrust from accumulated shear displacement, battery energy.
 
 This module holds the new laws' parameters and their steady-state ("truth") curves; the compiled

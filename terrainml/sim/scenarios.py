@@ -182,7 +182,7 @@ def patch_map(speed_mps: float, duration_s: float, rng: np.random.Generator, gri
 
 
 # --------------------------------------------------------------------------- course, stop-and-go
-# Mixed-terrain courses driven stop-and-go (design §6, issue #19): today's ``mixed`` course
+# Mixed-terrain courses driven stop-and-go (design §6): today's ``mixed`` course
 # (straight segments of different terrain, TerrainLayout.course) driven the way a field robot
 # works: legs of 1-4 m, stops of 1-3 s, each start either ramped (1 m/s^2, thesis §7.2.3) or a
 # step (5 m/s^2 commanded: the wheels' own limit does the rest). Legs are sized by distance, the

@@ -12,7 +12,7 @@ current *measured* sample (a dict of canonical run-table columns, design §5, pl
 returns per-wheel wheel-speed command offsets (rad/s, shape (N,)) that are added to the inverse
 kinematics' set-points (thesis eq. 8.3) or ``None``.
 
-Missions (issue 18; API in :mod:`terrainml.sim.mission_physics`): ``towed=TowedLoad(...)``,
+Missions (API in :mod:`terrainml.sim.mission_physics`): ``towed=TowedLoad(...)``,
 ``tool_draft_n``, :meth:`Simulator.set_payload_kg`, :meth:`Simulator.set_tool_draft_n`, a graded
 layout (``TerrainLayout.with_grade``), battery energy and the new log columns.
 """

@@ -10,7 +10,7 @@ A :class:`TerrainLayout` is a grid of class ids over the ``world`` plane: one ce
 run, a row of cells along x for a mixed-terrain course, 3 x 3 cells of 3 m for the 9 x 9 m patch map.
 Positions outside the grid take the nearest cell. Each cell may carry a surface slope
 (``slope_x_rad``, ``slope_y_rad``: the angle of the ground along world +x and +y, positive when it
-rises; design §6, issue 18); the physics reads the cell under the body origin.
+rises; design §6); the physics reads the cell under the body origin.
 """
 
 from __future__ import annotations

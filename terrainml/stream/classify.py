@@ -8,7 +8,7 @@ A window the steady rules reject yields ``None`` (the predictor keeps the previo
 classification, which ages towards the stale fallback) and leaves the rules it failed, and the
 channels that were invalid, in ``last_rejection`` (a :class:`Rejection`): serving counts them per
 rule and names them when the robot moves without a classification (:mod:`terrainml.stream.scheduler`).
-With the model's novelty scorer (issue #30, :class:`~terrainml.models.novelty.NoveltyScorer`,
+With the model's novelty scorer (:class:`~terrainml.models.novelty.NoveltyScorer`,
 saved with the model by ``train``), each classified window is also scored in the model's own
 feature space (:func:`~terrainml.models.novelty.model_features`, the features the scorer was
 fitted on; :func:`~terrainml.models.novelty.proba_and_features` computes them once for the
@@ -47,7 +47,7 @@ class ModelLoadError(ValueError):
 
 @dataclass
 class ServingMember:
-    """A sensor member of a model folder (issue #28): its classifier and the groups it needs.
+    """A sensor member of a model folder: its classifier and the groups it needs.
 
     ``window_spec`` is the member's own (its classifier cuts it; the predictor's ring holds the
     longest window of the model and its members).

@@ -49,11 +49,11 @@ class ServingConfig:
     warn_after_m : m (5.0). Once the robot has travelled more than this on healthy ticks with
         no classification while the window rules reject its windows, the ticks fall back with
         ``windows_rejected`` (the message's ``fallback_detail`` names the rule, and for
-        ``channel_valid`` the channels) and a warning on stderr says the same (issue #28).
+        ``channel_valid`` the channels) and a warning on stderr says the same.
     open_set : True (default): the model's novelty score (if it has one) flags windows unlike its
         training windows, and ground that keeps being flagged is served as ``unknown_terrain``
-        (issue #30). False: the score is not used, every window is served as one of the model's
-        classes (closed-set serving, the behaviour before issue #30; ``predict --closed-set``).
+       . False: the score is not used, every window is served as one of the model's
+        classes (closed-set serving; ``predict --closed-set``).
     """
 
     preset: str | None = None

@@ -1,4 +1,4 @@
-"""Temporal fusion of class probabilities over distance travelled (design §11, issue #19).
+"""Temporal fusion of class probabilities over distance travelled (design §11).
 
 The terrain under a robot changes with the ground it covers, not with time: a robot standing
 still stays on the same terrain. :class:`TerrainFilter` is a discrete Bayes filter (an HMM
@@ -25,14 +25,14 @@ forward pass) over the model's K classes whose clock is the odometer:
   takes about 1 m to cross one) often names a third class for a window or two; served at once,
   that is a wrong switch. The predictor confirms over :data:`CONFIRM_S` = 0.2 s of windows
   (:func:`confirm_windows_for`): K = 3 at the ``short`` spec's 0.1 s hop, chosen on the tuning
-  courses of issue #19 (seeds 9201-9202, 9301-9312; docs/stream.md "Transitions"; switches per
+  transition courses (seeds 9201-9202, 9301-9312; docs/stream.md "Transitions"; switches per
   transition 1.25 -> 1.04 on stop-and-go at 94.1 -> 92.6% accuracy), and K = 1 (serve the
   restart at once) at a 0.5 s hop, where each window more delays a real change by 0.5 s
   (measured with K = 3 there: the `steady` mixed course 86% instead of >= 90%, a BorealTC course
   76% instead of >= 80%).
 * **age in metres**: distance since the last classification (``age_m``); beyond ``stale_m``
   (default 3 m) without a fresh one the fused class is stale.
-* **unknown ground** (issue #30): a window may come with its novelty flag (the model's
+* **unknown ground**: a window may come with its novelty flag (the model's
   :class:`~terrainml.models.novelty.NoveltyScorer` over its threshold). ``unknown_windows`` = U
   consecutive flagged windows make the filter :attr:`~TerrainFilter.unknown` (the policy serves
   the safe cap with ``unknown_terrain``); while unknown, the windows' closed-set probabilities
@@ -68,9 +68,9 @@ import numpy as np
 __all__ = ["TerrainFilter", "CONFIRM_S", "SETTLE_M", "UNKNOWN_CONFIRM_S", "confirm_windows_for",
            "fusion_settings", "unknown_windows_for"]
 
-#: seconds of windows over which a change alarm is confirmed (issue #19, tuning courses)
+#: seconds of windows over which a change alarm is confirmed (tuning courses)
 CONFIRM_S = 0.2
-#: seconds of flagged windows, beyond one window length, that make the ground unknown (issue #30).
+#: seconds of flagged windows, beyond one window length, that make the ground unknown.
 #: A terrain change is flagged too: the windows that straddle it (one window length of them) are
 #: unlike either class. Counting one window length more than that straddle keeps a change of known
 #: ground from entering unknown alone (the demo course: 540 unknown ticks, 91% right, with 1.0 s
@@ -78,7 +78,7 @@ CONFIRM_S = 0.2
 #: length + 1 s of its first flagged window (2 s for the 1 s ``short`` windows, 2 m at 1 m/s).
 UNKNOWN_CONFIRM_S = 1.0
 #: m of travel that a flagged stretch must last to make the ground unknown when it begins on known
-#: ground (issue #30): a change between known terrains stays flagged while the robot's wheels
+#: ground: a change between known terrains stays flagged while the robot's wheels
 #: straddle it and its drive settles (mud on a wheel, the speed loop catching up), measured 0.8-3.7
 #: m on the tuning courses (seeds 9301-9304, docs/stream.md "Unknown ground"). Chosen there with
 #: the demo's model: served right 88.6% -> 93.4% of moving ticks (94.2% without novelty) while
@@ -214,7 +214,7 @@ class TerrainFilter:
                novelty: float = -1.0) -> bool:
         """Fuse one classification (K probabilities); return True when a change was detected.
 
-        ``unknown``: the window's novelty flag (None: no novelty score, as before issue #30; on
+        ``unknown``: the window's novelty flag (None: no novelty score; on
         unknown ground, e.g. a sensor member without a scorer serving, it counts as not flagged);
         ``novelty``: its score over the threshold (the message's ``novelty``).
         """

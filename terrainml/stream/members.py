@@ -1,4 +1,4 @@
-"""Serving on the sensors that are there: which of a model's sensor members classifies (issue #28).
+"""Serving on the sensors that are there: which of a model's sensor members classifies.
 
 A model folder may carry sensor members (:func:`terrainml.models.artifacts.attach_members`):
 the same training on a subset of the model's sensor groups (without IMU, without currents).

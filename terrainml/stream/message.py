@@ -26,9 +26,9 @@ fallback_detail      str             for ``windows_rejected``: the window rule t
                                      ``"class_free_targets: ..."``; else ""
 sensors              str[]           sensor groups (``wheels``, ``currents``, ``imu``, ``cam``) of the
                                      model member serving the tick: the artifact's model, or the
-                                     best member whose groups are healthy (design §11, issue #28)
+                                     best member whose groups are healthy (design §11)
 novelty              float           the latest classified window's novelty score over the model's
-                                     threshold (issue #30; > 1: unlike the training windows, the
+                                     threshold (> 1: unlike the training windows, the
                                      ground turns ``unknown_terrain`` after a few such windows);
                                      -1 when the model has no novelty scorer or no window is scored
 
@@ -36,8 +36,8 @@ slip_measured_note   str             only when slip is not observable (a live so
                                      feeds no body-velocity reference): why; ``slip_measured`` is then
                                      null (absent) in JSON, "n/a" (-32768) on CAN, never 0.0
 
-The last three are additions to design §11's field list (issue #28: say which sensors served and
-why the windows are rejected; issue #30: how unlike the training windows the ground is); a
+The last three are additions to design §11's field list (say which sensors served and
+why the windows are rejected: how unlike the training windows the ground is); a
 message without them (an older log) still reads. CAN carries ``unknown_terrain`` as reason code
 8 but not ``novelty`` (its frames have no byte free; :mod:`terrainml.stream.sinks`).
 
@@ -66,7 +66,7 @@ FALLBACK_REASONS: tuple[str, ...] = (
     "clock_jump",            # t_s off the stream's timeline, re-anchoring (stream/clock.py)
     "uncertain_classification",  # the fused posterior's maximum is below serve_p (default 0.6)
     "windows_rejected",      # moved > warn_after_m (default 5 m) healthy, every window rejected
-    "unknown_terrain",       # the latest windows are unlike the model's training windows (issue #30)
+    "unknown_terrain",       # the latest windows are unlike the model's training windows
 )
 
 #: value substituted for a non-finite number, per field

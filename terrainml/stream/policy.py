@@ -19,7 +19,7 @@ Reasons, by priority (:data:`FALLBACK_REASONS`): ``clock_jump`` (the tick's stam
 timeline, the chain did not run) > ``estimator_unhealthy`` > ``classifier_error`` (the last
 attempt raised, no fused class) > ``unknown_terrain`` (the latest classified windows are unlike
 the model's training windows: the fusion filter's ``unknown``, :mod:`terrainml.stream.fusion`;
-issue #30) > ``windows_rejected`` (no class, or a stale one, and every
+unknown ground) > ``windows_rejected`` (no class, or a stale one, and every
 window rejected while the robot moved more than ``warn_after_m`` healthy: the message's
 ``fallback_detail`` names the rule and channels) > ``no_classification`` (none yet) > ``stale_classification``
 (more than ``stale_m`` travelled since the last classification, or, when ``max_age_s`` is set,

@@ -1,4 +1,4 @@
-"""Unknown ground handed back for labelling (issue #30 §4): ``terrainml predict --record-unknown DIR``.
+"""Unknown ground handed back for labelling: ``terrainml predict --record-unknown DIR``.
 
 :class:`UnknownGroundRecorder` takes every served message (with its sample, ``msg.extra["sample"]``,
 as :func:`terrainml.stream.runner.serve` attaches it) and writes each *stretch* of consecutive

@@ -240,7 +240,7 @@ def _print_summary(console: Console, predictor: Predictor, opened: list[GuardedS
         highlight=False)
     if st["unsteady_windows"]:
         console.print(f"terrainml predict: {rejection_text(st)}", highlight=False)
-    if st.get("unknown_stretches"):  # issue #30: ground unlike the model's training windows
+    if st.get("unknown_stretches"):  # ground unlike the model's training windows
         console.print(f"terrainml predict: unknown ground: {st['unknown_stretches']} stretch(es) of windows "
                       "unlike the model's training windows, served the safe cap (unknown_terrain)",
                       highlight=False)

@@ -12,7 +12,7 @@ keeps the previous classification and counts the rules it failed (:attr:`Classif
 without a classification); any exception is caught, counted and served as
 ``classifier_error`` (:mod:`terrainml.stream.policy`) until a later classification succeeds.
 A classifier with a novelty scorer leaves the window's ``last_novelty`` (score over threshold,
-flagged), which goes to the filter with the probabilities (unknown ground, issue #30).
+flagged), which goes to the filter with the probabilities (unknown ground).
 
 The classification thread runs under the interpreter's own GIL switch interval: nothing
 process-wide is changed (lowering it measured no better, often worse, for the paced per-tick
@@ -239,7 +239,7 @@ class ClassificationScheduler:
 
 
 class SilenceWatch:
-    """The live warning of ``predict`` that no window is classified (issue #28 §4).
+    """The live warning of ``predict`` that no window is classified.
 
     :meth:`check` returns the rule rejecting every window once the robot has moved more than
     ``warn_after_m`` (m, healthy ticks) without a classification

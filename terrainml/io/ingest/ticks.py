@@ -1,4 +1,4 @@
-"""The ingest engine's produce step one tick at a time, for live streams (issue 29, design §5).
+"""The ingest engine's produce step one tick at a time, for live streams (design §5).
 
 :class:`~terrainml.io.ingest.logs.Producer` resamples chunks of ticks with numpy and builds a
 DataFrame per chunk: right for a log (thousands of ticks a chunk), some 10 ms of CPU for a chunk of

@@ -1,4 +1,4 @@
-"""``terrainml predict`` as a ROS 2 participant over DDS (issue 29; docs/ros2.md).
+"""``terrainml predict`` as a ROS 2 participant over DDS (docs/ros2.md).
 
 * :mod:`.names` -- ROS 2 names on DDS (``/foo`` -> ``rt/foo``, ``pkg/msg/T`` -> ``pkg::msg::dds_::T_``),
   the ``ros2://DOMAIN`` URL, QoS profiles;

@@ -1,4 +1,4 @@
-"""Live messages -> base-rate samples, by the ingest engine's own rules (issue 29, design §5).
+"""Live messages -> base-rate samples, by the ingest engine's own rules (design §5).
 
 A live transport (the ROS 2 source) hands decoded messages -- the parts of :mod:`terrainml.io.cdr`,
 made by :func:`terrainml.io.cdr.from_object`, the decoder ingest uses for deserialised messages --

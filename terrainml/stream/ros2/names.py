@@ -1,4 +1,4 @@
-"""ROS 2 names on DDS, the ``ros2://`` URL and the QoS profiles (issue 29; docs/ros2.md).
+"""ROS 2 names on DDS, the ``ros2://`` URL and the QoS profiles (docs/ros2.md).
 
 The mapping is the one of the ROS 2 design article "Topic and Service name mapping to DDS" as
 ``rmw_cyclonedds_cpp`` applies it:

@@ -1,4 +1,4 @@
-"""Sink ``ros2://[DOMAIN]``: what terrainml serves, as ROS 2 topics over DDS (issue 29; docs/ros2.md).
+"""Sink ``ros2://[DOMAIN]``: what terrainml serves, as ROS 2 topics over DDS (docs/ros2.md).
 
 Per served tick (``terrainml predict --sink ros2://0``), stamped with the *sample's* ROS time
 (``stamp_origin_ns + t_s`` of a ROS 2 source, else ``t_s`` itself), never wall time:

@@ -1,4 +1,4 @@
-"""Source ``ros2://[DOMAIN]``: samples from a ROS 2 robot's own topics over DDS (issue 29).
+"""Source ``ros2://[DOMAIN]``: samples from a ROS 2 robot's own topics over DDS.
 
 ``terrainml predict --source ros2://0 [--topics MAP.yaml]`` joins DDS domain ``DOMAIN`` as a ROS 2
 participant (Cyclone DDS, the ``rmw_cyclonedds_cpp`` wire format; no ROS installation needed) and

@@ -1,4 +1,4 @@
-"""The ROS 2 messages terrainml reads and publishes, as Cyclone DDS IDL structs (issue 29).
+"""The ROS 2 messages terrainml reads and publishes, as Cyclone DDS IDL structs.
 
 Each class is the DDS form of a ROS 2 message as ``rmw_cyclonedds_cpp`` puts it on the wire: the
 DDS type name is ``pkg::msg::dds_::Type_`` (:func:`terrainml.stream.ros2.names.dds_type_name`),
