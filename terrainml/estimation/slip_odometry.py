@@ -142,9 +142,16 @@ class SlipAwareOdometry:
              yaw_rate_radps: float | None = None) -> OdometryEstimate:
         """Twist and integrated pose at ``t_s`` (s); see :meth:`twist`."""
         dt = 0.0 if self._t is None else t_s - self._t
-        self._t = t_s
         var = None if slip is None else self._slip_var(np.asarray(slip, float), dt)
         x, cov = self.twist(omega_radps, steer_rad, slip, yaw_rate_radps, var)
+        return self.integrate(t_s, x, cov)
+
+    def integrate(self, t_s: float, x: np.ndarray, cov: np.ndarray) -> OdometryEstimate:
+        """Dead-reckon the pose to ``t_s`` (s) with body twist ``x`` (vx_mps, vy_mps, yaw_rate_radps)
+        and its covariance ``cov`` (3 x 3): midpoint yaw, the twist covariance rotated into the
+        world frame and grown with dt^2; a step over 1 s (or the first) moves nothing."""
+        dt = 0.0 if self._t is None else t_s - self._t
+        self._t = t_s
         if 0 < dt <= 1.0:
             yaw_mid = self.yaw_rad + 0.5 * x[2] * dt
             cy, sy = math.cos(yaw_mid), math.sin(yaw_mid)

@@ -47,7 +47,7 @@ from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.topic import Topic
 
-from terrainml.estimation.slip_odometry import OdometryEstimate, SlipAwareOdometry
+from terrainml.estimation.slip_odometry import SlipAwareOdometry
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import VALID_GROUPS, valid_column, wheel_col
 from terrainml.stream.inputs import NO_INPUT_S, InputWatch
@@ -225,11 +225,11 @@ class Ros2Sink:
             sub = self.odometry if not bad else self._sub(ok)
             x, twist_cov = sub.twist([omega[i] for i in keep], [steer[i] for i in keep],
                                      None if slip is None else [slip[i] for i in keep], r, var)
-            est = _integrate(self.odometry, msg.t_s, x, twist_cov)
+            est = self.odometry.integrate(msg.t_s, x, twist_cov)
         elif r is not None:
             self.odometry_note = "no valid wheel: yaw rate from the IMU, speed unknown"
             cov = np.diag([UNKNOWN_VAR, UNKNOWN_VAR, SIGMA_IMU_YAW_RATE ** 2])
-            est = _integrate(self.odometry, msg.t_s, np.array([0.0, 0.0, r]), cov)
+            est = self.odometry.integrate(msg.t_s, np.array([0.0, 0.0, r]), cov)
             twist_cov = cov
         else:
             self.odometry_note = "no valid wheel or IMU: not published"
@@ -276,22 +276,6 @@ def _num(v: Any, default: float = math.nan) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         return default
     return float(v)
-
-
-def _integrate(odo: SlipAwareOdometry, t_s: float, x: np.ndarray, cov: np.ndarray) -> OdometryEstimate:
-    """Dead-reckon ``odo``'s pose with twist ``x`` (vx, vy, r) as its own ``step`` does."""
-    dt = 0.0 if odo._t is None else t_s - odo._t
-    odo._t = t_s
-    if 0 < dt <= 1.0:
-        yaw_mid = odo.yaw_rad + 0.5 * x[2] * dt
-        cy, sy = math.cos(yaw_mid), math.sin(yaw_mid)
-        odo.x_m += (cy * x[0] - sy * x[1]) * dt
-        odo.y_m += (sy * x[0] + cy * x[1]) * dt
-        odo.yaw_rad = math.atan2(math.sin(odo.yaw_rad + x[2] * dt), math.cos(odo.yaw_rad + x[2] * dt))
-        rot = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
-        odo.pose_cov = odo.pose_cov + rot @ cov @ rot.T * dt * dt
-    return OdometryEstimate(float(x[0]), float(x[1]), float(x[2]), cov, odo.x_m, odo.y_m, odo.yaw_rad,
-                            odo.pose_cov.copy())
 
 
 def _status_msg(st: dict, hardware_id: str) -> DiagnosticStatus:
