@@ -28,7 +28,7 @@ test: $(STAMP)
 # the acceptance tier, everything `make test` leaves out: real-data builds and replays, long
 # simulations, real-time DDS (CI runs it after `make test`)
 test-all: $(STAMP)
-	$(BIN)/python -m pytest -n 2 --timeout 1800 -m acceptance tests
+	$(BIN)/python -m pytest -n 2 --timeout 3600 -m acceptance tests
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks.run_all --out BENCHMARKS.md
