@@ -188,11 +188,12 @@ def show(path: Path = typer.Argument(..., help="Windows file written by `dataset
     w = ds.windows
     t = Table(title=f"{path}: {len(w)} windows, {len(set(w.groups))} runs", title_justify="left")
     t.add_column("class")
+    t.add_column("id", justify="right")
     t.add_column("windows", justify="right")
     t.add_column("runs", justify="right")
     for cid, name in zip(ds.class_ids, ds.class_names):
         m = w.y == cid
-        t.add_row(f"{cid} {name}", str(int(m.sum())), str(len(set(w.groups[m]))))
+        t.add_row(name, str(cid), str(int(m.sum())), str(len(set(w.groups[m]))))
     console.print(t)
     console.print(rejection_table(ds))
     console.print(f"channels {list(w.channels)}; robot {ds.robot.name}; preset {ds.preset}; "
@@ -224,7 +225,7 @@ def label(
     except Exception as exc:  # noqa: BLE001 - a message naming the file, never a traceback
         fail(failure_message(run, exc, out))
     new = " (a new class)" if res.added else ""
-    console.print(f"[green]wrote[/] {res.path}: every row terrain {res.class_id} = {res.name}{new}; "
+    console.print(f"[green]wrote[/] {res.path}: every row terrain {res.name} (class id {res.class_id}){new}; "
                   f"classes {res.classes}" + (f"; sidecar {res.sidecar}" if res.sidecar else ""), highlight=False)
 
 

@@ -16,7 +16,8 @@ from rich.table import Table
 
 from terrainml.commands._common import (ALLOW_OUTSIDE_HELP, check_output_writable, console, fail, failure_message,
                                         open_dataset_spec, open_robot)
-from terrainml.commands._help import robot_help, topics_help
+from terrainml.commands._help import listed, robot_help, topics_help
+from terrainml.io.dataset_spec_names import BUILTIN_SPECS
 from terrainml.robots import REFERENCE_ROBOT
 
 
@@ -36,9 +37,9 @@ def ingest(
                                         f"the dataset spec's robot with --format, else {REFERENCE_ROBOT}")),
     chunk_s: float = typer.Option(30.0, "--chunk-s", help="Seconds of log resampled and written at a time "
                                   "(one Parquet row group each); bounds memory for long MCAP/bag logs."),
-    fmt: Optional[str] = typer.Option(None, "--format", help="Dataset spec: a built-in name (borealtc) or "
-                                      "SPEC.yaml; LOG is then one file of a run (e.g. pro_00.csv) and the "
-                                      "run's other files are paired by the spec. Default: LOG is the whole log."),
+    fmt: Optional[str] = typer.Option(None, "--format", help=f"Dataset spec: a built-in name ({listed(BUILTIN_SPECS)}) "
+                                      "or SPEC.yaml; LOG is then one file of a run (e.g. pro_00.csv) and the run's "
+                                      "other files are paired by the spec. Default: LOG is the whole log."),
     allow_outside: bool = typer.Option(False, "--allow-outside-spec-dir", help=ALLOW_OUTSIDE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:

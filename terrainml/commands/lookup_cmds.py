@@ -12,7 +12,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from terrainml.commands._common import check_output_writable, console, fail, open_robot
-from terrainml.commands._help import robot_help
+from terrainml.commands._help import listed, robot_help
+from terrainml.lookup.catalogue_names import BUILTIN_CATALOGUES
 
 if TYPE_CHECKING:
     from terrainml.robot import RobotSpec
@@ -26,7 +27,7 @@ lookup_app = typer.Typer(
     add_completion=False,
 )
 
-_CATALOGUE_HELP = ("Terrain catalogue: a YAML path or a built-in name (reference, borealtc); "
+_CATALOGUE_HELP = (f"Terrain catalogue: a YAML path or a built-in name ({listed(BUILTIN_CATALOGUES)}); "
                    "default the eight simulated classes.")
 _CLASSES_HELP = ("Comma-separated class names, in the model's order (default every class of "
                  "the catalogue).")
