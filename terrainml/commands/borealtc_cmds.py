@@ -94,8 +94,10 @@ def evaluate_protocol_cmd(
             except ValueError as exc:
                 fail(f"{source}: protocol ({p}): {exc}")
             results.update({(p, m): r for m, r in res.items()})
+    # stdout, at the tables' natural width: a narrow terminal or a pipe would cut the class names
+    out = Console(width=max(Console().width, 200))
     for (p, m), res in results.items():
-        Console().print(_confusion_table(p, m, res))
+        out.print(_confusion_table(p, m, res))
     if out_json is not None:
         setup = {"source": str(source), "window_s": window_s, "chunk_s": chunk_s,
                  "windows_per_chunk": per_chunk, "n_windows": len(W), "n_chunks": len(chunks),

@@ -42,8 +42,10 @@ def class_table(ds) -> Table:
         return t
     rules = [c for c in rep.columns if c not in ("class_id", "class", "runs", "candidates", "kept",
                                                  "kept_share", "hint") and rep[c].sum() > 0]
-    for c in ["class", "runs", "candidates", "kept", "passed", *rules]:
-        t.add_column(c, justify="left" if c == "class" else "right")
+    # the class names are shown whole (a narrow terminal squeezes the count columns instead)
+    t.add_column("class", min_width=max(len(str(n)) for n in rep["class"]), no_wrap=True)
+    for c in ["runs", "candidates", "kept", "passed", *rules]:
+        t.add_column(c, justify="right")
     for r in rep.to_dict(orient="records"):
         t.add_row(str(r["class"]), str(r["runs"]), str(r["candidates"]), str(r["kept"]),
                   f"{r['kept_share']:.0%}", *[str(r[c]) for c in rules])
