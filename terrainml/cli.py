@@ -1,6 +1,6 @@
-"""terrainml command line (typer + rich). Every command has ``--help`` with an example, a paragraph
-of its own reading ``Example: terrainml ...`` (or ``Example (what it shows): terrainml ...``) that
-runs as written (``tests/cli``).
+"""terrainml command line (typer + rich). Every command but ``version`` shows an example in its
+``--help``: a paragraph of its own, ``Example: terrainml ...`` (or ``Example (what it shows):
+terrainml ...``), naming only commands and options the app has (``tests/cli``).
 
 Sub-apps are registered from :data:`terrainml.commands.AREAS`, one module per area. The command
 modules and ``demo`` import the heavy parts of the package (simulator, slip maps, models: seconds,
