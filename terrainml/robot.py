@@ -21,6 +21,7 @@ import numpy as np
 import yaml
 
 from terrainml._yaml_checks import read_yaml_file
+from terrainml.robots import BUILTIN_ROBOTS, REFERENCE_ROBOT
 
 
 class RobotSpecError(ValueError):
@@ -375,11 +376,6 @@ def check_wheel_count(spec: RobotSpec, n_wheels_in_log: int, source: str | Path)
 
 
 # --------------------------------------------------------------------- loading
-BUILTIN_ROBOTS = ("agrimaro", "husky", "skidsteer_tracked")
-#: the reference robot (design §3): what a command or function given no robot uses
-REFERENCE_ROBOT = "agrimaro"
-
-
 def builtin_robot(name: str) -> RobotSpec:
     """A built-in robot spec by name (:data:`BUILTIN_ROBOTS`); RobotSpecError names the known ones."""
     if name not in BUILTIN_ROBOTS:

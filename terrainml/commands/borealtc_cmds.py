@@ -16,6 +16,7 @@ from rich.table import Table
 
 from terrainml.atomic import write_text
 from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail, open_robot
+from terrainml.commands._help import robot_help
 
 PROTOCOLS = ("a", "b", "both")
 
@@ -33,7 +34,7 @@ def evaluate_protocol_cmd(
     folds: int = typer.Option(5, "--folds", help="Outer folds."),
     seed_a: int = typer.Option(21, "--seed-a", help="Fold seed of protocol (a) (21 = the authors')."),
     seed_b: int = typer.Option(0, "--seed-b", help="Fold seed of protocol (b)."),
-    robot: str = typer.Option("husky", "--robot", help="Robot spec YAML or built-in name."),
+    robot: str = typer.Option("husky", "--robot", help=robot_help(None)),
     quick: bool = typer.Option(False, "--quick", help="Smaller SVM grid and shorter CNN training."),
     n_jobs: int = typer.Option(2, "--n-jobs", "-j", help="joblib jobs of the SVM's inner search."),
     out_json: Optional[Path] = typer.Option(None, "--json", help="Write the metrics (JSON) here."),
@@ -44,7 +45,7 @@ def evaluate_protocol_cmd(
     Prints accuracy, balanced accuracy, per-class recall and the confusion matrix of each
     model and protocol. Hyper-parameters are searched inside each training fold only.
 
-    Example: ``terrainml evaluate-protocol ../shared/datasets/borealtc -p both -m svm,cnn --json r.json``
+    Example: terrainml evaluate-protocol ../shared/datasets/borealtc -p both -m svm,cnn --json r.json
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -93,8 +94,10 @@ def evaluate_protocol_cmd(
             except ValueError as exc:
                 fail(f"{source}: protocol ({p}): {exc}")
             results.update({(p, m): r for m, r in res.items()})
+    # stdout, at the tables' natural width: a narrow terminal or a pipe would cut the class names
+    out = Console(width=max(Console().width, 200))
     for (p, m), res in results.items():
-        Console().print(_confusion_table(p, m, res))
+        out.print(_confusion_table(p, m, res))
     if out_json is not None:
         setup = {"source": str(source), "window_s": window_s, "chunk_s": chunk_s,
                  "windows_per_chunk": per_chunk, "n_windows": len(W), "n_chunks": len(chunks),

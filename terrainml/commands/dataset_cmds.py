@@ -14,8 +14,11 @@ from rich.table import Table
 
 from terrainml.commands._common import (check_n_jobs, check_output_writable, console, fail, failure_message,
                                         open_dataset)
+from terrainml.commands._help import DEFAULT_WINDOWS_PHRASE, WINDOWS_HELP, robot_help
+from terrainml.features.window_presets import DEFAULT_WINDOWS
+from terrainml.robots import REFERENCE_ROBOT
 
-dataset_app = typer.Typer(help="Build window datasets (steady 2 s windows) from logs.", no_args_is_help=True)
+dataset_app = typer.Typer(help=f"Build window datasets from logs ({DEFAULT_WINDOWS_PHRASE}).", no_args_is_help=True)
 
 
 def rejection_table(ds) -> Table:
@@ -39,8 +42,10 @@ def class_table(ds) -> Table:
         return t
     rules = [c for c in rep.columns if c not in ("class_id", "class", "runs", "candidates", "kept",
                                                  "kept_share", "hint") and rep[c].sum() > 0]
-    for c in ["class", "runs", "candidates", "kept", "passed", *rules]:
-        t.add_column(c, justify="left" if c == "class" else "right")
+    # the class names are shown whole (a narrow terminal squeezes the count columns instead)
+    t.add_column("class", min_width=max(len(str(n)) for n in rep["class"]), no_wrap=True)
+    for c in ["runs", "candidates", "kept", "passed", *rules]:
+        t.add_column(c, justify="right")
     for r in rep.to_dict(orient="records"):
         t.add_row(str(r["class"]), str(r["runs"]), str(r["candidates"]), str(r["kept"]),
                   f"{r['kept_share']:.0%}", *[str(r[c]) for c in rules])
@@ -123,13 +128,9 @@ def build(
                                                help="Dask scheduler tcp://HOST:PORT: process the logs on "
                                                     "that cluster (joblib's Dask backend)."),
     preset: str = typer.Option("robust", "--preset", help="Estimation preset: robust or thesis."),
-    robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec YAML or built-in name "
-                                        "(agrimaro, husky). Default: agrimaro (husky for borealtc)."),
+    robot: Optional[str] = typer.Option(None, "--robot", help=robot_help(f"{REFERENCE_ROBOT} (husky for borealtc)")),
     fmt: str = typer.Option("auto", "--format", help="auto (logs) or borealtc (<CLASS>/pro_XX.csv layout)."),
-    windows: str = typer.Option("short", "--windows", help="Window spec: short (default: 1 s windows in any "
-                                "wheel state, which exist in stop-and-go), steady (design §8 rules), chunks "
-                                "(the BorealTC authors' 1.7 s windows in 5 s chunks), state (any moving "
-                                "wheel state), or another name of terrainml.features.windows.WINDOW_SPECS."),
+    windows: str = typer.Option(DEFAULT_WINDOWS, "--windows", help=WINDOWS_HELP),
     sensors: Optional[str] = typer.Option(None, "--sensors", help="Sensor groups to use, e.g. wheels,currents "
                                           "(of wheels, currents, imu, cam; default: all the data has)."),
     window_s: Optional[float] = typer.Option(None, "--window-s", help="Window length (s); default: the spec's."),
@@ -138,11 +139,11 @@ def build(
                                            "current_1,current_2,vx,vy,r (default: all the robot has)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
-    """Ingest, estimate and cut steady windows for every log; write one windows Parquet.
+    """Ingest, estimate and cut windows (--windows) for every log; write one windows Parquet.
 
-    Example: ``terrainml dataset build data/sim --out data/windows.parquet --n-jobs 2``
+    Example: terrainml dataset build data/sim --out data/windows.parquet --n-jobs 2
 
-    Example (cluster): ``terrainml dataset build logs/ --out w.parquet --dask-address tcp://10.0.0.5:8786``
+    Example (cluster): terrainml dataset build logs/ --out w.parquet --dask-address tcp://10.0.0.5:8786
     """
     from terrainml.pipeline.dataset import DatasetError, write_windows
 
@@ -162,7 +163,7 @@ def build(
         if len(ds.windows) == 0:
             if not quiet:
                 console.print(rejection_table(ds))
-            fail(f"{source}: no steady labelled windows; nothing written")
+            fail(f"{source}: no labelled windows of the '{spec.name}' spec; nothing written")
         write_windows(ds, out)
     except typer.Exit:
         raise
@@ -183,17 +184,18 @@ def build(
 def show(path: Path = typer.Argument(..., help="Windows file written by `dataset build`.")) -> None:
     """Summarise a windows file: classes, runs, channels, rejection counts, fingerprint.
 
-    Example: ``terrainml dataset show data/windows.parquet``
+    Example: terrainml dataset show data/windows.parquet
     """
     ds = open_dataset(path)
     w = ds.windows
     t = Table(title=f"{path}: {len(w)} windows, {len(set(w.groups))} runs", title_justify="left")
     t.add_column("class")
+    t.add_column("id", justify="right")
     t.add_column("windows", justify="right")
     t.add_column("runs", justify="right")
     for cid, name in zip(ds.class_ids, ds.class_names):
         m = w.y == cid
-        t.add_row(f"{cid} {name}", str(int(m.sum())), str(len(set(w.groups[m]))))
+        t.add_row(name, str(cid), str(int(m.sum())), str(len(set(w.groups[m]))))
     console.print(t)
     console.print(rejection_table(ds))
     console.print(f"channels {list(w.channels)}; robot {ds.robot.name}; preset {ds.preset}; "
@@ -211,8 +213,10 @@ def label(
 ) -> None:
     """Give every row of a recorded run one terrain class, so `dataset build` takes it.
 
-    Example: ``terrainml dataset label runs/unknown/unknown_20261204T101500Z_001.parquet --terrain SNOW
-    --out logs/parquet/snow_field_01.parquet`` then ``terrainml dataset build logs/parquet --out w.parquet``
+    Example: terrainml dataset label runs/unknown/unknown_20261204T101500Z_001.parquet --terrain SNOW
+    --out logs/parquet/snow_field_01.parquet
+
+    Example (then build on it): terrainml dataset build logs/parquet --out w.parquet
     """
     from terrainml.pipeline.labels import label_run
 
@@ -223,7 +227,7 @@ def label(
     except Exception as exc:  # noqa: BLE001 - a message naming the file, never a traceback
         fail(failure_message(run, exc, out))
     new = " (a new class)" if res.added else ""
-    console.print(f"[green]wrote[/] {res.path}: every row terrain {res.class_id} = {res.name}{new}; "
+    console.print(f"[green]wrote[/] {res.path}: every row terrain {res.name} (class id {res.class_id}){new}; "
                   f"classes {res.classes}" + (f"; sidecar {res.sidecar}" if res.sidecar else ""), highlight=False)
 
 

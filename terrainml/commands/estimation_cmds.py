@@ -12,6 +12,8 @@ from rich.table import Table
 
 from terrainml.atomic import write_text
 from terrainml.commands._common import check_output_writable, console, fail, failure_message, open_robot, open_run
+from terrainml.commands._help import robot_help, topics_help
+from terrainml.robots import REFERENCE_ROBOT
 
 
 def register(app: typer.Typer) -> None:
@@ -22,11 +24,10 @@ def register(app: typer.Typer) -> None:
         run: Path = typer.Argument(..., help="Run log or table: .mcap, .bag, .csv or canonical .parquet."),
         out: Path = typer.Option(..., "--out", "-o", help="Output EST table (.parquet)."),
         preset: str = typer.Option("robust", help="EKF preset: thesis (eq. 6.9-6.14) or robust."),
-        robot: Optional[str] = typer.Option(None, help="Robot spec YAML or built-in name "
-                                            "(default: spec stored in the run, else agrimaro)."),
+        robot: Optional[str] = typer.Option(None, help=robot_help(
+            f"the spec stored in the run, else {REFERENCE_ROBOT}")),
         plot: Optional[Path] = typer.Option(None, help="Folder for figures (like thesis Fig. 6.1-6.6, 7.2-7.4)."),
-        topics: Optional[str] = typer.Option(None, help="Topic map YAML (or built-in name) for .mcap/.bag "
-                                             "logs whose topics differ from the defaults."),
+        topics: Optional[str] = typer.Option(None, help=topics_help() + " For .mcap/.bag logs."),
         reference: bool = typer.Option(False, "--reference", help="Run the readable numpy reference "
                                        "filter (terrainml.estimation.reference, the EKF's specification) "
                                        "instead of the compiled one: the same numbers, much slower; to "
@@ -34,15 +35,15 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Estimate body velocity, per-wheel slip and wheel state for one run.
 
-        Writes the EST table (contract 2) and, next to it, ``<out>.report.json`` with the
+        Writes the EST table (contract 2) and, next to it, OUT.report.json with the
         consistency report (mean NIS/dof, fraction in the 95% chi-square band, innovation
         variances) and, when the run carries simulator truth (gt_* columns), per-wheel steady
         slip MAE, body-velocity RMSE and yaw-rate RMSE.
 
-        Example: ``terrainml estimate runs/sim/run_000.mcap --out runs/est/run_000.parquet --plot runs/est/plots``
+        Example: terrainml estimate runs/sim/run_000.mcap --out runs/est/run_000.parquet --plot runs/est/plots
 
-        Real Husky log:
-        ``terrainml estimate test1.bag --robot husky --topics husky_robot_localization --out est.parquet``
+        Example (real Husky log): terrainml estimate test1.bag --robot husky --topics husky_robot_localization
+        --out est.parquet
         """
         from terrainml.estimation.ekf import PRESETS
 

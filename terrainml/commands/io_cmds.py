@@ -16,6 +16,9 @@ from rich.table import Table
 
 from terrainml.commands._common import (ALLOW_OUTSIDE_HELP, check_output_writable, console, fail, failure_message,
                                         open_dataset_spec, open_robot)
+from terrainml.commands._help import listed, robot_help, topics_help
+from terrainml.io.dataset_spec_names import BUILTIN_SPECS
+from terrainml.robots import REFERENCE_ROBOT
 
 
 def _progress_callback(progress, task):
@@ -28,30 +31,29 @@ def ingest(
     log: Path = typer.Argument(..., help="Log to ingest: .mcap (ROS 2), .bag (ROS 1), a ROS 2 bag folder, "
                                ".csv or .parquet (with --format: one file of a dataset run)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output run table (.parquet)."),
-    topics: Optional[str] = typer.Option(None, "--topics", help="Topic map YAML (or built-in name: default, "
-                                         "husky_robot_localization). Default: the design §5 map."),
+    topics: Optional[str] = typer.Option(None, "--topics", help=topics_help()),
     rate_hz: float = typer.Option(100.0, "--rate-hz", help="Base rate of the output table (Hz)."),
-    robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec YAML or built-in name "
-                                        "(agrimaro, husky). Default: agrimaro."),
+    robot: Optional[str] = typer.Option(None, "--robot", help=robot_help(
+                                        f"the dataset spec's robot with --format, else {REFERENCE_ROBOT}")),
     chunk_s: float = typer.Option(30.0, "--chunk-s", help="Seconds of log resampled and written at a time "
                                   "(one Parquet row group each); bounds memory for long MCAP/bag logs."),
-    fmt: Optional[str] = typer.Option(None, "--format", help="Dataset spec: a built-in name (borealtc) or "
-                                      "SPEC.yaml; LOG is then one file of a run (e.g. pro_00.csv) and the "
-                                      "run's other files are paired by the spec. Default: LOG is the whole log."),
+    fmt: Optional[str] = typer.Option(None, "--format", help=f"Dataset spec: a built-in name ({listed(BUILTIN_SPECS)}) "
+                                      "or SPEC.yaml; LOG is then one file of a run (e.g. pro_00.csv) and the run's "
+                                      "other files are paired by the spec. Default: LOG is the whole log."),
     allow_outside: bool = typer.Option(False, "--allow-outside-spec-dir", help=ALLOW_OUTSIDE_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print errors only."),
 ) -> None:
     """Ingest a log into the canonical run table (Parquet), streaming in time chunks.
 
     MCAP and bag logs are read twice (a scan, then chunk by chunk), so memory does not grow with
-    the log's length; the file equals ``load_run(LOG).table`` written with ``write_run_parquet``.
+    the log's length; the file equals `load_run(LOG).table` written with `write_run_parquet`.
 
-    Example: ``terrainml ingest run.mcap --out runs/run.parquet --robot agrimaro``
+    Example: terrainml ingest run.mcap --out runs/run.parquet --robot agrimaro
 
-    Example (real Husky bag): ``terrainml ingest test1.bag --out husky.parquet --robot husky
-    --topics husky_robot_localization``
+    Example (real Husky bag): terrainml ingest test1.bag --out husky.parquet --robot husky
+    --topics husky_robot_localization
 
-    Example (dataset spec): ``terrainml ingest borealtc/ICE/pro_03.csv --format borealtc --out ice03.parquet``
+    Example (dataset spec): terrainml ingest borealtc/ICE/pro_03.csv --format borealtc --out ice03.parquet
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -95,7 +97,7 @@ def inspect(
 ) -> None:
     """Topics, types, counts, rates, time span, gaps (> 2 periods), corrupt/skipped counts of a log.
 
-    Example: ``terrainml inspect run.mcap --json``
+    Example: terrainml inspect run.mcap --json
     """
     from terrainml.io.inspect import inspect_log
     from terrainml.io.readers import LogReadError

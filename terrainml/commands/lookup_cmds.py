@@ -12,6 +12,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from terrainml.commands._common import check_output_writable, console, fail, open_robot
+from terrainml.commands._help import listed, robot_help
+from terrainml.lookup.catalogue_names import BUILTIN_CATALOGUES
 
 if TYPE_CHECKING:
     from terrainml.robot import RobotSpec
@@ -20,13 +22,12 @@ lookup_app = typer.Typer(
     name="lookup",
     help="Desired-slip lookup: class x {traction, braking, steady} targets from terramechanics "
          "and the robot spec, for the simulated classes or any terrain catalogue (design §10)."
-         "\n\nExample: `terrainml lookup show --json`",
+         "\n\nExample: terrainml lookup show --json",
     no_args_is_help=True,
     add_completion=False,
 )
 
-_ROBOT_HELP = "Robot spec: a YAML path or a built-in name (agrimaro, husky); default agrimaro."
-_CATALOGUE_HELP = ("Terrain catalogue: a YAML path or a built-in name (reference, borealtc); "
+_CATALOGUE_HELP = (f"Terrain catalogue: a YAML path or a built-in name ({listed(BUILTIN_CATALOGUES)}); "
                    "default the eight simulated classes.")
 _CLASSES_HELP = ("Comma-separated class names, in the model's order (default every class of "
                  "the catalogue).")
@@ -77,7 +78,7 @@ def _rich_table(table) -> None:
 @lookup_app.command("build")
 def build(
     out: Path = typer.Option(..., "--out", help="Output JSON file for the table."),
-    robot: Optional[str] = typer.Option(None, "--robot", help=_ROBOT_HELP),
+    robot: Optional[str] = typer.Option(None, "--robot", help=robot_help()),
     catalogue: Optional[str] = typer.Option(None, "--catalogue", help=_CATALOGUE_HELP),
     classes: Optional[str] = typer.Option(None, "--classes", help=_CLASSES_HELP),
 ) -> None:
@@ -86,8 +87,9 @@ def build(
     The JSON holds the targets, the class names and parameters (or given targets and their
     sources) they came from, the robot spec and its sha256, and a checksum (verified on load).
 
-    Examples: ``terrainml lookup build --robot husky --out table.json``;
-    ``terrainml lookup build --catalogue borealtc --robot husky --out table.json``
+    Example: terrainml lookup build --robot husky --out table.json
+
+    Example (BorealTC's classes): terrainml lookup build --catalogue borealtc --robot husky --out table.json
     """
     check_output_writable(out)
     table = _load_table(_robot(robot), None, catalogue, classes)
@@ -102,7 +104,7 @@ def build(
 
 @lookup_app.command("show")
 def show(
-    robot: Optional[str] = typer.Option(None, "--robot", help=_ROBOT_HELP),
+    robot: Optional[str] = typer.Option(None, "--robot", help=robot_help()),
     as_json: bool = typer.Option(False, "--json",
                                  help='Print {"classes": [{"id", "name", "traction", "braking", '
                                       '"steady"}, ...]} instead of a table.'),
@@ -114,8 +116,9 @@ def show(
 ) -> None:
     """Print the desired-slip table (rich table, or JSON with --json).
 
-    Example: ``terrainml lookup show --json``; ``terrainml lookup show --catalogue borealtc
-    --robot husky``
+    Example: terrainml lookup show --json
+
+    Example (BorealTC's classes): terrainml lookup show --catalogue borealtc --robot husky
     """
     table = _load_table(_robot(robot), table_path, catalogue, classes)
     if as_json:
@@ -127,7 +130,7 @@ def show(
 @lookup_app.command("plot")
 def plot(
     out: Path = typer.Option(..., "--out", help="Output PNG file."),
-    robot: Optional[str] = typer.Option(None, "--robot", help=_ROBOT_HELP),
+    robot: Optional[str] = typer.Option(None, "--robot", help=robot_help()),
     table_path: Optional[Path] = typer.Option(None, "--table", help="Mark a saved table's "
                                                                     "targets."),
     catalogue: Optional[str] = typer.Option(None, "--catalogue", help=_CATALOGUE_HELP),
@@ -137,7 +140,7 @@ def plot(
 
     Traction (^), braking (v) and steady (o) points are marked on each class's curve.
 
-    Example: ``terrainml lookup plot --out lookup.png``
+    Example: terrainml lookup plot --out lookup.png
     """
     from terrainml.lookup.plot import plot_table
 

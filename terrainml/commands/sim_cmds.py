@@ -12,8 +12,9 @@ from typing import Optional
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from terrainml.classes import class_id
+from terrainml.classes import N_CLASSES, TERRAIN_CLASSES, class_id, class_name
 from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail, open_robot
+from terrainml.commands._help import listed, robot_help
 
 sim_app = typer.Typer(name="sim", help="Simulate the reference robot on the eight terrain classes "
                       "(labelled ROS 2 MCAP logs with ground truth).", no_args_is_help=True)
@@ -23,7 +24,8 @@ sim_app = typer.Typer(name="sim", help="Simulate the reference robot on the eigh
 def generate(
     out: Path = typer.Option(..., "--out", "-o", help="RUN.mcap (or .parquet) for one run; a folder "
                              "with --runs-per-class."),
-    terrain: Optional[str] = typer.Option(None, "--terrain", help="Terrain class name or id (one run)."),
+    terrain: Optional[str] = typer.Option(None, "--terrain", help="Terrain class (one run): "
+                                           f"{listed(TERRAIN_CLASSES)}, or its id."),
     scenario: str = typer.Option("straight", "--scenario", help="straight, omni, arc, reversal, "
                                  "stop_and_go, mixed, patch_map, course_stop_and_go (one run)."),
     speed_mps: float = typer.Option(1.0, "--speed-mps", help="Cruise speed (m/s)."),
@@ -35,15 +37,14 @@ def generate(
     n_jobs: int = typer.Option(1, "--n-jobs", help="Parallel jobs for a dataset (joblib; -1: all cores)."),
     fmt: str = typer.Option("mcap", "--format", help="Dataset file format: mcap or parquet."),
     brake: bool = typer.Option(True, "--brake/--no-brake", help="Straight scenario: stop at the end."),
-    robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec YAML or built-in name "
-                                        "(default agrimaro)."),
+    robot: Optional[str] = typer.Option(None, "--robot", help=robot_help()),
 ) -> None:
     """Simulate one labelled run, or a labelled dataset with an index.
 
-    Example (one run): ``terrainml sim generate --terrain short_grass --scenario straight --speed-mps 1.0
-    --duration-s 30 --seed 1 --out runs/grass.mcap``
+    Example (one run): terrainml sim generate --terrain short_grass --scenario straight --speed-mps 1.0
+    --duration-s 30 --seed 1 --out runs/grass.mcap
 
-    Example (dataset): ``terrainml sim generate --runs-per-class 4 --seed 0 --out runs/simdata --n-jobs 2``
+    Example (dataset): terrainml sim generate --runs-per-class 4 --seed 0 --out runs/simdata --n-jobs 2
     """
     from terrainml.sim.scenarios import SCENARIOS
 
@@ -63,15 +64,17 @@ def generate(
 
         with Progress(TextColumn("[bold]sim[/] runs"), BarColumn(), MofNCompleteColumn(),
                       TimeRemainingColumn(), console=console) as progress:
-            task = progress.add_task("runs", total=runs_per_class * 8)
+            task = progress.add_task("runs", total=runs_per_class * N_CLASSES)
             index = generate_dataset(out, runs_per_class, seed, n_jobs=n_jobs, duration_s=duration_s,
                                      fmt=fmt, robot=spec,
                                      progress=lambda d, t: progress.update(task, completed=d, total=t))
-        console.print(f"[green]wrote[/] {runs_per_class * 8} runs and {index}")
+        console.print(f"[green]wrote[/] {runs_per_class * N_CLASSES} runs ({runs_per_class} on each of "
+                      f"{listed(TERRAIN_CLASSES)}) and {index}", highlight=False)
         return
     if scenario not in SCENARIOS:
         fail(f"--scenario: unknown scenario {scenario!r}; expected one of: {', '.join(SCENARIOS)}")
-    if scenario not in ("mixed", "patch_map", "course_stop_and_go"):
+    mixed = scenario in ("mixed", "patch_map", "course_stop_and_go")   # the scenario lays out the terrains
+    if not mixed:
         if terrain is None:
             fail("--terrain is required for one run (or give --runs-per-class for a dataset)")
         try:
@@ -94,20 +97,23 @@ def generate(
         progress.update(task, completed=1)
         write_run(res, out)
         progress.update(task, completed=2)
-    console.print(f"[green]wrote[/] {out}  (distance {res.distance_m:.1f} m, energy {res.energy_j:.0f} J, "
-                  f"stuck events {res.stuck_events})", highlight=False)
+    where = "on the scenario's terrain layout" if mixed else f"on {class_name(terrain_id)}"
+    console.print(f"[green]wrote[/] {out}  ({scenario} {where}: distance {res.distance_m:.1f} m, energy "
+                  f"{res.energy_j:.0f} J, stuck events {res.stuck_events})", highlight=False)
 
 
 @sim_app.command("plot")
 def plot(
     run: Path = typer.Argument(..., help="Simulated run (.mcap or .parquet with truth)."),
     out: Path = typer.Option(..., "--out", "-o", help="Output folder for the PNGs."),
-    robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec (default agrimaro)."),
+    robot: Optional[str] = typer.Option(None, "--robot", help=robot_help()),
 ) -> None:
     """Plot true and measured slip per wheel (like thesis Fig. 7.2-7.4).
 
     Measured = design §7.1 slip from the raw encoder speed and a camera-based wheel-centre velocity
-    (no EKF). Example: ``terrainml sim plot runs/grass.mcap --out runs/plots``
+    (no EKF).
+
+    Example: terrainml sim plot runs/grass.mcap --out runs/plots
     """
     from terrainml.sim.plot import plot_run
 

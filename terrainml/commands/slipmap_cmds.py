@@ -15,10 +15,11 @@ from rich.progress import Progress
 from rich.table import Table
 
 from terrainml.commands._common import check_output_writable, console, fail, open_robot, open_run
+from terrainml.commands._help import robot_help
 
 slipmap_app = typer.Typer(help="Slip maps (IRLS paper): per-terrain robust slippage estimators, "
-                               "merged across robots.\n\nExample: `terrainml slipmap experiment --robots 5 "
-                               "--laps 5 --seed 0 --out runs/slipmap/report.json`",
+                               "merged across robots.\n\nExample: terrainml slipmap experiment --robots 5 "
+                               "--laps 5 --seed 0 --out runs/slipmap/report.json",
                           no_args_is_help=True)
 
 
@@ -33,8 +34,8 @@ def _load_tables(directory: Path):
 @slipmap_app.command("fit")
 def fit_cmd(directory: Path = typer.Argument(..., help="Folder of run tables (.parquet) or logs."),
             out: Path = typer.Option(..., "--out", help="Output slip map (JSON message)."),
-            robot: Optional[str] = typer.Option(None, help="Robot spec (built-in name or YAML); default: "
-                                                "the spec stored in the tables' metadata, else husky."),
+            robot: Optional[str] = typer.Option(None, help=robot_help(
+                "the spec stored in the tables' metadata, else husky")),
             by: str = typer.Option("terrain", help="'terrain' (one estimator per class) or 'all'."),
             norm: str = typer.Option("huber", help="Robust norm: huber or bisquare."),
             robot_id: str = typer.Option("robot", help="Name of this robot in the message.")) -> None:
@@ -42,7 +43,7 @@ def fit_cmd(directory: Path = typer.Argument(..., help="Folder of run tables (.p
 
     Reference velocity: gt_vx_mps/gt_vy_mps/gt_yaw_rate_radps if present, else the camera velocity.
 
-    Example: ``terrainml slipmap fit runs/husky_tables --out runs/maps/husky1.json --robot husky``
+    Example: terrainml slipmap fit runs/husky_tables --out runs/maps/husky1.json --robot husky
     """
     from terrainml.robot import RobotSpec, RobotSpecError, builtin_robot
     from terrainml.slipmap.fit import SlipFitError, fit_slip_map
@@ -81,7 +82,7 @@ def merge_cmd(maps: List[Path] = typer.Argument(..., help="Slip map messages (JS
               out: Path = typer.Option(..., "--out", help="Output global slip map (JSON).")) -> None:
     """Merge robots' local estimates exactly: (sum A_k) theta = sum b_k per entry.
 
-    Example: ``terrainml slipmap merge robot1.json robot2.json --out global.json``
+    Example: terrainml slipmap merge robot1.json robot2.json --out global.json
     """
     from terrainml.slipmap.slipmap import SlipMap, SlipMapError, merge_maps
 
@@ -103,7 +104,7 @@ def experiment_cmd(robots: int = typer.Option(5, help="Robots on the path (paper
                                             help="Report JSON; the figure is written next to it (.png).")) -> None:
     """Lap experiment of the IRLS paper (Fig. 3-4): none vs exponential vs IRLS compensation.
 
-    Example: ``terrainml slipmap experiment --robots 5 --laps 5 --seed 0 --out runs/slipmap/report.json``
+    Example: terrainml slipmap experiment --robots 5 --laps 5 --seed 0 --out runs/slipmap/report.json
     """
     from terrainml.experiments.slipmap_laps import ExperimentConfig, run_experiment, write_report
 

@@ -90,6 +90,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 import pandas as pd
 
+from terrainml.features.window_presets import WINDOW_SPECS
 from terrainml.robot import RobotSpec
 
 __all__ = ["WindowSpec", "Windows", "cut_windows", "RULES", "WINDOW_SPECS",
@@ -264,28 +265,6 @@ class WindowSpec:
 
 
 # ------------------------------------------------------------------------------ named specs
-#: Named window specs (design §8): field overrides of :class:`WindowSpec`'s defaults.
-#: ``steady`` is today's rules (2 s steady windows, thesis §8.1). ``short`` is
-#: made for stop-and-go: 1 s windows in any wheel state (traction phases included, so the
-#: features see the soil while the robot accelerates), kept when the robot moves (mean body
-#: speed >= 0.3 m/s, i.e. >= 0.3 m travelled) and its net acceleration is moderate; online a
-#: new window every 0.1 s; offline a window across a terrain change is kept with the terrain at
-#: its end (``label_at="end"``: trained on such windows the classifier names one of the two real
-#: classes where a 1 s window straddles them, not a third one). A legacy artifact without a name
-#: is ``steady``.
-WINDOW_SPECS: dict[str, dict[str, Any]] = {
-    "steady": {},
-    "short": {"window_s": 1.0, "hop_s": 0.5, "online_hop_s": 0.1, "min_steady_fraction": 0.0,
-              "min_speed_mps": 0.3, "max_mean_abs_accel_mps2": 0.5, "label_at": "end"},
-    # the BorealTC authors' fixed windows, and windows conditioned on the dynamic state
-    "chunks": {"window_s": 1.7, "hop_s": 1.7, "online_hop_s": 0.5, "chunk_s": 5.0,
-               "windows_per_chunk": 11, "homogeneous": True, "min_valid_fraction": 1.0,
-               "rules": ("time_gap", "terrain_label", "channel_valid")},
-    "state": {"wheel_state_mode": "dominant",
-              "rules": ("time_gap", "wheel_state", "speed", "steering", "terrain_label", "channel_valid")},
-}
-
-
 def window_spec(name: str = "steady", **overrides: Any) -> WindowSpec:
     """The named spec ``name`` (:data:`WINDOW_SPECS`) with field ``overrides``.
 

@@ -40,6 +40,7 @@ from typing import Any
 
 from terrainml._yaml_checks import read_builtin_yaml, read_yaml_file
 from terrainml.io import cdr
+from terrainml.io.topicmap_names import BUILTIN_MAPS
 
 KINDS = {
     "imu": ("imu",),
@@ -54,7 +55,6 @@ KINDS = {
 }
 FIELDS = ("position", "velocity", "effort")
 TWIST_FIELDS = ("linear.x", "linear.y", "linear.z", "angular.x", "angular.y", "angular.z")
-BUILTIN_MAPS = ("default", "husky_robot_localization", "husky_ros2")
 
 
 class TopicMapError(ValueError):

@@ -46,6 +46,7 @@ from typing import Any, Sequence
 import yaml
 
 from terrainml._yaml_checks import YamlLimitError, load_bounded_yaml
+from terrainml.lookup.catalogue_names import BUILTIN_CATALOGUES
 from terrainml.lookup.terrain_params import TerrainParams
 
 __all__ = ["BUILTIN_CATALOGUES", "CatalogueClass", "CatalogueError", "TerrainCatalogue",
@@ -53,7 +54,6 @@ __all__ = ["BUILTIN_CATALOGUES", "CatalogueClass", "CatalogueError", "TerrainCat
 
 SCHEMA = "terrainml.terrain_catalogue"
 SCHEMA_VERSION = 1
-BUILTIN_CATALOGUES = ("reference", "borealtc")
 MODELS = ("burckhardt", "soil")
 TARGET_NAMES = ("traction", "braking", "steady")
 # design §10 rules, repeated here so that direct targets are refused, not clamped

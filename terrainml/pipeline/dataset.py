@@ -35,6 +35,7 @@ from terrainml.atomic import atomic_output
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.estimation.run import estimate_run
 from terrainml.features.chunks import chunk_source, cut_chunked_runs, needs_estimation
+from terrainml.features.window_presets import DEFAULT_WINDOWS
 from terrainml.features.windows import (RULES, SENSOR_GROUPS, Windows, WindowSpec, channel_column,
                                         channel_sensor_group, cut_windows, window_spec)
 from terrainml.io.damage import damage_summary
@@ -45,12 +46,6 @@ __all__ = ["find_logs", "process_log", "build_dataset", "build_from_tables", "Da
            "write_windows", "read_windows", "fingerprint", "DatasetError", "LOG_SUFFIXES", "SENSOR_GROUPS",
            "sensors_of", "class_report", "LOSS_HINT_FRACTION", "DEFAULT_WINDOWS", "FORMAT_ROBOTS",
            "dataset_robot", "resolve_spec", "run_class"]
-
-#: window spec of a dataset built without one (design §8): ``short`` windows exist in
-#: stop-and-go and after every transition, so a model trained by default serves through them
-#: (``steady`` 2 s windows rarely exist there); grouped CV on ``sim_default``: SVM 0.997 against
-#: 0.990 with ``steady``
-DEFAULT_WINDOWS = "short"
 
 FORMAT = "terrainml.windows"
 FORMAT_VERSION = 1

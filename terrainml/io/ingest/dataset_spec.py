@@ -26,11 +26,11 @@ from typing import Any
 import pandas as pd
 
 from terrainml._yaml_checks import read_builtin_yaml, read_yaml_file
+from terrainml.io.dataset_spec_names import BUILTIN_SPECS
 from terrainml.io.ingest.tables import SPANS, Binding, TableFile, label_values, table_header
 from terrainml.robot import RobotSpec
 from terrainml.schema import column_map
 
-BUILTIN_SPECS = ("borealtc",)
 LABEL_SOURCES = ("folder", "column", "file", "none")
 _FIELD = re.compile(r"\{(\w+)\}")
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
