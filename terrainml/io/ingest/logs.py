@@ -29,6 +29,8 @@ one topic breaks ties between equal stamps by file order.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Protocol
@@ -368,6 +370,20 @@ class Scan:
     def lateness_all_ns(self) -> int:
         return max([self.cross_late] + [ts.lateness_ns for ts in self.topics.values()])
 
+    def allow_cross_lateness(self, late_ns: int) -> None:
+        """Let any topic lag the latest stamp of all topics by at least ``late_ns`` (ns) before its
+        ticks are decided without it (a live stream's reorder bound; the scan only ever raises it)."""
+        self.cross_late = max(self.cross_late, int(late_ns))
+
+    @contextmanager
+    def cross_lateness(self, late_ns: int) -> Iterator[None]:
+        """Within the block, the lag allowed between topics is ``late_ns`` (ns); restored after."""
+        saved, self.cross_late = self.cross_late, int(late_ns)
+        try:
+            yield
+        finally:
+            self.cross_late = saved
+
 
 # ----------------------------------------------------------------------------- plan
 @dataclass
@@ -407,6 +423,12 @@ class Plan:
     buffers: list[Buffer]
     facts: dict[str, SourceFacts]          # non-joint topics: whole-log facts for signals_for
     scan: Scan
+
+    def emptied(self, n_ticks: int) -> Plan:
+        """The same sources, column templates and gap thresholds, with empty buffers and a grid
+        of ``n_ticks`` ticks (a new live timeline)."""
+        bufs = [Buffer(b.topic, b.joint, b.signals, b.need_gap_s, list(b.fields)) for b in self.buffers]
+        return Plan(self.t0_ns, n_ticks, bufs, self.facts, self.scan)
 
 
 def _need_gap(signals: list[Signal]) -> float:
