@@ -25,14 +25,18 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from terrainml.estimation._kernel import (MAX_P_DIAG, MAX_SPEED_MPS, SLIP_MEMORY_CLIP,  # noqa: F401
-                                         SLIP_MEMORY_MIN_SPEED_MPS, measurements_tick, wheels_tick)
+from terrainml.estimation._kernel import I_AX, I_AY, I_R, I_VX, I_VY, measurements_tick
+from terrainml.estimation._wheel_kernel import (MAX_P_DIAG, MAX_SPEED_MPS, SLIP_MEMORY_CLIP,  # noqa: F401
+                                                SLIP_MEMORY_MIN_SPEED_MPS, wheels_tick)
 from terrainml.estimation.dynamic_state import DWELL_S, MANOEUVRE_TAU_S, THETA_M2PS3, WheelStateMachine
 from terrainml.estimation.ekf import Ekf, EkfPreset, PlanarModel, get_preset
 from terrainml.estimation.reference import ReferenceEkf
 from terrainml.estimation.slip import DEAD_BAND_MPS
 from terrainml.robot import RobotSpec
 from terrainml.schema import VALID_GROUPS, WHEEL_STATES, wheel_col
+
+#: rows of vx, vy, r, ax, ay in the EKF state (the wheel kernel takes the layout as an argument)
+_BODY_ROWS = np.array([I_VX, I_VY, I_R, I_AX, I_AY], dtype=np.int64)
 
 PASS_WHEEL = ("omega_radps", "current_a", "steer_rad")
 PASS_BASE = ("imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2", "imu_yaw_rate_radps")
@@ -240,7 +244,7 @@ class OnlineEstimator:
         # ------------------------------------------------ slip and dynamic state per wheel
         sm = self._sm
         sane, mem_dt = wheels_tick(
-            t_s, dt, first, cam_ok, ekf.x, ekf.P, self._steer_state, self._wheel_xy, self._radius,
+            t_s, dt, first, cam_ok, ekf.x, _BODY_ROWS, ekf.P, self._steer_state, self._wheel_xy, self._radius,
             omega_radps, DEAD_BAND_MPS, p.encoder_lag_s, self._lag_y, p.fallback_slip_comp,
             p.slip_memory_tau_s, self._slip_mem, self._accel_tau_s, self._accel_y1, self._accel_y2,
             sm.theta, sm.dwell_s, sm.idle_speed, sm.state, sm.cand, sm.cand_since,

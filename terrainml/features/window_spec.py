@@ -21,8 +21,13 @@ import json
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any, Sequence
 
-from terrainml.features.channels import (SENSOR_GROUPS, SIDE_CHANNEL_NAMES, channel_sensor_group, channel_source,
-                                         default_channels)
+from terrainml.features.channels import (
+    SENSOR_GROUPS,
+    SIDE_CHANNEL_NAMES,
+    channel_sensor_group,
+    channel_source,
+    default_channels,
+)
 from terrainml.robot import RobotSpec
 
 __all__ = ["RULES", "STEADY_STATES", "WHEEL_STATE_MODES", "MOVING_STATES", "LABEL_AT", "WindowSpec",

@@ -46,6 +46,7 @@ from typing import Any, Sequence
 import yaml
 
 from terrainml._yaml_checks import YamlLimitError, load_bounded_yaml
+from terrainml.lookup.target_rules import MAX_MAGNITUDE, MIN_TRACTION_MARGIN, RIGID_PEAK_RANGE
 from terrainml.lookup.terrain_params import TerrainParams
 
 __all__ = ["BUILTIN_CATALOGUES", "CatalogueClass", "CatalogueError", "TerrainCatalogue",
@@ -56,10 +57,6 @@ SCHEMA_VERSION = 1
 BUILTIN_CATALOGUES = ("reference", "borealtc")
 MODELS = ("burckhardt", "soil")
 TARGET_NAMES = ("traction", "braking", "steady")
-# design §10 rules, repeated here so that direct targets are refused, not clamped
-MAX_MAGNITUDE = 0.6
-MIN_TRACTION_MARGIN = 0.03
-RIGID_PEAK_RANGE = (0.10, 0.20)
 
 _DEG = math.pi / 180.0
 _INF = math.inf

@@ -31,7 +31,7 @@ from bisect import bisect_left, bisect_right
 
 import numpy as np
 
-from terrainml.io.ingest.logs import Buffer, Plan
+from terrainml.io.ingest.log_plan import Buffer, Plan
 from terrainml.io.ingest.resample import _EPS, at_tick
 from terrainml.io.ingest.signals import Signal, filled_columns, label_stream_stale, signals_for, validity_members
 from terrainml.io.topicmap import TopicMap
