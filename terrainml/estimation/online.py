@@ -38,7 +38,7 @@ from terrainml.schema import VALID_GROUPS, WHEEL_STATES, wheel_col
 #: rows of vx, vy, r, ax, ay in the EKF state (the wheel kernel takes the layout as an argument)
 _BODY_ROWS = np.array([I_VX, I_VY, I_R, I_AX, I_AY], dtype=np.int64)
 
-PASS_WHEEL = ("omega_radps", "current_a", "steer_rad")
+PASS_WHEEL = ("omega", "current", "steer")   # wheel column kinds (schema.wheel_col)
 PASS_BASE = ("imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2", "imu_yaw_rate_radps")
 # fallback wheel-row variance at the start of a camera gap when no slip is remembered yet
 # (the IMU bridges the gap; wheels take over as it decays to r_wheel over fallback_ramp_s)
@@ -67,7 +67,7 @@ def est_state_columns(n_wheels: int) -> list[str]:
 
 def passthrough_columns(n_wheels: int, available: list[str] | None = None) -> list[str]:
     """Run-table columns copied into the EST table (contract 2), restricted to ``available``."""
-    cols = [f"wheel{i}_{s}" for i in range(1, n_wheels + 1) for s in PASS_WHEEL]
+    cols = [wheel_col(kind, i) for i in range(1, n_wheels + 1) for kind in PASS_WHEEL]
     cols += list(PASS_BASE)
     cols += [f"{g}_valid" for g in VALID_GROUPS]
     cols += ["terrain", "run_id"]

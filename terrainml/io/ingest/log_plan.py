@@ -15,7 +15,7 @@ import numpy as np
 
 from terrainml.io.ingest.log_scan import Scan, Series, TopicScan, concat_parts
 from terrainml.io.ingest.log_sources import FileLog
-from terrainml.io.ingest.report import IngestReport
+from terrainml.io.ingest.ingest_report import IngestReport
 from terrainml.io.ingest.resample import clean_times, gap_threshold_s
 from terrainml.io.ingest.signals import Signal, SourceFacts, signals_for
 from terrainml.io.topicmap import Source, TopicMap

@@ -41,7 +41,7 @@ import pandas as pd
 from terrainml.io.ingest.log_plan import Buffer as Buffer, Plan as Plan, label_period_s as label_period_s, plan
 from terrainml.io.ingest.log_scan import DRAIN_ROWS, Scan, Series as Series, TopicScan as TopicScan
 from terrainml.io.ingest.log_sources import FileLog, MemoryLog as MemoryLog, OnPart as OnPart
-from terrainml.io.ingest.report import IngestReport
+from terrainml.io.ingest.ingest_report import IngestReport
 from terrainml.io.ingest.resample import _EPS
 from terrainml.io.ingest.signals import Signal, assemble, last_hole_s, signals_for
 from terrainml.io.read_result import ReadResult

@@ -61,7 +61,7 @@ from pathlib import Path
 from typing import Any
 
 from terrainml.io.ingest.logs import Plan, Scan, plan
-from terrainml.io.ingest.report import IngestReport
+from terrainml.io.ingest.ingest_report import IngestReport
 from terrainml.io.ingest.signals import validity_members
 from terrainml.io.ingest.ticks import TickProducer
 from terrainml.io.topicmap import TopicMap
