@@ -55,6 +55,8 @@ class Column:
 VALID_GROUPS = ("wheels", "steer", "current", "imu", "cam", "cmd")
 # wheel dynamic states (design §7.2), in code order
 WHEEL_STATES = ("idle", "steady", "traction", "braking")
+#: the wheel states of a moving wheel (every state but idle)
+MOVING_WHEEL_STATES = WHEEL_STATES[1:]
 
 
 #: suffix of each per-wheel column kind (:func:`wheel_col`)

@@ -29,6 +29,7 @@ from terrainml.features.channels import (
     default_channels,
 )
 from terrainml.robot import RobotSpec
+from terrainml.schema import MOVING_WHEEL_STATES
 
 __all__ = ["RULES", "STEADY_STATES", "WHEEL_STATE_MODES", "MOVING_STATES", "LABEL_AT", "WindowSpec",
            "WINDOW_SPECS", "window_spec"]
@@ -38,7 +39,7 @@ RULES: tuple[str, ...] = ("time_gap", "wheel_state", "speed", "acceleration", "s
 STEADY_STATES = ("steady", "idle")
 #: ``steady``: every wheel steady or idle; ``dominant``: every wheel in one moving state
 WHEEL_STATE_MODES = ("steady", "dominant")
-MOVING_STATES = ("steady", "traction", "braking")
+MOVING_STATES = MOVING_WHEEL_STATES
 #: ``only``: a window with two terrain labels is rejected (``terrain_label``); ``end``: kept,
 #: labelled with the terrain of its newest labelled row
 LABEL_AT = ("only", "end")

@@ -18,13 +18,12 @@ import numpy as np
 
 from terrainml.io import t265
 from terrainml.io.ingest.signals import joint_columns
-from terrainml.io.topicmap import Source, TopicMap
+from terrainml.io.topicmap import FIELDS as JOINT_FIELDS, Source, TopicMap
 from terrainml.robot import RobotSpec
 
 __all__ = ["DRAIN_ROWS", "Series", "TopicScan", "Scan", "concat_parts"]
 
 DRAIN_ROWS = 5_000            # decoded rows held before they are merged (scan, streamed produce)
-_JOINT_FIELDS = ("position", "velocity", "effort")
 _NOT_NONFINITE = ("t_ns", "orientation", "cov0", "names")
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
 
@@ -250,7 +249,7 @@ class Scan:
                 ts.any_finite[names] = [False, False, False]
             new = g.add(run["t_ns"])
             code = np.zeros(len(new), np.int64)
-            for b, f in enumerate(_JOINT_FIELDS):
+            for b, f in enumerate(JOINT_FIELDS):
                 fin = np.isfinite(run[f])
                 ts.any_finite[names][b] |= bool(fin.any())
                 code |= (~fin.all(axis=1)).astype(np.int64) << b
