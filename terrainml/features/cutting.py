@@ -1,6 +1,7 @@
 """Cutting steady windows from an EST table (design §8), offline and online with one function.
 
-:func:`cut_windows` serves both paths:
+:func:`terrainml.features.windows.cut_windows` (the arrays by :func:`cut_window_arrays`) serves
+both paths:
 
 * offline (``online=False``): windows start at row 0 and hop ``spec.hop_s`` (2.0 s:
   non-overlapping, thesis §8.1) over a whole EST table;
@@ -38,7 +39,6 @@ rejected):
                    the robot when the window ends, what serving must report), so a classifier
                    learns that a mixed signature belongs to one of the two real classes
 ``channel_valid``  every used channel valid (finite, its sensor group valid) for >= 95% of ticks
-
 
 Raw windows (the CNN's input and the feature sets' input) hold the channels of
 :mod:`terrainml.features.channels` as an array (C, T) per window, T = 200 at 100 Hz;
