@@ -22,7 +22,7 @@ import pandas as pd
 
 from terrainml.angles import wrap_angle
 from terrainml.robot import RobotSpec, reference_robot
-from terrainml.schema import wheel_col
+from terrainml.schema import valid_column, wheel_col
 
 
 def wheel_speed_for_slip(v_long_mps, slip):
@@ -150,7 +150,7 @@ def kinematic_run(robot: RobotSpec | None = None, *, duration_s: float = 20.0, r
     if robot.camera is not None:
         _camera_columns(df, rng, robot, bvx, bvy, br, yaw, noise.cam_noise_mps, cam_dropouts)
     for g in ("wheels", "steer", "current", "imu"):
-        df[f"{g}_valid"] = True
+        df[valid_column(g).name] = True
     df["terrain"] = terrain
     df["run_id"] = run_id
     _truth_columns(df, bvx, bvy, br, yaw, dt, S, v_long, v_ang)

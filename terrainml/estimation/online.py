@@ -33,7 +33,7 @@ from terrainml.estimation.ekf import Ekf, EkfPreset, PlanarModel, get_preset
 from terrainml.estimation.reference import ReferenceEkf
 from terrainml.estimation.slip import DEAD_BAND_MPS
 from terrainml.robot import RobotSpec
-from terrainml.schema import VALID_GROUPS, WHEEL_STATES, wheel_col
+from terrainml.schema import VALID_GROUPS, WHEEL_STATES, valid_column, wheel_col
 
 #: rows of vx, vy, r, ax, ay in the EKF state (the wheel kernel takes the layout as an argument)
 _BODY_ROWS = np.array([I_VX, I_VY, I_R, I_AX, I_AY], dtype=np.int64)
@@ -69,7 +69,7 @@ def passthrough_columns(n_wheels: int, available: list[str] | None = None) -> li
     """Run-table columns copied into the EST table (contract 2), restricted to ``available``."""
     cols = [wheel_col(kind, i) for i in range(1, n_wheels + 1) for kind in PASS_WHEEL]
     cols += list(PASS_BASE)
-    cols += [f"{g}_valid" for g in VALID_GROUPS]
+    cols += [valid_column(g).name for g in VALID_GROUPS]
     cols += ["terrain", "run_id"]
     if available is None:
         return cols
@@ -164,7 +164,7 @@ class OnlineEstimator:
         self._accel_y2 = np.zeros(2)
         self._sm = WheelStateMachine(N, theta, dwell_s)
         # step(): sample keys, the group mask per validity pattern, EST row keys
-        self._valid_keys = [f"{g}_valid" for g in GROUPS]
+        self._valid_keys = [valid_column(g).name for g in GROUPS]
         self._group_mask: dict[tuple[bool, ...], np.ndarray] = {}
         self._nan_wheels = np.full(N, np.nan)
         self._pass_cols = passthrough_columns(N)
