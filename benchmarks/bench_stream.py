@@ -195,15 +195,15 @@ def _cl_one(terrain: str, mode: int, seed: int, scenario: str, duration_s: float
             model_dir: str | None) -> dict:
     from terrainml.control.traction import tuned_config
     from terrainml.robot import load_robot
-    from terrainml.experiments.closed_loop import run_closed_loop
+    from terrainml.experiments.closed_loop import ClosedLoopControl, run_closed_loop
 
     _label, policy, kw = CL_MODES[mode]
     kw = dict(kw)
     if kw.pop("model", False):
         kw["model"] = model_dir
     kw["pid"] = tuned_config(load_robot(), **kw.pop("pid", {}))
-    rep = run_closed_loop(terrain, policy, duration_s=duration_s, seed=seed, scenario=scenario,
-                          **kw)
+    rep = run_closed_loop(terrain, policy, control=ClosedLoopControl(**kw), duration_s=duration_s, seed=seed,
+                          scenario=scenario)
     rep["mode"] = mode
     return rep
 

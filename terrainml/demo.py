@@ -33,7 +33,7 @@ from terrainml.io.mcap_writer import write_run_mcap
 from terrainml.pipeline.dataset import build_dataset, write_windows
 from terrainml.pipeline.train import train
 from terrainml.robot import RobotSpec, reference_robot
-from terrainml.schema import write_run_parquet
+from terrainml.schema import wheel_col, write_run_parquet
 from terrainml.sim.generate import generate_dataset, simulate, write_run
 from terrainml.stream.runner import replay_summary
 
@@ -60,9 +60,9 @@ def handmade_run_table(robot: RobotSpec, seed: int = 0, seconds: float = 20.0,
         ux, uy = vx - r * wh.y_m, vy + r * wh.x_m
         steer = np.arctan2(uy, np.maximum(ux, 1e-3)) if wh.steerable else np.zeros_like(t)
         v_long = ux * np.cos(steer) + uy * np.sin(steer)
-        d[f"wheel{i}_omega_radps"] = v_long / (1 - slip) / robot.wheel_radius_m + rng.normal(0, 0.02, t.size)
-        d[f"wheel{i}_steer_rad"] = steer
-        d[f"wheel{i}_current_a"] = 1.5 * ramp + 3.0 * ax + rng.normal(0, 0.1, t.size)
+        d[wheel_col("omega", i)] = v_long / (1 - slip) / robot.wheel_radius_m + rng.normal(0, 0.02, t.size)
+        d[wheel_col("steer", i)] = steer
+        d[wheel_col("current", i)] = 1.5 * ramp + 3.0 * ax + rng.normal(0, 0.1, t.size)
     d["imu_ax_mps2"] = ax + rng.normal(0, 0.05, t.size)
     d["imu_ay_mps2"] = r * vx + rng.normal(0, 0.05, t.size)
     d["imu_az_mps2"] = 9.81 + rng.normal(0, 0.05, t.size)

@@ -55,17 +55,24 @@ class Column:
 VALID_GROUPS = ("wheels", "steer", "current", "imu", "cam", "cmd")
 # wheel dynamic states (design §7.2), in code order
 WHEEL_STATES = ("idle", "steady", "traction", "braking")
+#: the wheel states of a moving wheel (every state but idle)
+MOVING_WHEEL_STATES = WHEEL_STATES[1:]
+
+
+#: suffix of each per-wheel column kind (:func:`wheel_col`)
+WHEEL_COLUMN_SUFFIX = {"omega": "omega_radps", "steer": "steer_rad", "current": "current_a",
+                       "cmd_omega": "cmd_omega_radps"}
 
 
 def wheel_columns(i: int) -> list[Column]:
     return [
-        Column(f"wheel{i}_omega_radps", "rad/s", "float64", "wheels", True,
+        Column(wheel_col("omega", i), "rad/s", "float64", "wheels", True,
                f"wheel {i} angular speed from the encoder, after the gear ratio"),
-        Column(f"wheel{i}_steer_rad", "rad", "float64", "steer", True,
+        Column(wheel_col("steer", i), "rad", "float64", "steer", True,
                f"wheel {i} steering angle (0 for fixed wheels)"),
-        Column(f"wheel{i}_current_a", "A", "float64", "current", True,
+        Column(wheel_col("current", i), "A", "float64", "current", True,
                f"wheel {i} motor current, positive when driving forward"),
-        Column(f"wheel{i}_cmd_omega_radps", "rad/s", "float64", "wheels", False,
+        Column(wheel_col("cmd_omega", i), "rad/s", "float64", "wheels", False,
                f"wheel {i} commanded angular speed"),
     ]
 
@@ -147,15 +154,13 @@ def group_columns(group: str, n_wheels: int) -> list[str]:
 
 
 def wheel_col(kind: str, i: int) -> str:
-    """``wheel_col("omega", 2) -> "wheel2_omega_radps"`` (kind: omega, steer, current, cmd_omega)."""
-    suffix = {"omega": "omega_radps", "steer": "steer_rad", "current": "current_a",
-              "cmd_omega": "cmd_omega_radps"}[kind]
-    return f"wheel{i}_{suffix}"
+    """``wheel_col("omega", 2) -> "wheel2_omega_radps"`` (kind: a key of :data:`WHEEL_COLUMN_SUFFIX`)."""
+    return f"wheel{i}_{WHEEL_COLUMN_SUFFIX[kind]}"
 
 
 def infer_n_wheels(df: pd.DataFrame) -> int:
     n = 0
-    while f"wheel{n + 1}_omega_radps" in df.columns:
+    while wheel_col("omega", n + 1) in df.columns:
         n += 1
     return n
 

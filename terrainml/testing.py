@@ -14,13 +14,15 @@ runs; nothing in the io -> ... -> control chain imports it.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields, replace
+from typing import Any, Callable
 
 import numpy as np
 import pandas as pd
 
 from terrainml.angles import wrap_angle
 from terrainml.robot import RobotSpec, reference_robot
-from terrainml.schema import wheel_col
+from terrainml.schema import valid_column, wheel_col
 
 
 def wheel_speed_for_slip(v_long_mps, slip):
@@ -43,43 +45,100 @@ def trapezoid_speed(t_s, cruise_mps=1.0, accel_mps2=1.0, t_start_s=1.0, t_brake_
     return v
 
 
-__all__ = ["kinematic_run", "trapezoid_speed", "wheel_speed_for_slip"]
+__all__ = ["BodyMotion", "SensorNoise", "kinematic_run", "trapezoid_speed", "wheel_speed_for_slip"]
 
 
-def kinematic_run(robot: RobotSpec | None = None, *, duration_s: float = 20.0,
-                  rate_hz: float = 100.0, vx=None, vy=None, yaw_rate=None, slip=None,
-                  seed: int = 0, encoder_tau_s: float = 0.04, omega_noise_radps: float = 0.01,
-                  cam_noise_mps: float = 0.003, imu_acc_noise: float = 0.02,
-                  gyro_noise: float = 0.002, gyro_bias: float = 0.003, imu_acc_bias: float = 0.0,
-                  cam_dropouts: tuple[tuple[float, float], ...] = (),
-                  terrain: int = 0, run_id: str = "synthetic") -> pd.DataFrame:
+@dataclass(frozen=True)
+class SensorNoise:
+    """Sensor imperfections of a kinematic run.
+
+    Attributes
+    ----------
+    encoder_tau_s : time constant of the encoders' first-order lag, s.
+    omega_noise_radps : white noise of the wheel speeds, rad/s.
+    cam_noise_mps : white noise of the camera-mount velocity, m/s.
+    imu_acc_noise : white noise of the IMU specific force, m/s^2.
+    gyro_noise : white noise of the gyro yaw rate, rad/s.
+    gyro_bias : constant gyro yaw-rate bias, rad/s.
+    imu_acc_bias : constant bias of the IMU's x specific force, m/s^2.
+    """
+
+    encoder_tau_s: float = 0.04
+    omega_noise_radps: float = 0.01
+    cam_noise_mps: float = 0.003
+    imu_acc_noise: float = 0.02
+    gyro_noise: float = 0.002
+    gyro_bias: float = 0.003
+    imu_acc_bias: float = 0.0
+
+
+@dataclass(frozen=True)
+class BodyMotion:
+    """The prescribed motion of a kinematic run.
+
+    Attributes
+    ----------
+    vx, vy, yaw_rate : callables t (s, array) -> value (m/s, m/s, rad/s), or None (a trapezoid to
+        1 m/s, 0, 0).
+    slip : callable t -> array (N,) of true slip per wheel, a float, or None (0).
+    """
+
+    vx: Callable | None = None
+    vy: Callable | None = None
+    yaw_rate: Callable | None = None
+    slip: Callable | float | None = None
+
+
+_MOTION_FIELDS = frozenset(f.name for f in fields(BodyMotion))
+_NOISE_FIELDS = frozenset(f.name for f in fields(SensorNoise))
+
+
+def _motion_and_noise(noise: SensorNoise | None, options: dict[str, Any]) -> tuple[BodyMotion, SensorNoise]:
+    """The keyword options of :func:`kinematic_run` as its typed records (TypeError names an unknown one)."""
+    unknown = set(options) - _MOTION_FIELDS - _NOISE_FIELDS
+    if unknown:
+        raise TypeError(f"kinematic_run: unknown option(s) {sorted(unknown)}; known: "
+                        f"{sorted(_MOTION_FIELDS | _NOISE_FIELDS)}")
+    motion = BodyMotion(**{k: v for k, v in options.items() if k in _MOTION_FIELDS})
+    noise = replace(noise or SensorNoise(), **{k: v for k, v in options.items() if k in _NOISE_FIELDS})
+    return motion, noise
+
+
+def kinematic_run(robot: RobotSpec | None = None, *, duration_s: float = 20.0, rate_hz: float = 100.0,
+                  seed: int = 0, cam_dropouts: tuple[tuple[float, float], ...] = (), terrain: int = 0,
+                  run_id: str = "synthetic", noise: SensorNoise | None = None, **options: Any) -> pd.DataFrame:
     """A canonical run table with exact truth.
 
     Parameters
     ----------
     robot : RobotSpec (None: the reference robot).
-    vx, vy, yaw_rate : callables t -> value (m/s, m/s, rad/s) or None (trapezoid at 1 m/s, 0, 0).
-    slip : callable t -> array (N,) of true slip per wheel, a float, or None (0).
-    cam_dropouts : (t0, t1) intervals without camera samples.
+    duration_s : length of the run, s; rate_hz : its tick rate, Hz.
+    seed : seed of the noise generator.
+    cam_dropouts : (t0, t1) intervals without camera samples, s.
+    terrain : terrain class id of every tick; run_id : the run's id.
+    noise : SensorNoise (None: its defaults).
+    **options : fields of :class:`BodyMotion` (``vx``, ``vy``, ``yaw_rate``, ``slip``) and single
+        fields of :class:`SensorNoise` overriding ``noise`` (e.g. ``imu_acc_noise=0.005``).
 
     Returns
     -------
     DataFrame (n_ticks, ...) canonical run table with ``gt_*`` columns.
     """
+    motion, noise = _motion_and_noise(noise, options)
     robot = robot if robot is not None else reference_robot()
     rng = np.random.default_rng(seed)
     n = int(round(duration_s * rate_hz))
     dt = 1.0 / rate_hz
     t = np.arange(n) * dt
-    vx_f = vx or (lambda tt: trapezoid_speed(tt))
-    vy_f = vy or (lambda tt: np.zeros_like(tt))
-    r_f = yaw_rate or (lambda tt: np.zeros_like(tt))
+    vx_f = motion.vx or (lambda tt: trapezoid_speed(tt))
+    vy_f = motion.vy or (lambda tt: np.zeros_like(tt))
+    r_f = motion.yaw_rate or (lambda tt: np.zeros_like(tt))
     bvx, bvy, br = (np.asarray(f(t), dtype=float) * np.ones(n) for f in (vx_f, vy_f, r_f))
-    S = _slip_matrix(slip, t, robot.n_wheels)
+    S = _slip_matrix(motion.slip, t, robot.n_wheels)
     steer, v_long = _wheel_kinematics(robot, bvx, bvy, br)
     v_ang = wheel_speed_for_slip(v_long, S)
-    omega_meas = _encoder(v_ang / robot.wheel_radius_m, dt, encoder_tau_s)
-    omega_meas += rng.normal(0, omega_noise_radps, omega_meas.shape)
+    omega_meas = _encoder(v_ang / robot.wheel_radius_m, dt, noise.encoder_tau_s)
+    omega_meas += rng.normal(0, noise.omega_noise_radps, omega_meas.shape)
     yaw = np.cumsum(br) * dt
     yaw = yaw - yaw[0]
     df = pd.DataFrame({"t_s": t})
@@ -87,12 +146,11 @@ def kinematic_run(robot: RobotSpec | None = None, *, duration_s: float = 20.0,
         df[wheel_col("omega", i + 1)] = omega_meas[:, i]
         df[wheel_col("steer", i + 1)] = steer[:, i] + (rng.normal(0, 0.002, n) if robot.wheels[i].steerable else 0)
         df[wheel_col("current", i + 1)] = 5.0 * S[:, i] + rng.normal(0, 0.1, n)
-    _imu_columns(df, rng, bvx, bvy, br, yaw, dt, imu_acc_noise=imu_acc_noise, imu_acc_bias=imu_acc_bias,
-                 gyro_noise=gyro_noise, gyro_bias=gyro_bias)
+    _imu_columns(df, rng, bvx, bvy, br, yaw, dt, noise)
     if robot.camera is not None:
-        _camera_columns(df, rng, robot, bvx, bvy, br, yaw, cam_noise_mps, cam_dropouts)
+        _camera_columns(df, rng, robot, bvx, bvy, br, yaw, noise.cam_noise_mps, cam_dropouts)
     for g in ("wheels", "steer", "current", "imu"):
-        df[f"{g}_valid"] = True
+        df[valid_column(g).name] = True
     df["terrain"] = terrain
     df["run_id"] = run_id
     _truth_columns(df, bvx, bvy, br, yaw, dt, S, v_long, v_ang)
@@ -143,9 +201,11 @@ def _encoder(omega_true: np.ndarray, dt: float, tau_s: float) -> np.ndarray:
     return out
 
 
-def _imu_columns(df, rng, bvx, bvy, br, yaw, dt, *, imu_acc_noise, imu_acc_bias, gyro_noise, gyro_bias):
+def _imu_columns(df, rng, bvx, bvy, br, yaw, dt, noise: SensorNoise) -> None:
     """IMU specific force a = dv/dt + omega x v (body axes), gyro rate and yaw with bias and noise."""
     n = len(bvx)
+    imu_acc_noise, imu_acc_bias = noise.imu_acc_noise, noise.imu_acc_bias
+    gyro_noise, gyro_bias = noise.gyro_noise, noise.gyro_bias
     t = df["t_s"].to_numpy()
     ax = np.gradient(bvx, dt) - br * bvy
     ay = np.gradient(bvy, dt) + br * bvx

@@ -49,7 +49,7 @@ def closed_loop(
 ) -> None:
     from terrainml.control.pid import SlipPIDConfig
     from terrainml.control.traction import POLICIES, tuned_config
-    from terrainml.experiments.closed_loop import SCENARIOS, run_closed_loop
+    from terrainml.experiments.closed_loop import SCENARIOS, ClosedLoopControl, run_closed_loop
     from terrainml.robot import reference_robot
 
     if policy not in POLICIES:
@@ -74,8 +74,9 @@ def closed_loop(
     with Progress(console=console, transient=True) as bar:
         task = bar.add_task(f"closed loop {terrain} / {policy}", total=1.0)
         try:
-            report = run_closed_loop(terrain, policy, model=model, duration_s=duration_s, seed=seed,
-                                     speed_mps=speed_mps, pid=pid, scenario=scenario,
+            report = run_closed_loop(terrain, policy, control=ClosedLoopControl(model=model, pid=pid),
+                                     duration_s=duration_s, seed=seed,
+                                     speed_mps=speed_mps, scenario=scenario,
                                      progress=lambda f: bar.update(task, completed=f))
         except ValueError as exc:  # model refused, bad parameters
             fail(str(exc))

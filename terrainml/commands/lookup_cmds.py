@@ -142,7 +142,7 @@ def plot(
 
     Example: terrainml lookup plot --out lookup.png
     """
-    from terrainml.lookup.plot import plot_table
+    from terrainml.lookup.table_plot import plot_table
 
     check_output_writable(out)
     rb = _robot(robot)

@@ -77,7 +77,7 @@ from terrainml.control.pid import SlipPID, SlipPIDConfig
 from terrainml.control.slip_limiter import SlipLimiter, SlipLimiterConfig
 from terrainml.estimation.ekf import I_VX, I_VY
 from terrainml.estimation.online import OnlineEstimator
-from terrainml.lookup.policy import desired_slip_per_wheel
+from terrainml.lookup.wheel_targets import desired_slip_per_wheel
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
 from terrainml.stream.config import ServingConfig

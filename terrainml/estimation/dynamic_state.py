@@ -37,8 +37,8 @@ import numpy as np
 
 # state codes 0..3 (order of schema.WHEEL_STATES) and the per-tick rules, compiled (one
 # implementation, shared with the online estimator's tick)
-from terrainml.estimation._kernel import (BRAKING, IDLE, STEADY, TRACTION, manoeuvre_gain,  # noqa: F401
-                                         manoeuvre_step, state_machine_step)
+from terrainml.estimation._wheel_kernel import (BRAKING, IDLE, STEADY, TRACTION, manoeuvre_gain,  # noqa: F401
+                                                manoeuvre_step, state_machine_step)
 
 THETA_M2PS3 = 0.02
 DWELL_S = 0.2

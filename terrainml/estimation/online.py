@@ -25,16 +25,20 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from terrainml.estimation._kernel import (MAX_P_DIAG, MAX_SPEED_MPS, SLIP_MEMORY_CLIP,  # noqa: F401
-                                         SLIP_MEMORY_MIN_SPEED_MPS, measurements_tick, wheels_tick)
+from terrainml.estimation._kernel import I_AX, I_AY, I_R, I_VX, I_VY, measurements_tick
+from terrainml.estimation._wheel_kernel import (MAX_P_DIAG, MAX_SPEED_MPS, SLIP_MEMORY_CLIP,  # noqa: F401
+                                                SLIP_MEMORY_MIN_SPEED_MPS, wheels_tick)
 from terrainml.estimation.dynamic_state import DWELL_S, MANOEUVRE_TAU_S, THETA_M2PS3, WheelStateMachine
 from terrainml.estimation.ekf import Ekf, EkfPreset, PlanarModel, get_preset
 from terrainml.estimation.reference import ReferenceEkf
 from terrainml.estimation.slip import DEAD_BAND_MPS
 from terrainml.robot import RobotSpec
-from terrainml.schema import VALID_GROUPS, WHEEL_STATES, wheel_col
+from terrainml.schema import VALID_GROUPS, WHEEL_STATES, valid_column, wheel_col
 
-PASS_WHEEL = ("omega_radps", "current_a", "steer_rad")
+#: rows of vx, vy, r, ax, ay in the EKF state (the wheel kernel takes the layout as an argument)
+_BODY_ROWS = np.array([I_VX, I_VY, I_R, I_AX, I_AY], dtype=np.int64)
+
+PASS_WHEEL = ("omega", "current", "steer")   # wheel column kinds (schema.wheel_col)
 PASS_BASE = ("imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2", "imu_yaw_rate_radps")
 # fallback wheel-row variance at the start of a camera gap when no slip is remembered yet
 # (the IMU bridges the gap; wheels take over as it decays to r_wheel over fallback_ramp_s)
@@ -63,9 +67,9 @@ def est_state_columns(n_wheels: int) -> list[str]:
 
 def passthrough_columns(n_wheels: int, available: list[str] | None = None) -> list[str]:
     """Run-table columns copied into the EST table (contract 2), restricted to ``available``."""
-    cols = [f"wheel{i}_{s}" for i in range(1, n_wheels + 1) for s in PASS_WHEEL]
+    cols = [wheel_col(kind, i) for i in range(1, n_wheels + 1) for kind in PASS_WHEEL]
     cols += list(PASS_BASE)
-    cols += [f"{g}_valid" for g in VALID_GROUPS]
+    cols += [valid_column(g).name for g in VALID_GROUPS]
     cols += ["terrain", "run_id"]
     if available is None:
         return cols
@@ -160,7 +164,7 @@ class OnlineEstimator:
         self._accel_y2 = np.zeros(2)
         self._sm = WheelStateMachine(N, theta, dwell_s)
         # step(): sample keys, the group mask per validity pattern, EST row keys
-        self._valid_keys = [f"{g}_valid" for g in GROUPS]
+        self._valid_keys = [valid_column(g).name for g in GROUPS]
         self._group_mask: dict[tuple[bool, ...], np.ndarray] = {}
         self._nan_wheels = np.full(N, np.nan)
         self._pass_cols = passthrough_columns(N)
@@ -240,7 +244,7 @@ class OnlineEstimator:
         # ------------------------------------------------ slip and dynamic state per wheel
         sm = self._sm
         sane, mem_dt = wheels_tick(
-            t_s, dt, first, cam_ok, ekf.x, ekf.P, self._steer_state, self._wheel_xy, self._radius,
+            t_s, dt, first, cam_ok, ekf.x, _BODY_ROWS, ekf.P, self._steer_state, self._wheel_xy, self._radius,
             omega_radps, DEAD_BAND_MPS, p.encoder_lag_s, self._lag_y, p.fallback_slip_comp,
             p.slip_memory_tau_s, self._slip_mem, self._accel_tau_s, self._accel_y1, self._accel_y2,
             sm.theta, sm.dwell_s, sm.idle_speed, sm.state, sm.cand, sm.cand_since,

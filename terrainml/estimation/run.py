@@ -17,7 +17,7 @@ import pandas as pd
 from terrainml.estimation.ekf import EkfPreset
 from terrainml.estimation.online import OnlineEstimator, est_state_columns, passthrough_columns
 from terrainml.robot import RobotSpec, reference_robot
-from terrainml.schema import WHEEL_STATES, infer_n_wheels, table_metadata, wheel_col
+from terrainml.schema import WHEEL_STATES, infer_n_wheels, table_metadata, valid_column, wheel_col
 
 
 @dataclass
@@ -130,7 +130,7 @@ def _measurements(table: pd.DataFrame, est: OnlineEstimator, N: int):
             Z[:, k] = table[c].to_numpy(dtype=float)
     gv = {}
     for g in ("wheels", "imu", "cam", "steer"):
-        name = f"{g}_valid"
+        name = valid_column(g).name
         gv[g] = table[name].to_numpy(dtype=bool) if name in cols else np.ones(n, dtype=bool)
     V = np.isfinite(Z)
     for k, g in enumerate(est.row_groups):

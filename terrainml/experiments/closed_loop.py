@@ -24,6 +24,7 @@ moves) and ``fallback_fraction`` (predictor ticks served from the fallback row).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -35,21 +36,22 @@ from terrainml.control.slip_limiter import SlipLimiterConfig
 from terrainml.control.traction import POLICIES, SlipController
 from terrainml.lookup import terramechanics as tm
 from terrainml.robot import RobotSpec, reference_robot
+from terrainml.schema import wheel_col
 from terrainml.sim import physics as ph
 from terrainml.sim.control import inverse_kinematics
 from terrainml.sim.scenarios import Scenario, make_scenario
 from terrainml.sim.simulator import SimResult, Simulator
 from terrainml.sim.terrain import TerrainLayout
 
-__all__ = ["POLICIES", "SCENARIOS", "closed_loop_hook", "cruise_true_slip", "run_closed_loop",
-           "step_stop_and_go", "tractive_efficiency"]
+__all__ = ["POLICIES", "SCENARIOS", "ClosedLoopControl", "closed_loop_hook", "cruise_true_slip", "run_closed_loop",
+           "simulate_closed_loop", "step_stop_and_go", "tractive_efficiency"]
 
 
 def closed_loop_hook(sim: Simulator, controller: Callable[[dict], Any]) -> Callable[[dict], Any]:
     """Wrap ``controller`` so that its sample also carries the tick's low-level set-points."""
     rb = sim.robot
     n = rb.n_wheels
-    keys = [f"wheel{i}_cmd_omega_radps" for i in range(1, n + 1)]
+    keys = [wheel_col("cmd_omega", i) for i in range(1, n + 1)]
 
     def hook(sample: dict) -> Any:
         b = sim.body
@@ -117,25 +119,51 @@ def step_stop_and_go(terrain: str | int, speed_mps: float = 1.0, duration_s: flo
 SCENARIOS = ("straight", "step_stop_and_go")
 
 
-def run_closed_loop(terrain: str | int, policy: str, *, model: str | Path | None = None,
+@dataclass(frozen=True)
+class ClosedLoopControl:
+    """The slip controller of a closed-loop run, as :class:`~terrainml.control.traction.SlipController`
+    takes it.
+
+    Attributes
+    ----------
+    model : model directory of the terrain-aware policy (None: the oracle class).
+    law : ``"limiter"`` or ``"pid"`` (None: the limiter unless ``pid`` is given).
+    pid : SlipPIDConfig of the slip PID (None: :func:`~terrainml.control.traction.tuned_config`).
+    limiter : SlipLimiterConfig (None: :func:`~terrainml.control.traction.limiter_config`).
+    steady_target : ``"peak"`` or the table's steady target, as the controller takes it.
+    """
+
+    model: str | Path | None = None
+    law: str | None = None
+    pid: SlipPIDConfig | None = None
+    limiter: SlipLimiterConfig | None = None
+    steady_target: str = "peak"
+
+
+def run_closed_loop(terrain: str | int, policy: str, *, control: ClosedLoopControl | None = None,
                     duration_s: float = 60.0, seed: int = 0, speed_mps: float = 1.0,
-                    robot: RobotSpec | None = None, pid: SlipPIDConfig | None = None,
-                    law: str | None = None, limiter: SlipLimiterConfig | None = None,
-                    steady_target: str = "peak", scenario: str = "straight",
-                    progress: Callable[[float], None] | None = None,
-                    return_result: bool = False) -> dict[str, Any] | tuple[dict[str, Any], SimResult]:
-    """Simulate one run on ``terrain`` under ``policy``; return the report dict.
+                    robot: RobotSpec | None = None, scenario: str = "straight",
+                    progress: Callable[[float], None] | None = None) -> dict[str, Any]:
+    """Simulate one run on ``terrain`` under ``policy``; return the report dict
+    (:func:`simulate_closed_loop` without the simulation result)."""
+    return simulate_closed_loop(terrain, policy, control=control, duration_s=duration_s, seed=seed,
+                                speed_mps=speed_mps, robot=robot, scenario=scenario, progress=progress)[0]
+
+
+def simulate_closed_loop(terrain: str | int, policy: str, *, control: ClosedLoopControl | None = None,
+                         duration_s: float = 60.0, seed: int = 0, speed_mps: float = 1.0,
+                         robot: RobotSpec | None = None, scenario: str = "straight",
+                         progress: Callable[[float], None] | None = None) -> tuple[dict[str, Any], SimResult]:
+    """Simulate one run on ``terrain`` under ``policy``; return the report dict and the :class:`SimResult`.
 
     ``scenario``: ``"straight"`` (the default: 1 m/s^2 start, cruise, brake; design §6) or
-    ``"step_stop_and_go"`` (:func:`step_stop_and_go`). ``law``, ``pid``, ``limiter`` and
-    ``steady_target`` as in :class:`~terrainml.control.traction.SlipController`: by default the
-    slip limiter (:func:`~terrainml.control.traction.limiter_config`); a ``pid`` configuration
-    (or ``law="pid"``) runs the slip PID (default :func:`~terrainml.control.traction.tuned_config`).
+    ``"step_stop_and_go"`` (:func:`step_stop_and_go`). ``control``: the slip controller
+    (:class:`ClosedLoopControl`; by default the slip limiter, or the slip PID when it names one).
     The scenario and the terrain draw depend only on ``seed`` (derived exactly as
     :func:`terrainml.sim.generate.simulate` derives them), so the policies of one seed drive on the
-    same ground. ``return_result``: also return the
-    :class:`SimResult`.
+    same ground. ``duration_s`` in s, ``speed_mps`` the cruise command in m/s.
     """
+    control = control or ClosedLoopControl()
     if scenario not in SCENARIOS:
         raise ValueError(f"scenario must be one of {', '.join(SCENARIOS)}, got {scenario!r}")
     rb = robot if robot is not None else reference_robot()
@@ -147,8 +175,8 @@ def run_closed_loop(terrain: str | int, policy: str, *, model: str | Path | None
     else:
         scn = step_stop_and_go(cid, speed_mps, duration_s)
     sim = Simulator(scn, rb, ss_sim)
-    ctrl = SlipController(rb, policy, model=model, true_class=cid, law=law, pid=pid,
-                          limiter=limiter, steady_target=steady_target)
+    ctrl = SlipController(rb, policy, model=control.model, true_class=cid, law=control.law, pid=control.pid,
+                          limiter=control.limiter, steady_target=control.steady_target)
     hook = None if policy == "none" else closed_loop_hook(sim, ctrl)
     res = sim.run(controller=hook, progress=progress)
     dist = max(float(res.distance_m), 1e-9)
@@ -164,4 +192,4 @@ def run_closed_loop(terrain: str | int, policy: str, *, model: str | Path | None
         "cruise_true_slip": cruise_true_slip(res),
         "fallback_fraction": ctrl.n_fallback / ctrl.n_ticks if ctrl.n_ticks else 0.0,
     }
-    return (report, res) if return_result else report
+    return report, res

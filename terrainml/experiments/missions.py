@@ -89,7 +89,6 @@ PAYLOAD_MAX_KG = 40.0
 CART_CRR_BY_CLASS = {"pavement": 0.015, "compacted_dirt": 0.04, "short_grass": 0.06,
                      "gravel_on_firm_soil": 0.08, "tall_damp_grass": 0.08, "tilled_loam": 0.10,
                      "dry_sand": 0.15, "wet_mud": 0.12}
-G = 9.81
 PHYSICS_SPEED_LIMIT_MPS = 10.0  # a body speed above this is a diverged integration, not a robot
 
 
@@ -287,12 +286,12 @@ def demand_ratio(mission: Mission, robot: RobotSpec, peaks: dict[str, float]) ->
 
     ``peaks``: net traction peak per soil (:func:`route_peaks`)."""
     th = math.radians(mission.grade_deg)
-    w = robot.mass_kg * G
+    w = robot.mass_kg * ph.G
     weakest = min(peaks, key=peaks.get)
     draft = mission.tool_draft_w * w
     if mission.payload_kg is not None:
         cart_kg = mission.cart_mass_kg + max(mission.payload_kg)
-        draft += cart_kg * G * (CART_CRR_BY_CLASS[weakest] * math.cos(th) + math.sin(th))
+        draft += cart_kg * ph.G * (CART_CRR_BY_CLASS[weakest] * math.cos(th) + math.sin(th))
     grade = w * math.sin(th)
     peak = peaks[weakest]
     return float((draft + grade) / (max(peak, 1e-9) * w))
@@ -331,7 +330,7 @@ def _physics_kwargs(mission: Mission, robot: RobotSpec) -> tuple[dict, list[str]
             missing.append("cart")
     if mission.tool_draft_w:
         if "tool_draft_n" in accepted:
-            kw["tool_draft_n"] = mission.tool_draft_w * robot.mass_kg * G
+            kw["tool_draft_n"] = mission.tool_draft_w * robot.mass_kg * ph.G
         else:
             missing.append("tool_draft")
     return kw, missing

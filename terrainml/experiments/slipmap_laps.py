@@ -175,24 +175,50 @@ def _speed_profile_mps(path: ClosedSplinePath, idx, progress_m, cfg: ExperimentC
         1.0 + cfg.speed_variation * np.sin(phase))
 
 
-def _compensated_wheel_speeds(method, v_cmd, w_cmd, patch, keys, truth, exp_model, global_map,
-                              radius_m, track_m, iterations):
-    """Wheel-speed set-points ``(omega_L, omega_R)`` and predicted slip angle of one method.
+@dataclass(frozen=True)
+class _SlipSources:
+    """What a compensation method predicts slippage from.
 
-    Paper eq. 8, evaluated at the compensated speeds by ``iterations`` fixed-point steps.
+    Attributes
+    ----------
+    truth : the true patch slip model (the ``oracle`` method's upper bound).
+    exponential : the exponential model of the ``exponential`` method.
+    patch_keys : ndarray (n_patches,) of str, the slip map's key of every patch (the ``irls`` method).
     """
+
+    truth: PatchSlipModel
+    exponential: ExponentialSlipModel
+    patch_keys: np.ndarray
+
+
+@dataclass(frozen=True)
+class _Tracks:
+    """The tracked robot's geometry: sprocket radius and track width, m."""
+
+    radius_m: float
+    track_m: float
+
+
+def _compensated_wheel_speeds(method: str, v_cmd, w_cmd, patch, sources: _SlipSources, global_map: SlipMap | None,
+                              tracks: _Tracks, iterations: int):
+    """Wheel-speed set-points ``(omega_L, omega_R)`` (rad/s) and predicted slip angle (rad) of one method.
+
+    ``v_cmd`` (m/s), ``w_cmd`` (rad/s), ``patch``: per robot (n,). Paper eq. 8, evaluated at the
+    compensated speeds by ``iterations`` fixed-point steps.
+    """
+    radius_m, track_m = tracks.radius_m, tracks.track_m
     wl, wr = wheel_speeds_from_twist_radps(v_cmd, w_cmd, radius_m, track_m)
     if method == "exponential":
-        bl, br, al = exp_model.predict(v_cmd, w_cmd)
+        bl, br, al = sources.exponential.predict(v_cmd, w_cmd)
         return (compensate_wheel_speed_radps(wl, bl, radius_m),
                 compensate_wheel_speed_radps(wr, br, radius_m), al)
     if method == "oracle" or (method == "irls" and global_map is not None):
         wl0, wr0 = wl, wr
         for _ in range(iterations):
             if method == "oracle":  # true slippage (diagnostic upper bound)
-                bl, br, al = truth.slippage(patch, wl, wr, radius_m, track_m)
+                bl, br, al = sources.truth.slippage(patch, wl, wr, radius_m, track_m)
             else:
-                pred = global_map.predict(keys[patch], np.c_[wl, wr], fill=0.0)
+                pred = global_map.predict(sources.patch_keys[patch], np.c_[wl, wr], fill=0.0)
                 bl, br, al = pred[:, 0], pred[:, 1], pred[:, 2]
             wl = compensate_wheel_speed_radps(wl0, bl, radius_m)
             wr = compensate_wheel_speed_radps(wr0, br, radius_m)
@@ -242,6 +268,7 @@ def simulate_method(method: str, cfg: ExperimentConfig, path: ClosedSplinePath, 
     traj0: list[list] = [[] for _ in range(cfg.n_laps)]
     n_refits = 0
     rows = np.arange(n)
+    sources, tracks = _SlipSources(truth, exp_model, keys), _Tracks(radius_m, track_m)
 
     for step in range(max_steps):
         if not (np.floor(prog / lap_len).astype(int) < cfg.n_laps).any():
@@ -251,8 +278,7 @@ def simulate_method(method: str, cfg: ExperimentConfig, path: ClosedSplinePath, 
         w_cmd = path_following_yaw_rate(fleet.xy_m, fleet.yaw_rad, path, idx, cfg.speed_mps,
                                         cfg.k_lateral_per_m2, cfg.k_heading_radps, alpha_hat)
         v_cmd = _speed_profile_mps(path, idx, prog, cfg)
-        wl, wr, alpha_hat = _compensated_wheel_speeds(method, v_cmd, w_cmd, patch, keys, truth, exp_model,
-                                                      global_map, radius_m, track_m,
+        wl, wr, alpha_hat = _compensated_wheel_speeds(method, v_cmd, w_cmd, patch, sources, global_map, tracks,
                                                       cfg.fixed_point_iterations)
         # ---- plant and sensors (terrainml.sim.tracked)
         meas = fleet.step(np.clip(wl, -omega_max, omega_max), np.clip(wr, -omega_max, omega_max))

@@ -24,7 +24,7 @@ from typing import Any, Mapping
 import pandas as pd
 import pyarrow.parquet as pq
 
-from terrainml.io.ingest.report import IngestReport
+from terrainml.io.ingest.ingest_report import IngestReport
 from terrainml.schema import METADATA_KEY
 
 __all__ = ["DamageSummary", "damage_summary"]

@@ -47,6 +47,7 @@ import yaml
 
 from terrainml._yaml_checks import YamlLimitError, load_bounded_yaml
 from terrainml.lookup.catalogue_names import BUILTIN_CATALOGUES
+from terrainml.lookup.target_rules import MAX_MAGNITUDE, MIN_TRACTION_MARGIN, RIGID_PEAK_RANGE
 from terrainml.lookup.terrain_params import TerrainParams
 
 __all__ = ["BUILTIN_CATALOGUES", "CatalogueClass", "CatalogueError", "TerrainCatalogue",
@@ -56,10 +57,6 @@ SCHEMA = "terrainml.terrain_catalogue"
 SCHEMA_VERSION = 1
 MODELS = ("burckhardt", "soil")
 TARGET_NAMES = ("traction", "braking", "steady")
-# design §10 rules, repeated here so that direct targets are refused, not clamped
-MAX_MAGNITUDE = 0.6
-MIN_TRACTION_MARGIN = 0.03
-RIGID_PEAK_RANGE = (0.10, 0.20)
 
 _DEG = math.pi / 180.0
 _INF = math.inf

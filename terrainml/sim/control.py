@@ -28,6 +28,13 @@ class DriveGains:
 
 @njit(cache=True)
 def _ik_kernel(vx, vy, r, wx, wy, radius, steer_now, steerable, min_speed, omega, delta):
+    """Swerve inverse kinematics of every wheel, in place on ``omega`` (rad/s) and ``delta`` (rad).
+
+    Numba kernel: takes flat arrays and scalars, because numba compiles a call with plain arrays
+    and numbers without boxing a record, and the simulator calls it every control tick. Body
+    twist ``vx, vy`` (m/s), ``r`` (rad/s); wheel positions ``wx, wy`` (N,) (m); ``radius`` (m);
+    below ``min_speed`` (m/s) at the wheel a steerable wheel keeps ``steer_now``.
+    """
     for i in range(wx.shape[0]):
         px = vx - r * wy[i]
         py = vy + r * wx[i]

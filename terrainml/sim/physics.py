@@ -476,7 +476,10 @@ def _towed_x(v, g, body, ext, sfx, sc):
 def _integrate(v, g, body, wheel, acc, cpsi, spsi, ax_cm, ay_cm, rdot, f_hitch, ct, sc):
     """Semi-implicit Euler: velocities from the final forces, then pose, wheel speeds, steering,
     shear displacement and dig-in sinkage states, distances, energies and powers. Returns the
-    origin velocity (body axes)."""
+    origin velocity (body axes).
+
+    Numba kernel: takes the packs and the substep's scalars flat, because it is inlined into
+    :func:`run_substeps` and a record of them would be built and copied every substep."""
     wx, wy = v.wx, v.wy
     len_tab, z_tab = g.len_tab, g.z_tab
     n_load = z_tab.shape[1]
@@ -569,7 +572,10 @@ def _integrate(v, g, body, wheel, acc, cpsi, spsi, ax_cm, ay_cm, rdot, f_hitch, 
 
 @njit(cache=True, inline="always")
 def _log(v, st, row, vxo, vyo, ax_cm, ay_cm, rdot, az_mean, ct, sc):
-    """Write the truth log row ``row`` (columns: LOG_COLS, then the WLOG blocks)."""
+    """Write the truth log row ``row`` (columns: LOG_COLS, then the WLOG blocks).
+
+    Numba kernel: takes the packs and the substep's scalars flat, because it is inlined into
+    :func:`run_substeps` and a record of them would be built and copied every logged substep."""
     body, wheel, log, wx, wy = st.body, st.wheel, st.log, v.wx, v.wy
     n = wx.shape[0]
     u2 = body[B_U]

@@ -41,7 +41,7 @@ def slip_samples(table: pd.DataFrame, robot, *, min_speed_mps: float = 0.05, sou
     left, right, track_m = side_geometry(robot)
     for i in left + right:
         if wheel_col("omega", i) not in table.columns:
-            raise SlipFitError(f"{source}: missing column 'wheel{i}_omega_radps'")
+            raise SlipFitError(f"{source}: missing column '{wheel_col('omega', i)}'")
     wl = table[[wheel_col("omega", i) for i in left]].to_numpy(float).mean(axis=1)
     wr = table[[wheel_col("omega", i) for i in right]].to_numpy(float).mean(axis=1)
     if all(c in table.columns for c in ("gt_vx_mps", "gt_vy_mps", "gt_yaw_rate_radps")) and \

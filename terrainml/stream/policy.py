@@ -46,7 +46,7 @@ from typing import Any, Protocol, Sequence
 
 import numpy as np
 
-from terrainml.lookup.policy import desired_slip_per_wheel, safe_cap_per_wheel
+from terrainml.lookup.wheel_targets import desired_slip_per_wheel, safe_cap_per_wheel
 from terrainml.lookup.table import CLASS_FREE_DETAIL
 
 __all__ = ["FALLBACK_REASONS", "NO_CLASS_ID", "NO_CLASS_NAME", "SERVE_P", "GenericSafeCap",

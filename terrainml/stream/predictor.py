@@ -42,7 +42,7 @@ from typing import Any, Callable, Protocol, Sequence
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.estimation.online import OnlineEstimator
 from terrainml.features.windows import WindowSpec
-from terrainml.lookup.policy import TargetTable
+from terrainml.lookup.wheel_targets import TargetTable
 from terrainml.robot import RobotSpec
 from terrainml.stream.classify import ServingMember, load_serving_model, one_window_spec
 from terrainml.stream.clock import ACCEPT, JUMP, REANCHOR, ClockGate

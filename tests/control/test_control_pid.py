@@ -9,7 +9,7 @@ import pytest
 
 from terrainml.control.pid import SlipPID, SlipPIDConfig
 from terrainml.estimation.slip import slip_ratio
-from terrainml.lookup.policy import desired_slip_per_wheel
+from terrainml.lookup.wheel_targets import desired_slip_per_wheel
 
 # Thesis Table 8.1 ("Summary analysis of traction control operational cases"), transcribed by
 # hand from the thesis text. Kp = 1, Ki = Kd = 0, r = 1 m, s_T = 0.1, s_B = -0.15.

@@ -16,7 +16,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from terrainml.io.ingest.logs import Scan, plan, produce
-from terrainml.io.ingest.report import IngestReport
+from terrainml.io.ingest.ingest_report import IngestReport
 from terrainml.io.ingest.resample import at_tick, resample
 from terrainml.io.ingest.ticks import TickProducer
 from terrainml.io.readers import read_mcap

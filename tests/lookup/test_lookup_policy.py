@@ -9,7 +9,7 @@ import math
 
 import pytest
 
-from terrainml.lookup.policy import desired_slip_per_wheel, safe_cap_per_wheel
+from terrainml.lookup.wheel_targets import desired_slip_per_wheel, safe_cap_per_wheel
 
 
 class HandTable:

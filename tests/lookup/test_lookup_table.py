@@ -16,7 +16,7 @@ import pytest
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.lookup import terramechanics as tm
-from terrainml.lookup.policy import desired_slip_per_wheel
+from terrainml.lookup.wheel_targets import desired_slip_per_wheel
 from terrainml.lookup.table import DesiredSlipTable, LookupTableError
 from terrainml.robot import load_robot
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
-from terrainml.lookup.policy import safe_cap_per_wheel
+from terrainml.lookup.wheel_targets import safe_cap_per_wheel
 from terrainml.lookup.table import DesiredSlipTable, LookupTableError, SafeCap
 from terrainml.robot import load_robot
 

@@ -13,7 +13,7 @@ from terrainml.cli import app
 from terrainml.control.pid import SlipPIDConfig
 from terrainml.control.traction import SlipController
 from terrainml.testing import kinematic_run
-from terrainml.experiments.closed_loop import closed_loop_hook, run_closed_loop
+from terrainml.experiments.closed_loop import ClosedLoopControl, closed_loop_hook, run_closed_loop
 from terrainml.robot import load_robot
 from terrainml.sim.generate import simulate
 from terrainml.sim.scenarios import make_scenario
@@ -45,8 +45,8 @@ def test_fixed_low_target_holds_the_wheels_back_on_soft_soil():
     """Tilled loam needs about 0.2 slip to cruise: a PID pinned to 0.1 must slow the robot
     (the thesis-style two-sided PI and the tuned limiter alike)."""
     cfg = SlipPIDConfig(kp=20.0, ki=20.0)
-    free = run_closed_loop("tilled_loam", "none", duration_s=10.0, seed=1, pid=cfg)
-    fixed = run_closed_loop("tilled_loam", "fixed", duration_s=10.0, seed=1, pid=cfg)
+    free = run_closed_loop("tilled_loam", "none", duration_s=10.0, seed=1, control=ClosedLoopControl(pid=cfg))
+    fixed = run_closed_loop("tilled_loam", "fixed", duration_s=10.0, seed=1, control=ClosedLoopControl(pid=cfg))
     assert fixed["mean_speed_mps"] < 0.8 * free["mean_speed_mps"]
     tuned = run_closed_loop("tilled_loam", "fixed", duration_s=10.0, seed=1)
     assert tuned["mean_speed_mps"] < 0.6 * free["mean_speed_mps"]
@@ -82,7 +82,8 @@ def test_hook_gives_the_controller_the_simulators_own_setpoints():
 
 
 def test_terrain_aware_with_a_model_serves_through_the_predictor(model_dir):
-    rep = run_closed_loop("pavement", "terrain-aware", model=model_dir, duration_s=4.0, seed=2)
+    rep = run_closed_loop("pavement", "terrain-aware", control=ClosedLoopControl(model=model_dir), duration_s=4.0,
+                          seed=2)
     assert rep["classifier"] == "model"
     # no 2 s window can exist before t = 2 s: at least half of a 4 s run is start-up fallback
     assert rep["fallback_fraction"] >= 0.5

@@ -28,7 +28,7 @@ import pandas as pd
 
 from terrainml.io.ingest.dataset_spec import DatasetSpec, DatasetSpecError, RunFiles, load_dataset_spec
 from terrainml.io.ingest.finish import default_robot, failed, finish_run
-from terrainml.io.ingest.report import IngestReport, IngestResult
+from terrainml.io.ingest.ingest_report import IngestReport, IngestResult
 from terrainml.io.ingest.tables import tables_to_run
 from terrainml.robot import RobotSpec, RobotSpecError
 from terrainml.schema import DEFAULT_RATE_HZ, SchemaError

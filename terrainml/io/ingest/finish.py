@@ -16,7 +16,7 @@ from typing import Any, Callable
 import pandas as pd
 
 from terrainml.hashing import sha256_file
-from terrainml.io.ingest.report import IngestReport, IngestResult, Tally
+from terrainml.io.ingest.ingest_report import IngestReport, IngestResult, Tally
 from terrainml.io.topicmap import TopicMap
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import SchemaError, column_map, make_metadata, validate_run_table

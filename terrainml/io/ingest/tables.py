@@ -29,7 +29,7 @@ import pyarrow.parquet as pq
 
 from terrainml.io import topics
 from terrainml.io.ingest.cells import Cells, arrow_cells, series_cells
-from terrainml.io.ingest.report import IngestReport
+from terrainml.io.ingest.ingest_report import IngestReport
 from terrainml.io.ingest.signals import PREVIOUS_COLUMNS, Signal, assemble
 from terrainml.io.ingest.resample import clean_times, gap_threshold_s
 from terrainml.robot import RobotSpec, check_wheel_count

@@ -31,7 +31,7 @@ from bisect import bisect_left, bisect_right
 
 import numpy as np
 
-from terrainml.io.ingest.logs import Buffer, Plan
+from terrainml.io.ingest.log_plan import Buffer, Plan
 from terrainml.io.ingest.resample import _EPS, at_tick
 from terrainml.io.ingest.signals import Signal, filled_columns, label_stream_stale, signals_for, validity_members
 from terrainml.io.topicmap import TopicMap
@@ -144,14 +144,23 @@ class _Ring:
 
 class TickProducer:
     """:class:`~terrainml.io.ingest.logs.Producer` (same plan, input and settling) emitting one sample
-    dict per tick into ``out`` (module docstring). ``plan.n_ticks`` may grow (a live stream); the
-    attributes a live aligner reads -- ``next_tick``, ``topic_max``, ``all_max``, ``by_topic``,
-    ``scan`` -- mean what they mean on the Producer."""
+    dict per tick into ``out`` (module docstring), from tick ``first_tick`` on. The grid ends where
+    the plan ends it, or, for a live stream whose plan is unbounded, at :meth:`finish`.
 
-    def __init__(self, p: Plan, tmap: TopicMap, robot: RobotSpec, rate_hz: float, out: list[dict]):
+    Parameters
+    ----------
+    p : the plan (its buffers are filled by :meth:`on_part`).
+    tmap, robot : the topic map and robot the plan was made for.
+    rate_hz : base rate, Hz.
+    out : list the sample dicts are appended to.
+    first_tick : index of the first tick emitted (a new timeline continues the grid there).
+    """
+
+    def __init__(self, p: Plan, tmap: TopicMap, robot: RobotSpec, rate_hz: float, out: list[dict],
+                 first_tick: int = 0):
         self.plan, self.tmap, self.robot, self.rate_hz, self.out = p, tmap, robot, float(rate_hz), out
         self.scan, self.t0 = p.scan, p.t0_ns
-        self.next_tick = 0
+        self._next_tick = int(first_tick)
         self.topic_max: dict[str, int] = {}
         self.all_max: int | None = None
         self.hole_s = -math.inf      # last tick served with no sensor group valid
@@ -166,6 +175,28 @@ class TickProducer:
                         validity_members(present + self.zeros + self.absent, spec).items()]
         names = ["t_s"] + present + self.zeros + self.absent + [v for v, _ in self.members]
         self.order = [c for c in spec if c in names] + [c for c in names if c not in spec]
+
+    @property
+    def next_tick(self) -> int:
+        """Index of the next tick to emit (ticks before it have been emitted)."""
+        return self._next_tick
+
+    @property
+    def columns_by_topic(self) -> dict[str, list[str]]:
+        """The run-table columns each mapped topic feeds."""
+        cols: dict[str, list[str]] = {}
+        for r in self.rings:
+            topic_cols = cols.setdefault(r.topic, [])
+            topic_cols += [c for c in r.cols if c not in topic_cols]
+        return cols
+
+    def finish(self) -> None:
+        """End the grid at the latest stamp of a mapped source (as ingest ends it at the log's last
+        message; never before the next tick) and emit every tick up to it."""
+        ends = [m for topic, m in self.topic_max.items() if topic in self.by_topic]
+        t_end_s = (max(ends) - self.t0) * 1e-9 if ends else (self._next_tick - 1) / self.rate_hz
+        self.plan.n_ticks = max(int(math.floor(t_end_s * self.rate_hz + 1e-6)) + 1, self._next_tick)
+        self.drain(final=True)
 
     def on_part(self, topic: str, part: dict) -> None:
         t = part["t_ns"]
@@ -193,27 +224,27 @@ class TickProducer:
             fronts = None
         else:
             hi = min(int(math.floor((self.all_max - self.t0) * 1e-9 * self.rate_hz + 1e-6)) + 1, n_ticks)
-            if hi <= self.next_tick:
+            if hi <= self._next_tick:
                 return 0
             fronts = self._frontiers_ns()
-        a = self.next_tick
-        while self.next_tick < hi:
-            g = self.next_tick / self.rate_hz
+        a = self._next_tick
+        while self._next_tick < hi:
+            g = self._next_tick / self.rate_hz
             if fronts is not None and not all(r.settled(g, fronts[r.topic], r.buf.need_gap_s) for r in self.rings):
                 break
-            if self.next_tick == a:
+            if self._next_tick == a:
                 for r in self.rings:
                     r.convert(self)
             self.out.append(self._tick(g))
-            self.next_tick += 1
-        if final and self.next_tick >= n_ticks:
+            self._next_tick += 1
+        if final and self._next_tick >= n_ticks:
             for r in self.rings:
                 r.t_ns, r.t_s, r.rows, r.pending = [], [], [], []
-        elif self.next_tick > a:
-            g_next = self.next_tick / self.rate_hz
+        elif self._next_tick > a:
+            g_next = self._next_tick / self.rate_hz
             for r in self.rings:
                 r.trim(g_next)
-        return self.next_tick - a
+        return self._next_tick - a
 
     def _tick(self, g: float) -> dict:
         """One row of the run table (``assemble``'s column rules)."""

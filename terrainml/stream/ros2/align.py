@@ -60,8 +60,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from terrainml.io.ingest.logs import Buffer, Plan, Scan, plan
-from terrainml.io.ingest.report import IngestReport
+from terrainml.io.ingest.logs import Plan, Scan, plan
+from terrainml.io.ingest.ingest_report import IngestReport
 from terrainml.io.ingest.signals import validity_members
 from terrainml.io.ingest.ticks import TickProducer
 from terrainml.io.topicmap import TopicMap
@@ -108,12 +108,6 @@ class _WarmupLog:
         for topic, p in self.parts:
             if topics is None or topic in topics:
                 on_part(topic, p)
-
-
-def _fresh(p: Plan) -> Plan:
-    """The plan with empty buffers (same sources, templates and gap thresholds)."""
-    bufs = [Buffer(b.topic, b.joint, b.signals, b.need_gap_s, list(b.fields)) for b in p.buffers]
-    return Plan(p.t0_ns, _UNBOUNDED, bufs, p.facts, p.scan)
 
 
 class LiveAligner:
@@ -197,12 +191,8 @@ class LiveAligner:
                 return []
             self._start()
         elif wait_all:
-            scan = self._prod.scan
-            saved, scan.cross_late = scan.cross_late, _UNBOUNDED
-            try:
+            with self._prod.scan.cross_lateness(_UNBOUNDED):
                 self._prod.drain(final=False)
-            finally:
-                scan.cross_late = saved
         else:
             self._prod.drain(final=False)
         out, self._out[:] = self._out[:], []
@@ -252,18 +242,19 @@ class LiveAligner:
             raise ValueError("; ".join(rep.errors) or f"{self.name}: no usable message")
         for w in rep.warnings:
             log.warning("%s", w)
-        scan.cross_late = max(scan.cross_late, self.reorder_ns)
-        self._plan = _fresh(p)
+        scan.allow_cross_lateness(self.reorder_ns)
+        self._plan = p.emptied(_UNBOUNDED)
         self._prod = TickProducer(self._plan, self.tmap, self.robot, self.rate_hz, self._out)
-        present = sorted({c for r in self._prod.rings for c in r.cols})
+        topic_cols = self._prod.columns_by_topic
+        present = sorted({c for cols in topic_cols.values() for c in cols})
         self.mapped_groups = [g for g, cols in validity_members(present, column_map(self.robot.n_wheels)).items()
                               if cols and g in VALID_GROUPS]
         if self.watch is not None:
             self.watch.mapped_groups = list(self.mapped_groups)
             spec = column_map(self.robot.n_wheels)
-            for r in self._prod.rings:
-                self.watch.topic_groups.setdefault(r.topic, set()).update(
-                    spec[c].group for c in r.cols if c in spec and spec[c].group in VALID_GROUPS)
+            for topic, cols in topic_cols.items():
+                self.watch.topic_groups.setdefault(topic, set()).update(
+                    spec[c].group for c in cols if c in spec and spec[c].group in VALID_GROUPS)
         self.counters.timelines = 1
         self._start_ns = self._plan.t0_ns
         early, self._early = self._early, []
@@ -336,11 +327,7 @@ class LiveAligner:
             self._new_timeline()
 
     def _end_timeline(self) -> None:
-        prod = self._prod
-        ends = [m for tp, m in prod.topic_max.items() if tp in prod.by_topic]
-        t_end = (max(ends) - self._plan.t0_ns) * 1e-9 if ends else (prod.next_tick - 1) / self.rate_hz
-        self._plan.n_ticks = max(int(math.floor(t_end * self.rate_hz + 1e-6)) + 1, prod.next_tick)
-        prod.drain(final=True)
+        self._prod.finish()
 
     def _new_timeline(self) -> None:
         """K consistent off-timeline messages: finish the old timeline, start one at their stamps."""
@@ -356,9 +343,9 @@ class LiveAligner:
                         "far as the wall clock); a new timeline starts there", self.name, wall_s, step_s)
         else:
             log.warning("%s: clock jump: stamps moved %.3f s; a new timeline starts there", self.name, step_s)
-        self._plan = _fresh(self._plan)
-        self._prod = TickProducer(self._plan, self.tmap, self.robot, self.rate_hz, self._out)
-        self._prod.next_tick = int(math.ceil((first - self._plan.t0_ns) * 1e-9 * self.rate_hz - 1e-6))
+        self._plan = self._plan.emptied(_UNBOUNDED)
+        first_tick = int(math.ceil((first - self._plan.t0_ns) * 1e-9 * self.rate_hz - 1e-6))
+        self._prod = TickProducer(self._plan, self.tmap, self.robot, self.rate_hz, self._out, first_tick)
         self._latest_ns = None
         self._old, self._last = self._last, {}
         self.counters.timelines += 1

@@ -5,7 +5,7 @@ canonical DataFrame, metadata in ``attrs["terrainml"]``; zero rows when nothing 
 ``.report`` (per-topic counts, warnings, ``usable``). ``ingest_to_parquet(LOG, OUT)`` (``terrainml
 ingest LOG --out RUN.parquet``) writes the same table ``chunk_s`` seconds at a time, one row group
 per chunk, with peak memory that does not grow with the log. Both run the log path of the engine
-(:mod:`terrainml.io.ingest.logs`) into a sink (:mod:`terrainml.io.ingest.sinks`: DataFrame or
+(:mod:`terrainml.io.ingest.logs`) into a sink (:mod:`terrainml.io.ingest.table_sinks`: DataFrame or
 Parquet); CSV/Parquet inputs are tables already and are resampled in memory
 (:mod:`terrainml.io.ingest.tables`); with ``dataset=``, one run of a multi-file dataset
 (:mod:`terrainml.io.ingest.dataset_runs`). Every path ends in
@@ -32,8 +32,8 @@ from terrainml.io.ingest.dataset_runs import load_dataset_file
 from terrainml.io.ingest.dataset_spec import DatasetSpec
 from terrainml.io.ingest.finish import default_robot, failed, finish_run, run_metadata
 from terrainml.io.ingest.logs import FileLog, MemoryLog, produce, scan_log
-from terrainml.io.ingest.report import IngestReport, IngestResult
-from terrainml.io.ingest.sinks import FrameSink, ParquetSink
+from terrainml.io.ingest.ingest_report import IngestReport, IngestResult
+from terrainml.io.ingest.table_sinks import FrameSink, ParquetSink
 from terrainml.io.ingest.tables import Binding, TableFile, tables_to_run
 from terrainml.io.readers import LogReadError, sniff_format
 from terrainml.io.topicmap import TopicMap, TopicMapError, load_topic_map

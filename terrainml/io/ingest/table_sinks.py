@@ -19,7 +19,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from terrainml.atomic import discard, output_error, part_path
-from terrainml.io.ingest.report import Tally
+from terrainml.io.ingest.ingest_report import Tally
 from terrainml.schema import METADATA_KEY, validate_run_table
 
 __all__ = ["FrameSink", "ParquetSink"]

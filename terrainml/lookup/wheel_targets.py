@@ -22,9 +22,9 @@ from __future__ import annotations
 import math
 from typing import Any, Callable, Protocol, Sequence
 
-__all__ = ["TargetTable", "desired_slip_per_wheel", "safe_cap_per_wheel"]
+from terrainml.schema import MOVING_WHEEL_STATES
 
-_ACTIVE_STATES = ("steady", "traction", "braking")
+__all__ = ["TargetTable", "desired_slip_per_wheel", "safe_cap_per_wheel"]
 
 
 class TargetTable(Protocol):
@@ -81,7 +81,7 @@ def _signed_per_wheel(states: Sequence[str], v_long: Sequence[float],
         v = float(v)
         if st == "idle" or not math.isfinite(v) or v == 0.0:
             out.append(0.0)
-        elif st in _ACTIVE_STATES:
+        elif st in MOVING_WHEEL_STATES:
             out.append(math.copysign(1.0, v) * float(target(st)))
         else:
             raise ValueError(f"unknown wheel state {st!r}; expected idle, steady, traction "
