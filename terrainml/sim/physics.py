@@ -9,23 +9,10 @@ points (steady slip, steady turns) are those of the explicit model, only the sti
 damped. The lateral slip angle uses ``max(|v_long|, 0.25 m/s)`` in its denominator (low-speed
 tyre regularisation).
 
-Mission physics (design §6, §6.2; parameters in :mod:`terrainml.sim.mission_physics`):
-
-* thrust from accumulated shear displacement: the tables are read at the state ``s_j = j / L``,
-  a first-order lag of the slip with time constant ``L / max(|omega R|, |v_long|)`` (soil passes
-  the contact length L at the wheel's surface speed): ``dj/dt = (omega R - v) - j max(..) / L``.
-  Steady state ``j = s L`` (today's curves); at standstill j holds, so no slip is singular at v = 0.
-  The longitudinal contact force is a state now (a spring in j), so only the lateral force keeps
-  the implicit correction.
-* sinkage: ``z = z_slip(s_j, W) + z_dig``, the dig-in state of ``DigParams``; climbing out of
-  the rut adds ``W z_dig / relax_m`` to the motion resistance; belly drag past the clearance.
-* grade: the layout cell under the body origin gives the surface gradient; gravity along the
-  surface acts on body and cart, ``m g cos(theta)`` loads the wheels, and the pitch / roll
-  moments of gravity, inertia and the hitch force shift load between the wheels.
-* towed cart: moves with the body along body x (its mass adds to the x inertia), rolling
-  resistance on the terrain under the hitch, a tongue load on the hitch; tool draft at the hitch.
-* battery: per wheel ``P_e = tau omega + (tau / k_t)^2 R_ph``; a driver draws ``P_e / eta_drv``
-  or returns ``eta_regen P_e`` when ``P_e < 0``; the bus sums the wheels.
+Mission physics (design §6.2; equations in docs/sim.md "Mission physics", parameters in
+:mod:`terrainml.sim.mission_physics`): thrust from the accumulated shear displacement (a state per
+wheel), sinkage with a dig-in state, grade and load transfer, a towed cart and tool draft, and the
+battery power of the wheel drives.
 
 Inputs are packed: :class:`Vehicle` (robot and drive gains), :class:`Ground` (terrain tables
 and layout), :class:`SimState` (arrays below). :func:`run_substeps` takes them as plain tuples
@@ -55,11 +42,11 @@ Uses numba when installed (``pip install numba``); otherwise runs the same code 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 
 from terrainml._numba import HAVE_NUMBA, njit  # noqa: F401  (HAVE_NUMBA re-exported)
+from terrainml.sim.physics_packs import Ground, SimState, Vehicle
 
 G = 9.81
 B_X, B_Y, B_PSI, B_U, B_W, B_R, B_AX, B_AY, B_RDOT, B_FH = range(10)
@@ -84,75 +71,6 @@ WLOG = ("omega", "omega_filt", "delta", "tau", "v_long", "v_lat", "load", "cell"
 N_LOG_BODY = len(LOG_COLS)
 
 L_MIN = 0.01   # m: floor of the contact length of the shear-displacement state
-
-
-class Vehicle(NamedTuple):
-    """Robot geometry, inertia and low-level control (constant over a run)."""
-
-    wx: np.ndarray  # (N,) wheel contact x, body frame (m)
-    wy: np.ndarray  # (N,) wheel contact y (m)
-    xc: float  # centre of mass x, y (m)
-    yc: float
-    mass: float  # kg
-    iz: float  # yaw inertia (kg m^2)
-    rw: float  # wheel radius (m)
-    jw: float  # wheel inertia (kg m^2)
-    hcg: float  # centre-of-mass height (m)
-    load_pinv: np.ndarray  # (N, 3) static load distribution: pinv of [1; x_i; y_i]
-    kp: float  # wheel-speed PI gains (N m s/rad, N m/rad)
-    ki: float
-    tau_max: float  # torque (current) limit (N m)
-    steer_rate_max: float  # rad/s
-    steer_deadband: float  # rad
-    steer_tau: float  # steering first-order approach (s)
-    omega_lag_tau: float  # drive's reported-speed lag (s)
-    dt: float  # substep (s)
-    kt: float  # torque constant at the wheel (N m / A)
-    r_ph: float  # equivalent phase resistance (ohm): copper loss (tau / kt)^2 r_ph
-    eta_drv: float  # driver efficiency (motoring)
-    eta_regen: float  # share of negative electrical power returned to the bus
-    clearance: float  # ground clearance (m): belly drag past it
-    belly_mu: float  # belly-on-soil drag coefficient and its ramp (m)
-    belly_ramp: float
-
-
-class Ground(NamedTuple):
-    """Terrain of a run: per-cell force tables (terrain.py) and the layout grid."""
-
-    h_tab: np.ndarray  # (cells, loads, slips) traction per reference load
-    r_tab: np.ndarray  # (cells, loads, slips) motion resistance per reference load
-    y_tab: np.ndarray  # (cells, alphas) lateral force per load
-    hmax_tab: np.ndarray  # (cells, loads) traction peak per reference load
-    w_ref: float  # reference load of the tables (N)
-    load_grid: np.ndarray  # load factors of the tables' load axis
-    alpha_lo: float  # first slip angle of y_tab (rad) and its step
-    alpha_step: float
-    rough_amp: np.ndarray  # (cells, K) roughness amplitudes (m), wavenumbers (rad/m), phases (N, K)
-    rough_k: np.ndarray
-    rough_phase: np.ndarray
-    lay_grid: np.ndarray  # (nx, ny) layout cells; cell size and origin (m)
-    lay_cell: float
-    lay_ox: float
-    lay_oy: float
-    grad_x: np.ndarray  # (cells,) surface gradient tan(slope) along world x, y
-    grad_y: np.ndarray
-    len_tab: np.ndarray  # (cells, loads) contact length at zero slip (m)
-    z_tab: np.ndarray  # (cells, loads, slips) slip sinkage z(s, W) (m)
-    free_slip: np.ndarray  # (cells,) s_f
-    dig_k: np.ndarray  # (cells,) kappa, relaxation length (m), cap (m) of the dig-in state
-    dig_relax: np.ndarray
-    dig_cap: np.ndarray
-    cart_crr: np.ndarray  # (cells,) cart rolling resistance coefficient on each cell
-
-
-class SimState(NamedTuple):
-    """Arrays advanced in place (layouts in the module docstring)."""
-
-    body: np.ndarray
-    wheel: np.ndarray
-    acc: np.ndarray
-    log: np.ndarray
-    ext: np.ndarray
 
 
 # per-wheel work array of one substep, (N_CROWS, N): one row per quantity (a 2-D array rather
