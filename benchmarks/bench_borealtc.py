@@ -1,4 +1,4 @@
-"""BorealTC benchmark (issue 11): terrainml on a real robot's data, two evaluation protocols.
+"""BorealTC benchmark: terrainml on a real robot's data, two evaluation protocols.
 
 ``run(quick)`` returns a Markdown section with:
 

@@ -1,8 +1,8 @@
-"""Real robots: the rotation sweep of served BorealTC courses without IMU (issue #17), design §9, §11.
+"""Real robots: the rotation sweep of served BorealTC courses without IMU, design §9, §11.
 
 ``run(quick)`` returns the "Course rotation sweep" section of BENCHMARKS.md.
 
-The acceptance test of issue 17 (``tests/realdata/test_servable_path.py``) serves one course, the
+The acceptance test of the servable path (``tests/realdata/test_servable_path.py``) serves one course, the
 last run of every class, which a single run (ICE_12, driven faster than any other ICE run) can
 sink or another pick can flatter. This sweep is the pre-declared, neutral measurement: for
 k = 0, 1, ... up to the run count of the class with the fewest runs (runs sorted by id within each
@@ -80,13 +80,13 @@ def run(quick: bool = False) -> str:
                f"{_pct(u_mean)}% ({n_ticks} moving ticks in all); `estimator_unhealthy` ticks in all: "
                f"{n_unhealthy}.")
     out = ["## Course rotation sweep", "",
-           "Issue 17, measured over every held-out course rather than one: for k = 0 .. "
+           "Measured over every held-out course rather than one: for k = 0 .. "
            f"{n_k - 1} (the class with the fewest runs has {n_k}), the k-th run (by id) of every class is held "
            "out, `hgb` is trained on wheel speeds and motor currents of all other runs (`--windows chunks`, "
            f"seed 0), and a course of {SEGMENT_S:.0f} s of each held-out run, IMU dropped, is served tick by "
            "tick by `Predictor`. Score: share of moving ticks (> 0.2 m/s, 3 s after each label change "
            "excluded) served the labelled class; per-class shares are `n/a` where a run's segment has no "
-           "moving tick. Acceptance asks >= 80%." + (" Quick: k = 0, 1 only." if quick else ""), "",
+           "moving tick. Goal: >= 80%." + (" Quick: k = 0, 1 only." if quick else ""), "",
            markdown_table(header, table), "", summary, ""]
     return "\n".join(out)
 

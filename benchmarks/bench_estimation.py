@@ -1,4 +1,4 @@
-"""Estimation benchmark (issue 5): accuracy of the ``thesis`` and ``robust`` presets against
+"""Estimation benchmark: accuracy of the ``thesis`` and ``robust`` presets against
 simulator truth, consistency, and speed against filterpy's ExtendedKalmanFilter.
 
 ``run(quick)`` returns a Markdown section. Sections:

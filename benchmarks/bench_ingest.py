@@ -1,4 +1,4 @@
-"""Ingest benchmark (issue 3): throughput on a 10-minute 5-topic ROS 2 MCAP vs rosbags, peak RSS.
+"""Ingest benchmark: throughput on a 10-minute 5-topic ROS 2 MCAP vs rosbags, peak RSS.
 
 Reference, same run, same file: rosbags' ``AnyReader`` reading and deserialising every message
 (``reader.deserialize``, rosbags' generated CDR deserialiser) -- no resampling at all. Ours:

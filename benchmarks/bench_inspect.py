@@ -1,4 +1,4 @@
-"""Inspect benchmark (issue 21): ``terrainml inspect`` peak RSS must not grow with the log's length.
+"""Inspect benchmark: ``terrainml inspect`` peak RSS must not grow with the log's length.
 
 Logs: the 5-topic ROS 2 MCAP of :mod:`benchmarks.bench_ingest` (T265 200 Hz, IMU, wheel joints,
 motor currents 100 Hz, cmd_vel 20 Hz), 1 minute and 30 minutes long. Each ``inspect_log`` runs in

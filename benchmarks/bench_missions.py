@@ -1,10 +1,10 @@
-"""Mission suite (issues 18 and 20): every traction-control policy against no control.
+"""Mission suite: every traction-control policy against no control.
 
-Runs both suites (``greenhouse``, ``field``) on the evaluation seeds for every policy of issue 20
+Runs both suites (``greenhouse``, ``field``) on the evaluation seeds for every policy
 (``none``, ``fixed``, ``accel-limit``, ``current-limit``, ``terrain-aware`` served by the online
 predictor, ``oracle`` with the true class, ``oracle-cap`` at the true peak) and writes:
 
-* issue 20's acceptance per policy (measured against goal, pass/fail);
+* the acceptance per policy (measured against goal, pass/fail);
 * the distribution of success, route time, battery energy per metre, spin share and sinkage per
   family and terrain;
 * the missions a policy regresses on against no control.
@@ -96,7 +96,7 @@ def _median(x: list[float]) -> float:
 
 
 def criteria(none: list[dict], pol: list[dict], oracle: list[dict] | None = None) -> list[tuple]:
-    """Issue 20's acceptance for one policy's rows (paired with ``none`` by index).
+    """The acceptance criteria for one policy's rows (paired with ``none`` by index).
 
     Returns ``(criterion, measured, goal, ok)`` tuples. Definitions (docs/control_missions.md):
     energy and time changes are per mission, ``policy / none - 1``; time only where both completed
@@ -188,7 +188,7 @@ def run(quick: bool = False) -> str:
         f"{MODEL_DATA_SEED}, 5 runs of 60 s per class: no mission seed). Definitions: docs/missions.md, "
         "docs/control_missions.md.",
         "",
-        "### Issue 20 acceptance per policy (evaluation seeds)",
+        "### Acceptance per policy (evaluation seeds)",
         "",
         "| policy | criterion | measured | goal | pass |",
         "|---|---|---|---|---|",

@@ -1,4 +1,4 @@
-"""SVM vs CNN vs MiniRocket on the same grouped folds (issue 8).
+"""SVM vs CNN vs MiniRocket on the same grouped folds.
 
 All three models see the same raw windows (n, C, 200) and the same folds: ``StratifiedGroupKFold``
 by run, 5 folds, seed 0 (``terrainml.evaluation.folds.grouped_folds``), so no run is in the training and
@@ -15,7 +15,7 @@ time per fold, and per-window inference latency (one window per call, p50/p99, a
 Data, in order of preference:
 
 1. ``TERRAINML_BENCH_WINDOWS=path`` to a windows file from ``terrainml dataset build``;
-2. the simulated dataset of issue 7 (recipe ``datasets/sim_default.yaml``: 12 runs per class,
+2. the simulated dataset of ``bench_svm`` (recipe ``datasets/sim_default.yaml``: 12 runs per class,
    mixed scenarios, seed 0) through ``terrainml.experiments.recipes.simulated_dataset`` (cached,
    shared with ``bench_svm``);
 3. a synthetic stand-in (clearly labelled as such in the output) when the simulator is not
@@ -79,7 +79,7 @@ def _labelled(ds):
 
 
 def simulated(quick: bool, log=print):
-    """Issue 7's simulated dataset: recipe ``datasets/sim_default.yaml`` (12 runs per class,
+    """The simulated dataset of ``bench_svm``: recipe ``datasets/sim_default.yaml`` (12 runs per class,
     mixed scenarios, seed 0), built and cached by ``terrainml.experiments.recipes.simulated_dataset``
     (the same cache as ``bench_svm``). Quick: 5 runs per class of 40 s, Parquet logs."""
     from terrainml.experiments.recipes import load_recipe, simulated_dataset
@@ -341,7 +341,7 @@ def run(quick: bool = False) -> str:
     by = {r.name: r for r in results}
     mr = by.get("MiniRocket")
     lines = [
-        "## Models: SVM vs CNN vs MiniRocket (issue 8)",
+        "## Models: SVM vs CNN vs MiniRocket",
         "",
         f"Data: {data.describe()}. The same {N_FOLDS} grouped folds for every model "
         f"(StratifiedGroupKFold by run, seed {SEED}; no run in two folds); mean ± std over folds. "

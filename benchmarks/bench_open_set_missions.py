@@ -1,4 +1,4 @@
-"""Open-set missions (issue #30 §5): ground the served model was never trained on.
+"""Open-set missions: ground the served model was never trained on.
 
 For each class of :data:`terrainml.experiments.missions.OPEN_SET_CLASSES` (dry_sand, wet_mud,
 tilled_loam) in turn, the served model is trained without it (the mission model's recipe,
@@ -9,7 +9,7 @@ floor of it, a floor with its patches, a field route with its patches). Policies
 
 * ``none``: no traction control;
 * ``terrain-aware-closed``: the served model without its novelty score, every window one of its
-  classes (serving before issue #30);
+  classes (the closed set: no novelty score);
 * ``terrain-aware``: the same model with its novelty score: ground flagged unknown is served the
   class-free safe cap (``unknown_terrain``);
 * ``terrain-aware-refine-unknown``: as ``terrain-aware``, the safe cap on unknown ground refined
@@ -19,7 +19,7 @@ floor of it, a floor with its patches, a field route with its patches). Policies
 Then the same served policies with the model trained on all eight classes on the whole suite
 (known ground: what the novelty score costs where nothing is unknown).
 
-Issue #30's acceptance, per held-out class and over the three: unknown-ground handling completes
+Acceptance, per held-out class and over the three: unknown-ground handling completes
 at least as many missions as the closed-set model; energy per metre no worse than 3% above the
 oracle cap's on the missions where no control does not spin (its spin share <= 0.2, both
 complete); no mission that no control completes and the policy fails.
@@ -66,7 +66,7 @@ def _rows(specs, policy: str, model, tag: str, seeds: str) -> tuple[list[dict], 
 
 
 def criteria(rows: dict[str, list[dict]], policy: str) -> list[tuple[str, str, str, bool]]:
-    """Issue #30 §5 acceptance of one handling policy against its rows' ``none``,
+    """The acceptance of one handling policy against its rows' ``none``,
     ``terrain-aware-closed`` and ``oracle-cap`` rows (paired by index)."""
     none, closed, cap, pol = rows["none"], rows["terrain-aware-closed"], rows["oracle-cap"], rows[policy]
     n_pol, n_closed = sum(r["success"] for r in pol), sum(r["success"] for r in closed)
@@ -136,7 +136,7 @@ def run(quick: bool = False, seeds: str = "eval") -> str:
         took += dt
     n = sum(len(r["none"]) for r in by_class.values())
     lines = [
-        "## Open-set missions: ground the served model never saw (issue #30)",
+        "## Open-set missions: ground the served model never saw",
         "",
         f"{'Evaluation' if seeds == 'eval' else 'Tuning'} seeds; for each held-out class the missions of both "
         f"families whose ground has it ({n} missions in all, per policy), served by a model trained without it "
@@ -145,7 +145,7 @@ def run(quick: bool = False, seeds: str = "eval") -> str:
         "--held-out CLASS --policy P --model runs/open_set_models/no_CLASS`. Definitions: docs/missions.md; "
         "policies in the module docstring of `benchmarks/bench_open_set_missions.py`.",
         "",
-        "### Issue #30 acceptance, pooled over the three held-out classes",
+        "### Acceptance, pooled over the three held-out classes",
         "",
         "| policy | criterion | measured | goal | pass |",
         "|---|---|---|---|---|",

@@ -1,4 +1,4 @@
-"""Real robots: BorealTC through the servable path (dataset build -> train -> predict), issue #17.
+"""Real robots: BorealTC through the servable path (dataset build -> train -> predict).
 
 ``run(quick)`` returns the "Real robots" section of BENCHMARKS.md:
 

@@ -1,4 +1,4 @@
-"""`terrainml predict` over loopback DDS (ROS 2 source and sink) at 100 Hz, beside UDP JSON (issue 29).
+"""`terrainml predict` over loopback DDS (ROS 2 source and sink) at 100 Hz, beside UDP JSON.
 
 One run, two transports, the same simulated 100 Hz drive (dry sand, straight), the same model:
 
@@ -365,7 +365,7 @@ def run(quick: bool = False) -> str:
     ]
     goal = "met" if p["ros"][1] <= 2.0 else "NOT met"
     return "\n".join([
-        "## ROS 2 participant over DDS: publication -> desired slip at 100 Hz (issue 29)",
+        "## ROS 2 participant over DDS: publication -> desired slip at 100 Hz",
         "",
         f"Machine: {machine_description()} (2 cores shared with other jobs while this ran: wall-clock "
         "latencies, the p99 most, are pessimistic). A "

@@ -1,4 +1,4 @@
-"""Benchmark of serving through stop-and-go and terrain transitions (issue #19, design §10-11).
+"""Benchmark of serving through stop-and-go and terrain transitions (design §10-11).
 
 Measured in one run, on held-out simulated courses (:data:`EVAL_SEEDS`, fixed here before any
 tuning and never used for it; the fusion settings were tuned on :data:`TUNING_SEEDS` only):

@@ -1,4 +1,4 @@
-"""Simulator speed (issue 4: >= 100 simulated s per wall s per core) plus the calibration section.
+"""Simulator speed (goal: >= 100 simulated s per wall s per core) plus the calibration section.
 
 Reference: the same simulator with its kernels run as plain Python (``TERRAINML_NO_NUMBA=1``, in a
 subprocess: the physics kernel is a chain of compiled functions, so swapping one ``py_func`` in

@@ -1,4 +1,4 @@
-"""`sim generate` to MCAP speed (issue 18): >= 100 simulated s per wall s on one core.
+"""`sim generate` to MCAP speed (goal: >= 100 simulated s per wall s on one core.
 
 Measured as a ratio against physics alone in the same run, so the figure travels between machines:
 for each run the simulation (:func:`terrainml.sim.generate.simulate`) and the MCAP writing

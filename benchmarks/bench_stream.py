@@ -1,4 +1,4 @@
-"""Benchmark of the online predictor (issue 9): per-tick latency, a one-hour replay, and the
+"""Benchmark of the online predictor: per-tick latency, a one-hour replay, and the
 closed-loop traction-control comparison in the simulator (design §12; see ``_closed_loop_section``).
 
 Measured in one run:
@@ -318,7 +318,7 @@ def _closed_loop_section(quick: bool) -> str:
                 f"({'met' if s_ok else 'NOT met'}) |")
     lines += [
         "",
-        "**Acceptance** (issue 9: terrain-aware >= 15% less energy per metre than no traction "
+        "**Acceptance** (goals: terrain-aware >= 15% less energy per metre than no traction "
         "control, mean speed within 5%, no more stuck events than the fixed 0.1 target):",
         "",
         "| terrain | mode | energy saving vs none (goal >= 15%) | speed vs none (goal within 5%) "

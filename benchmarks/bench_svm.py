@@ -1,4 +1,4 @@
-"""SVM benchmark (issue 7): grouped 5-fold CV on the simulated dataset, ablation, transfer,
+"""SVM benchmark: grouped 5-fold CV on the simulated dataset, ablation, transfer,
 dataset-build throughput, train time and per-window latency.
 
 ``run(quick)`` returns a Markdown section:
@@ -89,7 +89,7 @@ def run(quick: bool = False) -> str:
     ds_b = simulated_dataset(rb, n_jobs=2)
     t_data = time.perf_counter() - t0
     W = ds_a.windows
-    out = [f"## SVM terrain classifier on simulated windows (issue 7){' [quick]' if quick else ''}", ""]
+    out = [f"## SVM terrain classifier on simulated windows{' [quick]' if quick else ''}", ""]
     per_class = {n: int((W.y == c).sum()) for c, n in zip(ds_a.class_ids, ds_a.class_names)}
     runs_per_class = {n: len(set(W.groups[W.y == c])) for c, n in zip(ds_a.class_ids, ds_a.class_names)}
     out += [f"Dataset A: recipe `{ra['name']}` ({ra['runs_per_class']} runs per class, seed {ra['seed']}, "
@@ -128,7 +128,7 @@ def run(quick: bool = False) -> str:
                "PASS" if dse["mean"] <= 0.01 else "FAIL"],
               ["transfer to dataset B (other seed), balanced accuracy", f"{trans:.3f}", ">= 0.93",
                "PASS" if trans >= 0.93 else "FAIL"]]
-    out += ["### Acceptance (issue 7)", "", markdown_table(["figure", "measured", "target", ""], checks), ""]
+    out += ["### Acceptance", "", markdown_table(["figure", "measured", "target", ""], checks), ""]
     names = dict(zip(ds_a.class_ids, ds_a.class_names))
     cm = np.asarray(cv.pooled["confusion_matrix"])
     rec_rows = []

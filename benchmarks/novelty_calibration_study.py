@@ -1,4 +1,4 @@
-"""Study: how the novelty threshold's inner folds set the false alarms it realises (issue #30).
+"""Study: how the novelty threshold's inner folds set the false alarms it realises.
 
 The threshold of :func:`terrainml.models.novelty.fit_novelty` is the ``1 - target`` quantile of
 out-of-fold scores of known windows, scored by scorers fitted in inner grouped folds of the

@@ -1,4 +1,4 @@
-"""Study: the served novelty score's k-NN search, one window at a time (issue #30, serving p99).
+"""Study: the served novelty score's k-NN search, one window at a time (serving p99).
 
 On the serving benchmark's model (:func:`benchmarks.bench_serving._model`, or ``--model-dir``
 of one built that way) and the windows of a held-out stop-and-go course that pass the rules,

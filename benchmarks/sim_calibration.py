@@ -1,4 +1,4 @@
-"""Simulator calibration and acceptance figures (issue 4): ``run(quick) -> str`` (Markdown).
+"""Simulator calibration and acceptance figures: ``run(quick) -> str`` (Markdown).
 
 Also the record of how the free parameters of :mod:`terrainml.lookup.terramechanics` were
 calibrated: :func:`calibrate_class` re-derives a class's shear modulus K and free slip s_f by least

@@ -1,4 +1,4 @@
-"""Study: can a window that straddles a terrain transition name the new terrain? (issue #19)
+"""Study: can a window that straddles a terrain transition name the new terrain?
 
 Not part of ``make bench`` (``python -m benchmarks.straddle_study``, about 3 min on 2 cores); it
 reproduces the offline figures behind the transition work in docs/stream.md and BENCHMARKS.md

@@ -1,4 +1,4 @@
-"""The figures of ``terrainml train`` choosing on the user's data (issue #28), reproducible.
+"""The figures of ``terrainml train`` choosing on the user's data, reproducible.
 
 Not part of ``make bench`` (about an hour on 2 shared cores). Two measurements:
 

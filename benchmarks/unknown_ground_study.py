@@ -1,6 +1,6 @@
-"""Unknown ground on a real robot: BorealTC SNOW served by a model that never saw SNOW (issue #30).
+"""Unknown ground on a real robot: BorealTC SNOW served by a model that never saw SNOW.
 
-Not part of ``make bench`` (a few minutes on 2 cores). The issue's serving line: ``unknown_terrain``
+Not part of ``make bench`` (a few minutes on 2 cores). The serving goal: ``unknown_terrain``
 ticks appear on a SNOW run served by a model without SNOW, within 3 m of moving onto it, and
 known ground keeps its served class.
 

@@ -1,4 +1,4 @@
-"""Study: the novelty threshold and the settling distance against known and unknown ground served (issue #30).
+"""Study: the novelty threshold and the settling distance against known and unknown ground served.
 
 A higher false-alarm target flags more of unknown ground and more of known ground. Known ground
 pays where the flags run together: at a change between known terrains, flagged until every
@@ -7,7 +7,7 @@ wheel has crossed and the drive has settled (0.8-3.7 m). The filter's ``settle_m
 only once they outlast that distance; unknown ground entered from known ground pays it as delay.
 
 This study serves held-out *tuning* courses (the ``mixed`` scenario of ``make demo``'s course,
-0.8 m/s, 120 s, seeds 9301-9304: the transition tuning seeds of issue #19, never the demo's
+0.8 m/s, 120 s, seeds 9301-9304: the transition tuning seeds, never the demo's
 course, seed 10000) through
 
 * the demo's model (``runs/demo/model``, from ``make demo``), with its novelty threshold set for
@@ -49,8 +49,8 @@ MOVING_MPS = 0.05  # as the demo's figure (stream/runner.replay_summary)
 
 def thresholds(targets: list[float]) -> dict[str, float]:
     """Threshold per setting, from the demo model's features of its training windows: each
-    target held out one run at a time (shipped), 3 % in 3 inner folds (before 2026-12-05), and
-    no threshold (``inf``: the closed-set model, before issue #30)."""
+    target held out one run at a time (shipped), 3 % in 3 inner folds, and
+    no threshold (``inf``: the closed-set model)."""
     clf = Predictor.from_model_dir(DEMO / "model").classifier
     W = read_windows(DEMO / "windows.parquet").windows
     if clf.features is not None:
