@@ -6,7 +6,7 @@ For every wheel i, at every control tick::
     PID_out_i  = Kp e_i + I_i + D_i                                    (eq. 8.2, discretised)
     omega_cmd_i = omega_low_level_i + PID_out_i                        (eq. 8.3)
 
-``s_des_i`` is the signed desired slip of eq. 8.7-8.9 (:func:`terrainml.lookup.policy.
+``s_des_i`` is the signed desired slip of eq. 8.7-8.9 (:func:`terrainml.lookup.wheel_targets.
 desired_slip_per_wheel`), ``s_meas_i`` the measured SAE slip of design §7.1 (positive in forward
 traction), ``omega_low_level_i`` the wheel-speed set-point of the low-level kinematic control
 (rad/s) and ``omega_cmd_i`` what the wheel's velocity loop (the ODrive on the reference robot)
