@@ -18,10 +18,10 @@ __all__ = ["DEFAULT_FALSE_ALARM", "check_false_alarm"]
 DEFAULT_FALSE_ALARM = 0.05
 
 
-def check_false_alarm(false_alarm: float) -> float:
+def check_false_alarm(novelty_false_alarm: float) -> float:
     """The threshold's false-alarm target as a float; ValueError unless it is in (0, 0.5)."""
-    v = float(false_alarm)
+    v = float(novelty_false_alarm)
     if not 0.0 < v < 0.5:
         raise ValueError(f"novelty false-alarm target must be in (0, 0.5) (a share of moving known windows, "
-                         f"e.g. 0.05), got {false_alarm}")
+                         f"e.g. 0.05), got {novelty_false_alarm}")
     return v
