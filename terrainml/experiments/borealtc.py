@@ -129,9 +129,9 @@ def protocol_models(quick: bool = False, track_m: float = HUSKY_TRACK_M,
                              gamma_grid=gamma_grid, inner_folds=3, random_state=0, n_jobs=n_jobs)
 
     def cnn():
-        from terrainml.models.cnn import CNNClassifier  # noqa: PLC0415 - torch, only for the CNN
+        from terrainml.models.cnn import CNNClassifier, CNNConfig  # noqa: PLC0415 - torch, only for the CNN
 
-        return CNNClassifier(max_epochs=epochs, patience=patience, random_state=0, n_threads=2)
+        return CNNClassifier(CNNConfig(max_epochs=epochs, patience=patience), random_state=0, n_threads=2)
 
     def hgb():
         return BoostedTrees(SideChannelFeatures(track_m=track_m), max_iter=150 if quick else 300)

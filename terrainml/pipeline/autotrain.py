@@ -47,8 +47,8 @@ from terrainml.pipeline.replay import ReplayRefused, pooled_replay, replay_refus
 from terrainml.pipeline import train as train_lib  # make_factory read at call time
 from terrainml.pipeline.candidates import candidate_window_specs
 from terrainml.pipeline.select import Selection, select
-from terrainml.pipeline.train import (MIN_RUNS_PER_CLASS, SINGLE_RUN_RULE, TABLE_FILE, FoldModel, TrainResult,
-                                      class_names_of, desired_slip_table_for, feature_family, replay_folds,
+from terrainml.pipeline.train import (MIN_RUNS_PER_CLASS, TABLE_FILE, FoldModel, TrainResult, class_names_of,
+                                      dataset_summary, desired_slip_table_for, provenance_of, replay_folds,
                                       served_novelty)
 from terrainml.robot import RobotSpec
 
@@ -116,20 +116,12 @@ def _fit_final(ds: Dataset, model: str, seed: int, say) -> tuple[dict, dict, dic
 def _save(out: Path, ds: Dataset, fitted: dict, served: str, temperature: float, table: Any,
           extra: dict | None = None, metrics: dict | None = None, novelty: Any = None) -> dict:
     """Save a model folder as ``terrainml predict`` loads it; ``novelty``: (name, scorer, info) or None."""
-    W = ds.windows
-    classes = sorted(set(W.y.tolist()))
-    names = _names(ds, classes)
-    return save_artifact(out, fitted, classes=classes, class_names=names, channels=W.channels, window_spec=ds.spec,
-                         robot=ds.robot, training_fingerprint=ds.fingerprint, metrics_summary=metrics or {},
-                         default_model=served, preset=ds.preset, sensors=ds.sensors,
-                         feature_family=feature_family(W.channels),
+    classes = sorted(set(ds.windows.y.tolist()))
+    return save_artifact(out, fitted, provenance_of(ds, classes), metrics_summary=metrics or {},
+                         default_model=served,
                          attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
                          extra=extra or {}, calibration={served: Temperature(temperature).to_dict()},
                          novelty=novelty)
-
-
-def _names(ds: Dataset, classes: Sequence[int]) -> list[str]:
-    return class_names_of(ds, classes)
 
 
 def _texts_only(say: ProgressFn) -> ProgressFn:
@@ -253,7 +245,7 @@ def _fit_and_save(out: Path, ds: Dataset, sel: Selection, table: Any, opt: Train
     fit_s = float(sum(times.values()))
     tr = TrainResult(out, {served: {"cv": cv, "fit_time_s": fit_s, "latency": lat,
                                     "params": params if len(params) > 1 else next(iter(params.values()))}},
-                     served, sel.class_ids, sel.class_names, len(sel.partition), seed, _summary(ds, sel), None,
+                     served, sel.class_ids, sel.class_names, len(sel.partition), seed, _summary(ds), None,
                      fitted={served: cal})
     # the novelty score of the windows the served model was fitted on
     novelty = served_novelty(fitted[served], served, ds.windows, seed, say, opt.novelty_false_alarm)
@@ -279,22 +271,13 @@ def _candidate_data(tables, robot: RobotSpec, choice: SelectionOptions, n_jobs: 
     return data, failed
 
 
-def _summary(ds: Dataset, sel: Selection) -> dict:
-    W = ds.windows
-    classes = sorted(set(W.y.tolist()))
-    names = _names(ds, classes)
+def _summary(ds: Dataset) -> dict:
+    """The report's dataset summary of the chosen spec's windows (runs per class from its runs table)."""
+    classes = sorted(set(ds.windows.y.tolist()))
     runs = ds.runs[ds.runs["run_class"] >= 0]
-    per = runs.groupby("run_class").size().to_dict()
-    name_of = dict(zip(classes, names))
-    excluded = [{"class": name_of.get(int(c), str(c)), "runs": int(n),
-                 "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: {SINGLE_RUN_RULE}"}
-                for c, n in per.items() if n < MIN_RUNS_PER_CLASS]
-    return {"n_runs": int(len(np.unique(W.groups))), "n_windows": int(len(W)),
-            "windows_per_class": {n: int((W.y == c).sum()) for c, n in zip(classes, names)},
-            "runs_per_class": {name_of.get(int(c), str(c)): int(n) for c, n in per.items()},
-            "excluded_classes": excluded, "feature_family": feature_family(W.channels), "sensors": ds.sensors,
-            "window_spec": ds.spec.name, "robot": ds.robot.name, "preset": ds.preset, "channels": list(W.channels),
-            "fingerprint": ds.fingerprint, "rejections": ds.counts}
+    per = {int(c): int(n) for c, n in runs.groupby("run_class").size().to_dict().items()}
+    excluded = [c for c, n in per.items() if n < MIN_RUNS_PER_CLASS]
+    return dataset_summary(ds, dict(zip(classes, class_names_of(ds, classes))), per, excluded)
 
 
 def _selection_doc(sel: Selection) -> dict:

@@ -21,13 +21,14 @@ trained on: it is named, left out of the cross-validation and of the served repl
 (``report.json``: ``excluded_classes``) and kept in the final fit
 (:data:`~terrainml.pipeline.preflight.SINGLE_RUN_RULE`).
 
-With a :class:`ServePlan` holding the ingested runs, :func:`train` also proves the served model
+Given the ingested runs (``tables``), :func:`train` also proves the served model
 on the served path before it saves it: every fold's model (fitted without the fold's runs) is
 saved and loaded as ``terrainml predict`` loads it and serves a course of the fold's held-out
 runs (:func:`replay_folds`, :mod:`terrainml.pipeline.replay`, the same replay as the selecting
 ``train``); a model whose replay classifies too little is refused
 (:class:`~terrainml.pipeline.replay.ReplayRefused`, report written, no model saved) unless
-``allow_unproven``.
+``allow_unproven`` (:class:`~terrainml.pipeline.options.ServeOptions`). The options come as
+frozen records resolved once by the command line (:mod:`terrainml.pipeline.options`).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from tempfile import TemporaryDirectory
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -51,7 +52,7 @@ from terrainml.features.sets import FEATURE_SUBSETS, FeatureSet
 from terrainml.features.side_channel import SideChannelFeatures, track_of
 from terrainml.features.windows import is_side_channel_set
 from terrainml.lookup.table import DesiredSlipTable
-from terrainml.models.artifacts import (Artifact, ArtifactError, save_artifact,
+from terrainml.models.artifacts import (Artifact, ArtifactError, TrainingProvenance, save_artifact,
                                         write_manifest)
 from terrainml.models.calibration import Temperature
 from terrainml.models.ensemble import ProbabilityAverage
@@ -68,7 +69,8 @@ from terrainml.pipeline.replay import (ReplayRefused, make_course,
 
 __all__ = ["TABLE_FILE", "make_factory", "train", "TrainResult", "desired_slip_table_for", "served_table",
            "feature_family", "MIN_RUNS_PER_CLASS", "served_novelty",
-           "evaluate_open_set", "FoldModel", "replay_folds", "class_names_of"]
+           "evaluate_open_set", "FoldModel", "replay_folds", "class_names_of", "provenance_of",
+           "dataset_summary"]
 
 #: SVM search grid of the side-channel family (the BorealTC protocols' ``svm``)
 SIDE_C_GRID = (3.0, 10.0, 30.0, 100.0)
@@ -120,7 +122,7 @@ def make_factory(kind: str, ds: Dataset, seed: int = 0, subset: str = "all", n_j
         return lambda: SVMClassifier(features=fs, random_state=seed, n_jobs=n_jobs, **params)
     if kind == "cnn":
         CNN = _cnn_class()
-        return lambda: CNN(channel_names=tuple(ds.windows.channels), random_state=seed, **params)
+        return lambda: CNN.from_params(channel_names=tuple(ds.windows.channels), random_state=seed, **params)
     raise ValueError(f"unknown model kind {kind!r}; expected one of {MODEL_KINDS}")
 
 
@@ -203,6 +205,17 @@ def class_names_of(ds: Dataset, classes: Sequence[int]) -> list[str]:
             for c in classes]
 
 
+def provenance_of(ds: Dataset, classes: Sequence[int],
+                  class_names: Sequence[str] | None = None) -> TrainingProvenance:
+    """The provenance saved with models fitted on ``ds``'s windows of ``classes`` (named
+    ``class_names``, default :func:`class_names_of`)."""
+    W = ds.windows
+    names = class_names_of(ds, classes) if class_names is None else list(class_names)
+    return TrainingProvenance(classes=list(classes), class_names=names, channels=W.channels, window_spec=ds.spec,
+                              robot=ds.robot, training_fingerprint=ds.fingerprint, preset=ds.preset,
+                              sensors=ds.sensors, feature_family=feature_family(W.channels))
+
+
 def replay_folds(folds: Sequence[FoldModel], ds: Dataset, tables: Sequence[pd.DataFrame], table: Any,
                  segment_s: float, seed: int, say: Callable[[str], None],
                  novelty_false_alarm: float = DEFAULT_FALSE_ALARM) -> list[dict]:
@@ -230,10 +243,7 @@ def replay_folds(folds: Sequence[FoldModel], ds: Dataset, tables: Sequence[pd.Da
         novelty = served_novelty(model, f.served, f.train_windows, seed, say, novelty_false_alarm)
         classes = sorted(int(c) for c in np.asarray(model.classes_).tolist())
         with TemporaryDirectory() as tmp:
-            save_artifact(Path(tmp) / "m", f.fitted, classes=classes, class_names=class_names_of(ds, classes),
-                          channels=ds.windows.channels, window_spec=ds.spec, robot=ds.robot,
-                          training_fingerprint=ds.fingerprint, default_model=f.served, preset=ds.preset,
-                          sensors=ds.sensors, feature_family=feature_family(ds.windows.channels),
+            save_artifact(Path(tmp) / "m", f.fitted, provenance_of(ds, classes), default_model=f.served,
                           attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
                           calibration={f.served: Temperature(f.temperature).to_dict()}, novelty=novelty)
             course = make_course([by_id[r] for r in runs], runs, segment_s=segment_s)
@@ -335,7 +345,7 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), option
     order = list(results)
     default = max((k for k in results if k in models),
                   key=lambda k: (results[k]["cv"].summary["balanced_accuracy"]["mean"], -order.index(k)))
-    summary = _dataset_summary(ds, plan)
+    summary = dataset_summary(ds, plan.name_of, plan.runs_per_class, plan.excluded)
     res = TrainResult(out, results, default, plan.classes.tolist(), plan.names, len(plan.folds), seed, summary,
                       abl, fitted=fitted, preflight=preflight)
     if tables is not None:
@@ -348,10 +358,8 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), option
         report(say, "open set", 0, None, "", f"each class of {default} held out in turn")
         res.open_set = _open_set(default, factories, plan, opt, say)
     metrics_summary = {k: r["cv"].summary for k, r in results.items()}
-    save_artifact(out, fitted, classes=plan.classes.tolist(), class_names=plan.names, channels=W.channels,
-                  window_spec=ds.spec, robot=ds.robot, training_fingerprint=ds.fingerprint,
-                  metrics_summary=metrics_summary, default_model=default, preset=ds.preset,
-                  sensors=ds.sensors, feature_family=feature_family(W.channels), novelty=novelty,
+    save_artifact(out, fitted, provenance_of(ds, plan.classes.tolist(), plan.names),
+                  metrics_summary=metrics_summary, default_model=default, novelty=novelty,
                   attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
                   extra={"folds": len(plan.folds), "seed": seed, "n_windows": len(W),
                          "latency_ms": {k: r["latency"] for k, r in results.items()},
@@ -467,19 +475,20 @@ def _served_replay(ds: Dataset, plan: _CVPlan, default: str, results: dict, tabl
             "min_classified_share": serve.min_classified_share}
 
 
-def _dataset_summary(ds: Dataset, plan: _CVPlan) -> dict:
-    """The report's dataset summary: runs, windows and runs per class, excluded classes, provenance."""
-    W = plan.W
-    y, groups = W.y, W.groups
-    name_of, runs_per_class = plan.name_of, plan.runs_per_class
-    return {"n_runs": int(len(np.unique(groups))), "n_windows": int(len(W)),
-            "windows_per_class": {str(n): int((y == c).sum()) for c, n in zip(plan.classes, plan.names)},
-            "runs_per_class": {name_of[c]: n for c, n in runs_per_class.items()},
-            "excluded_classes": [{"class": name_of[c], "runs": runs_per_class[c],
+def dataset_summary(ds: Dataset, name_of: Mapping[int, str], runs_per_class: Mapping[int, int],
+                    excluded: Sequence[int]) -> dict:
+    """The report's dataset summary: runs, windows per class (of ``name_of``, class id -> name, in
+    class order), runs per class, the ``excluded`` classes (fewer than :data:`MIN_RUNS_PER_CLASS`
+    runs) and the windows' provenance."""
+    W = ds.windows
+    name = lambda c: name_of.get(int(c), str(c))  # noqa: E731
+    return {"n_runs": int(len(np.unique(W.groups))), "n_windows": int(len(W)),
+            "windows_per_class": {str(n): int((W.y == c).sum()) for c, n in name_of.items()},
+            "runs_per_class": {name(c): int(n) for c, n in runs_per_class.items()},
+            "excluded_classes": [{"class": name(c), "runs": int(runs_per_class[c]),
                                   "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: {SINGLE_RUN_RULE}"}
-                                 for c in plan.excluded],
-            "feature_family": feature_family(W.channels), "sensors": ds.sensors,
-            "window_spec": ds.spec.name,
+                                 for c in excluded],
+            "feature_family": feature_family(W.channels), "sensors": ds.sensors, "window_spec": ds.spec.name,
             "robot": ds.robot.name, "preset": ds.preset, "channels": list(W.channels),
             "fingerprint": ds.fingerprint, "rejections": ds.counts}
 
