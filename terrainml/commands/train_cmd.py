@@ -12,7 +12,7 @@ import json
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Iterator, Optional
+from typing import TYPE_CHECKING, Iterator, Optional
 
 import typer
 from rich.table import Table
@@ -22,6 +22,10 @@ from terrainml.commands._common import (check_n_jobs, check_output_writable, con
 from terrainml.commands._model_inputs import (NOVELTY_FALSE_ALARM_HELP, check_novelty_false_alarm_option,
                                               check_sensors, load_data, load_tables)
 from terrainml.models.novelty_target import DEFAULT_FALSE_ALARM
+
+if TYPE_CHECKING:  # the pipeline imports numpy and pandas: not at ``--help``
+    from terrainml.features.windows import WindowSpec
+    from terrainml.pipeline.options import SelectionOptions, ServeOptions, TrainOptions
 
 
 @dataclass(frozen=True)
@@ -62,10 +66,10 @@ class TrainRequest:
     out: Path
     shown: Path
     kinds: Optional[tuple[str, ...]]
-    spec: Any
-    selection: Any
-    options: Any
-    serve: Any
+    spec: Optional[WindowSpec]
+    selection: Optional[SelectionOptions]
+    options: TrainOptions
+    serve: ServeOptions
     members: bool
     quiet: bool
 
