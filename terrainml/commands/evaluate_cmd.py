@@ -71,9 +71,13 @@ def evaluate(
     check_n_jobs(n_jobs)
     if open_set:
         check_novelty_false_alarm_option(novelty_false_alarm)
-        _evaluate_open_set(model_dir, data, out, model=model, windows=windows, folds=folds, seed=seed, robot=robot,
-                           preset=preset, n_jobs=n_jobs, dask_address=dask_address, fmt=fmt,
-                           trusted_key=trusted_key, novelty_false_alarm=novelty_false_alarm, quiet=quiet)
+        if folds < 2:
+            fail("--folds must be >= 2")
+        from terrainml.pipeline.options import TrainOptions
+
+        options = TrainOptions(folds=folds, seed=seed, n_jobs=n_jobs, novelty_false_alarm=novelty_false_alarm)
+        _evaluate_open_set(model_dir, data, out, options, model=model, windows=windows, robot=robot, preset=preset,
+                           dask_address=dask_address, fmt=fmt, trusted_key=trusted_key, quiet=quiet)
         return
     if model_dir is None:
         fail("give the model folder (MODEL_DIR), or --open-set to evaluate unknown-ground detection")
@@ -101,7 +105,7 @@ def _evaluate_model(model_dir: Path, data: Path, out: Optional[Path], *, model, 
         rb = RobotSpec.from_dict(manifest["robot"]["spec"])
         spec = WindowSpec.from_dict(manifest["window_spec"])
         ds = load_data(data, robot=rb, preset=manifest.get("preset", "robust"), n_jobs=n_jobs,
-                        dask_address=dask_address, fmt=fmt, spec=spec, quiet=quiet)
+                       dask_address=dask_address, fmt=fmt, spec=spec, quiet=quiet)
         m = do_eval(model_dir, ds, model, class_map=parse_class_map(class_map))
     except typer.Exit:
         raise
@@ -155,30 +159,26 @@ def _open_set_inputs(model_dir: Optional[Path], *, model, windows, robot, preset
             manifest.get("preset", "robust"))
 
 
-def _evaluate_open_set(model_dir: Optional[Path], data: Path, out: Optional[Path], *, model, windows, folds: int,
-                       seed: int, robot, preset: str, n_jobs: int, dask_address, fmt: str, trusted_key,
-                       novelty_false_alarm: float, quiet: bool) -> None:
-    """``evaluate --open-set``: the leave-one-class-out table on stdout, the report in ``out``."""
+def _evaluate_open_set(model_dir: Optional[Path], data: Path, out: Optional[Path], options, *, model, windows,
+                       robot, preset: str, dask_address, fmt: str, trusted_key, quiet: bool) -> None:
+    """``evaluate --open-set``: the leave-one-class-out table on stdout, the report in ``out``;
+    ``options``: :class:`~terrainml.pipeline.options.TrainOptions` (folds, seed, jobs, novelty target)."""
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from terrainml.evaluation.open_set import open_set_markdown
     from terrainml.evaluation.report import OPEN_SET_FILES, write_open_set_report
-    from terrainml.pipeline.options import TrainOptions
     from terrainml.pipeline.train import evaluate_open_set
 
-    if folds < 2:
-        fail("--folds must be >= 2")
     if out is not None:
         check_output_writable(out, folder=True)
     kind, spec, rb, preset = _open_set_inputs(model_dir, model=model, windows=windows, robot=robot, preset=preset,
                                               fmt=fmt, trusted_key=trusted_key)
     try:
-        ds = load_data(data, robot=rb, preset=preset, n_jobs=n_jobs, dask_address=dask_address, fmt=fmt,
-                        spec=spec, quiet=quiet)
+        ds = load_data(data, robot=rb, preset=preset, n_jobs=options.n_jobs, dask_address=dask_address, fmt=fmt,
+                       spec=spec, quiet=quiet)
         with Progress(SpinnerColumn(), TextColumn("[bold]evaluate[/] {task.description}"), TimeElapsedColumn(),
                       console=console, transient=True, disable=quiet) as progress:
             task = progress.add_task("", total=None)
-            options = TrainOptions(folds=folds, seed=seed, n_jobs=n_jobs, novelty_false_alarm=novelty_false_alarm)
             res = evaluate_open_set(ds, kind, options, progress=lambda msg: progress.update(task, description=msg))
         context = {"data": str(data), "model": kind, "window_spec": ds.spec.name, "robot": ds.robot.name,
                    "windows": int(len(ds.windows)), "runs": int(len(set(ds.windows.groups.tolist()))),
