@@ -31,6 +31,7 @@ from terrainml.experiments.borealtc import (ProtocolData, course_runs, course_sc
 from terrainml.features.windows import window_spec
 from terrainml.io.ingest import load_dataset
 from terrainml.pipeline.dataset import build_from_tables
+from terrainml.pipeline.options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
 from terrainml.stream.predictor import Predictor
@@ -52,7 +53,7 @@ def compare_paths(tables, report, robot, models, windows_per_chunk: int) -> tupl
     ds = build_from_tables(tables, robot, spec=window_spec("chunks", windows_per_chunk=windows_per_chunk))
     with TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        res = train(ds, Path(tmp) / "m", models, folds=5, seed=0, ablation=False, progress=_log)
+        res = train(ds, Path(tmp) / "m", models, TrainOptions(folds=5, seed=0, ablation=False), progress=_log)
         t_train = time.perf_counter() - t0
     data = ProtocolData(ds.windows, None, report, robot_track_m(robot))  # type: ignore[arg-type]
     t0 = time.perf_counter()
@@ -78,7 +79,7 @@ def served_course(tables, report, robot, model: str, held: list[str] | None = No
     ds = build_from_tables([t for t in tables if str(t["run_id"].iloc[0]) not in held], robot, spec=spec)
     course = make_course(tables, held, segment_s=30.0)
     with TemporaryDirectory() as tmp:
-        train(ds, Path(tmp) / "m", [model], folds=folds, seed=0, ablation=False, progress=_log)
+        train(ds, Path(tmp) / "m", [model], TrainOptions(folds=folds, seed=0, ablation=False), progress=_log)
         p = Predictor.from_model_dir(Path(tmp) / "m")
         cols = list(course.columns)
         t0 = time.perf_counter()

@@ -47,6 +47,7 @@ INPUT_TYPES = {"/imu": "Imu", "/camera/odom/sample": "Odometry", "/wheels/joint_
 def _model(tmp: str) -> str:
     """A small SVM from the `make demo` chain (2 simulated runs per class, 20 s)."""
     from terrainml.pipeline.dataset import build_dataset
+    from terrainml.pipeline.options import TrainOptions
     from terrainml.pipeline.train import train
     from terrainml.robot import load_robot
     from terrainml.sim.generate import generate_dataset
@@ -55,7 +56,7 @@ def _model(tmp: str) -> str:
     generate_dataset(logs, 2, seed=2024, n_jobs=1, duration_s=20.0, fmt="parquet")
     ds = build_dataset(logs, load_robot(), n_jobs=1)
     out = os.path.join(tmp, "model")
-    train(ds, out, models=("svm",), folds=2, seed=0, n_jobs=1, ablation=False)
+    train(ds, out, models=("svm",), options=TrainOptions(folds=2, seed=0, n_jobs=1, ablation=False))
     return out
 
 

@@ -73,6 +73,7 @@ def _with_courses(ds, scenarios, seeds, duration_s: float):
 def _model(spec_name: str, runs_per_class: int, out, course_seeds=TRAIN_COURSE_SEEDS):
     from terrainml.experiments.recipes import load_recipe, simulated_dataset
     from terrainml.features.windows import window_spec
+    from terrainml.pipeline.options import TrainOptions
     from terrainml.pipeline.train import train
 
     r = load_recipe("sim_default")
@@ -80,7 +81,7 @@ def _model(spec_name: str, runs_per_class: int, out, course_seeds=TRAIN_COURSE_S
     ds = simulated_dataset(r, runs_per_class=runs_per_class, fmt="parquet")
     if course_seeds:
         ds = _with_courses(ds, ("course_stop_and_go", "mixed"), course_seeds, 120.0)
-    res = train(ds, out, models=("svm",), folds=3, seed=0, n_jobs=2, ablation=False)
+    res = train(ds, out, models=("svm",), options=TrainOptions(folds=3, seed=0, n_jobs=2, ablation=False))
     summ = (res.manifest.get("metrics_summary") or {}).get("svm", {})
     return out, len(ds.windows), summ.get("balanced_accuracy", {}).get("mean", float("nan"))
 

@@ -179,6 +179,7 @@ CL_MODES = (
 def _cl_train_model(tmp, runs_per_class: int) -> str:
     """SVM on a small simulated labelled dataset (the `make demo` chain): generate -> windows -> train."""
     from terrainml.pipeline.dataset import build_dataset
+    from terrainml.pipeline.options import TrainOptions
     from terrainml.pipeline.train import train
     from terrainml.robot import load_robot
     from terrainml.sim.generate import generate_dataset
@@ -187,7 +188,7 @@ def _cl_train_model(tmp, runs_per_class: int) -> str:
     generate_dataset(logs, runs_per_class, seed=2024, n_jobs=2, duration_s=60.0, fmt="parquet")
     ds = build_dataset(logs, load_robot(), n_jobs=2)
     out = os.path.join(tmp, "model")
-    train(ds, out, models=("svm",), folds=3, seed=0, n_jobs=2, ablation=False)
+    train(ds, out, models=("svm",), options=TrainOptions(folds=3, seed=0, n_jobs=2, ablation=False))
     return out
 
 

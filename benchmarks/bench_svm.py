@@ -81,7 +81,9 @@ def _throughput(logs: list[Path], robot, spec) -> list[list[str]]:
 def run(quick: bool = False) -> str:
     from terrainml.experiments.recipes import simulated_dataset
     from terrainml.pipeline.dataset import find_logs
-    from terrainml.pipeline.train import evaluate, train
+    from terrainml.pipeline.evaluate import evaluate
+    from terrainml.pipeline.options import TrainOptions
+    from terrainml.pipeline.train import train
 
     ra, rb = _recipe(quick, "sim_default"), _recipe(quick, "sim_eval_seed1")
     t0 = time.perf_counter()
@@ -104,7 +106,8 @@ def run(quick: bool = False) -> str:
         return "\n".join(out + ["Fewer than two classes have steady windows: nothing to train."]) + "\n"
     with tempfile.TemporaryDirectory() as tmp:
         t1 = time.perf_counter()
-        res = train(ds_a, Path(tmp) / "svm", models=("svm",), folds=N_FOLDS, seed=SEED, n_jobs=1, ablation=True)
+        res = train(ds_a, Path(tmp) / "svm", models=("svm",),
+                    options=TrainOptions(folds=N_FOLDS, seed=SEED, n_jobs=1, ablation=True))
         t_train = time.perf_counter() - t1
         cv = res.models["svm"]["cv"]
         ev = evaluate(Path(tmp) / "svm", ds_b) if len(ds_b.windows) else {}

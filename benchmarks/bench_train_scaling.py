@@ -115,15 +115,17 @@ def point(windows: Path, workers: int, models: str, folds: int) -> dict:
     from terrainml.pipeline.autotrain import train_auto
     from terrainml.pipeline.cluster import dask_jobs
     from terrainml.pipeline.dataset import read_windows
-    from terrainml.pipeline.select import parse_auto_models
+    from terrainml.pipeline.candidates import parse_auto_models
+    from terrainml.pipeline.options import SelectionOptions, TrainOptions
 
     ds = read_windows(windows)
     with _PeakRSS() as rss, tempfile.TemporaryDirectory() as tmp, \
             LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         with dask_jobs(cluster.scheduler_address):
             t0 = time.perf_counter()
-            res = train_auto(None, ds.robot, Path(tmp) / "m", datasets={ds.spec.name: ds},
-                             models=parse_auto_models(models), folds=folds, seed=0, budget_min=None)
+            res = train_auto(None, ds.robot, Path(tmp) / "m", TrainOptions(folds=folds, seed=0),
+                             SelectionOptions(models=tuple(parse_auto_models(models)), budget_min=None),
+                             datasets={ds.spec.name: ds})
             wall = time.perf_counter() - t0
     use = [resource.getrusage(w) for w in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]  # workers reaped
     sel = res.selection

@@ -28,7 +28,9 @@ import numpy as np
 from terrainml.evaluation.report import markdown_table
 from terrainml.io.ingest import load_dataset
 from terrainml.io.ingest import load_run
+from terrainml.features.windows import window_spec
 from terrainml.pipeline.autotrain import train_auto
+from terrainml.pipeline.options import SelectionOptions, ServeOptions, TrainOptions
 from terrainml.pipeline.dataset import find_logs
 from terrainml.robot import load_robot
 
@@ -97,7 +99,7 @@ def boreal(n_jobs: int) -> list[str]:
     robot = load_robot("husky")
     t0, c0 = time.perf_counter(), _cpu_s()
     tables, _ = load_dataset("borealtc", DATA, robot=robot)
-    res = train_auto(tables, robot, OUT / "boreal", n_jobs=n_jobs, progress=_log)
+    res = train_auto(tables, robot, OUT / "boreal", TrainOptions(n_jobs=n_jobs), progress=_log)
     return _section("BorealTC, `terrainml train --data ... --format borealtc --out ...` (defaults)", res,
                     time.perf_counter() - t0, _cpu_s() - c0)
 
@@ -111,8 +113,9 @@ def sim(n_jobs: int) -> list[str]:
     robot = load_robot(None)
     t0, c0 = time.perf_counter(), _cpu_s()
     tables = [load_run(p, robot=robot).table for p in find_logs(logs)]
-    res = train_auto(tables, robot, OUT / "sim", specs="short", models="svm", folds=4, n_jobs=n_jobs,
-                     segment_s=20.0, progress=_log)
+    res = train_auto(tables, robot, OUT / "sim", TrainOptions(folds=4, n_jobs=n_jobs),
+                     SelectionOptions(specs=(window_spec("short"),), models=("svm",)), ServeOptions(segment_s=20.0),
+                     progress=_log)
     return _section("Simulator (4 runs per class, 60 s, seed 0), `--windows short --model svm`, 4 folds", res,
                     time.perf_counter() - t0, _cpu_s() - c0)
 

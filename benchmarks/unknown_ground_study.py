@@ -37,6 +37,7 @@ from terrainml.experiments.borealtc import make_course, runs_by_class
 from terrainml.features.windows import window_spec
 from terrainml.io.ingest import load_dataset
 from terrainml.pipeline.dataset import build_from_tables
+from terrainml.pipeline.options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
 from terrainml.stream.config import ServingConfig
@@ -111,7 +112,7 @@ def measure() -> dict:
     course = make_course(tables, order, segment_s=SEGMENT_S, drop_imu=False)
     with TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        res = train(ds, Path(tmp) / "m", [MODEL], folds=2, seed=0, ablation=False, progress=_log)
+        res = train(ds, Path(tmp) / "m", [MODEL], TrainOptions(folds=2, seed=0, ablation=False), progress=_log)
         t_train = time.perf_counter() - t0
         served = {s: _serve(Path(tmp) / "m", course, s) for s in SETTLES}
     segs = _segments(tables, course, order, robot)

@@ -56,9 +56,10 @@ def thresholds(targets: list[float]) -> dict[str, float]:
     if clf.features is not None:
         raise SystemExit("the demo model has a feature transform before its model; this study takes raw windows")
     out = {"none (closed set)": float("inf"),
-           "3 %, 3 folds": float(fit_model_novelty(clf.model, W, seed=0, false_alarm=0.03, inner_folds=3)[0].threshold)}
+           "3 %, 3 folds": float(fit_model_novelty(clf.model, W, seed=0, novelty_false_alarm=0.03,
+                                                   inner_folds=3)[0].threshold)}
     for t in targets:
-        scorer, _ = fit_model_novelty(clf.model, W, seed=0, false_alarm=t)
+        scorer, _ = fit_model_novelty(clf.model, W, seed=0, novelty_false_alarm=t)
         out[f"{100 * t:.0f} %, one run out"] = float(scorer.threshold)
     print(f"shipped threshold {clf.novelty.threshold:.4f}; per target {out}", flush=True)
     return out

@@ -31,6 +31,7 @@ from terrainml.io.ingest import load_run
 from terrainml.io.inspect import inspect_log
 from terrainml.io.mcap_writer import write_run_mcap
 from terrainml.pipeline.dataset import build_dataset, write_windows
+from terrainml.pipeline.options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.robot import RobotSpec, reference_robot
 from terrainml.schema import wheel_col, write_run_parquet
@@ -153,7 +154,7 @@ def step_train(ds, out: Path, seed: int, console: Console, folds: int = 5) -> Pa
     """4. SVM, grouped CV by run, report and artifact."""
     model_dir = out / "model"
     with console.status("training SVM (grouped cross-validation by run)..."):
-        res = train(ds, model_dir, models=("svm",), folds=folds, seed=seed, n_jobs=2, ablation=False,
+        res = train(ds, model_dir, ("svm",), TrainOptions(folds=folds, seed=seed, n_jobs=2, ablation=False),
                     progress=lambda msg: console.log(str(msg)))  # a Step reads as its text
     summary = (res.manifest.get("metrics_summary") or {}).get("svm", {})
     console.print(f"model: {model_dir} (report: {model_dir / 'report.md'})", highlight=False)

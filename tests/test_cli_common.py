@@ -211,9 +211,9 @@ def test_ingest_refuses_an_unwritable_output_before_reading(tmp_path, run_parque
 
 
 def test_train_refuses_an_unwritable_output_folder_before_loading_data(tmp_path, run_parquet, never_reached):
-    import terrainml.commands.model_cmds as model_cmds
+    import terrainml.commands.train_cmd as train_cmd
 
-    never_reached(model_cmds, "_load_data")
+    never_reached(train_cmd, "load_data")
     out = _blocked(tmp_path) / "runs" / "svm"
     _refused_cli(["train", "--data", str(tmp_path), "--out", str(out)], out, "output folder")
     _refused_cli(["train", "--data", str(tmp_path), "--out", str(tmp_path / "ok"), "--n-jobs", "0"], "--n-jobs")

@@ -2,7 +2,7 @@
 
 :func:`cross_validate` fits a fresh model (from a factory) on the training part of every fold
 and predicts the held-out windows. The folds come from a strategy of
-:mod:`terrainml.evaluation.folds` (default: grouped by run, seeded) and are checked never to
+:mod:`terrainml.evaluation.folds` (e.g. grouped by run, seeded) and are checked never to
 split a group; the same ``groups`` go to the model's ``fit``, so its own inner search (nested
 CV) and early stopping split by them too and hyper-parameters are never tuned on a test fold.
 Folds run through joblib (``n_jobs``; inside ``joblib.parallel_config(backend="dask")`` they run
@@ -23,10 +23,10 @@ import numpy as np
 import pandas as pd
 from joblib import Parallel, delayed
 
-from terrainml.evaluation.folds import check_groups_not_split, grouped_folds
+from terrainml.evaluation.folds import check_groups_not_split
 from terrainml.evaluation.metrics import classification_metrics, is_ordered, summarise_folds
 
-__all__ = ["cross_validate", "CVResult", "average_results", "predict_held_out", "assemble_result"]
+__all__ = ["cross_validate", "Scoring", "CVResult", "average_results", "predict_held_out", "assemble_result"]
 
 #: columns of :meth:`CVResult.per_fold_frame`
 FOLD_COLUMNS = ("n_windows", "accuracy", "balanced_accuracy", "macro_f1", "adjacent_accuracy", "ece",
@@ -97,13 +97,13 @@ def _subset(X, idx):
     return X.subset(idx) if hasattr(X, "subset") else np.asarray(X)[idx]
 
 
-def _run_fold(factory: Callable[[], Any], X, y, groups, tr, te, fit_kwargs: dict, keep_model: bool = False):
+def _run_fold(factory: Callable[[], Any], X, y, groups, tr, te, keep_model: bool = False):
     """Fit on ``tr``, predict ``te``: (classes, proba or None, y_pred, fit s, predict s, best_params,
     (novelty scores, threshold) or None) plus the fitted model when ``keep_model``."""
     model = factory()
     Xtr, Xte = _subset(X, tr), _subset(X, te)
     t0 = time.perf_counter()
-    model.fit(Xtr, y[tr], groups=groups[tr], **fit_kwargs)
+    model.fit(Xtr, y[tr], groups=groups[tr])
     t1 = time.perf_counter()
     if hasattr(model, "predict_proba") and hasattr(model, "classes_"):
         cls = np.asarray(model.classes_)
@@ -139,10 +139,26 @@ def _assemble(folds, y, classes, class_names, y_pred, proba, fold_info: Sequence
                     summarise_folds(fold_metrics), pooled, name)
 
 
-def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_splits: int = 5,
-                   seed: int = 0, n_jobs: int | None = 1, table: Any = None, classes=None,
-                   class_names: Sequence[str] | None = None, fit_kwargs: dict | None = None,
-                   name: str = "", progress: Callable[[int, int], None] | None = None,
+@dataclass(frozen=True)
+class Scoring:
+    """How :func:`cross_validate` scores and labels the held-out predictions.
+
+    Attributes
+    ----------
+    classes : all classes in physical order (None: the sorted labels of y).
+    class_names : names of ``classes`` (None: the labels as text).
+    table : desired-slip table for the desired-slip error (or None).
+    name : label stored in the result.
+    """
+
+    classes: Sequence | None = None
+    class_names: Sequence[str] | None = None
+    table: Any = None
+    name: str = ""
+
+
+def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds, scoring: Scoring | None = None,
+                   n_jobs: int | None = 1, progress: Callable[[int, int], None] | None = None,
                    keep_models: bool = False) -> CVResult:
     """K-fold CV of a model factory on raw windows; no group is ever split.
 
@@ -154,14 +170,10 @@ def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_sp
     y : array (n,), labels.
     groups : array (n,), groups no fold may split and the model's inner search splits by
         (run ids; chunk ids for :func:`~terrainml.evaluation.folds.chunk_folds`).
-    folds : list of (train_idx, test_idx) from a strategy of :mod:`terrainml.evaluation.folds`;
-        default ``grouped_folds(y, groups, n_splits, seed)``.
+    folds : list of (train_idx, test_idx) from a strategy of :mod:`terrainml.evaluation.folds`,
+        e.g. ``grouped_folds(y, groups, k, seed)``.
+    scoring : :class:`Scoring` (classes, their names, desired-slip table, label); None: defaults.
     n_jobs : joblib jobs over folds.
-    table : desired-slip table for the desired-slip error (or None).
-    classes : all classes in physical order (default: sorted labels of y).
-    class_names : names of ``classes`` (default: the labels as text).
-    fit_kwargs : more keyword arguments of ``fit``.
-    name : label stored in the result.
     progress : callback ``(folds done, n folds)`` after each fold, in fold order.
     keep_models : keep every fold's fitted model in the result's ``fold_models`` (fold order),
         e.g. to serve it on the fold's held-out runs (:mod:`terrainml.pipeline.replay`).
@@ -170,12 +182,12 @@ def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_sp
     -------
     CVResult
     """
+    sc = scoring or Scoring()
     y = np.asarray(y)
     groups = np.asarray(groups)
-    folds = folds if folds is not None else grouped_folds(y, groups, n_splits, seed)
     check_groups_not_split(folds, groups)
-    classes = np.asarray(classes) if classes is not None else np.unique(y)
-    jobs = (delayed(_run_fold)(factory, X, y, groups, tr, te, fit_kwargs or {}, keep_models) for tr, te in folds)
+    classes = np.asarray(sc.classes) if sc.classes is not None else np.unique(y)
+    jobs = (delayed(_run_fold)(factory, X, y, groups, tr, te, keep_models) for tr, te in folds)
     if progress is None:
         results = Parallel(n_jobs=n_jobs)(jobs)
     else:  # a generator, to report every fold as it completes
@@ -201,7 +213,7 @@ def cross_validate(factory: Callable[[], Any], X, y, groups, *, folds=None, n_sp
              "n_test_groups": int(len(np.unique(groups[te]))), "best_params": best,
              **({} if nov is None else {"novelty_threshold": nov[1]})}
             for (_, te), (*_, fit_s, pred_s, best, nov) in zip(folds, results)]
-    res = _assemble(folds, y, classes, class_names, y_pred, proba, info, table, name)
+    res = _assemble(folds, y, classes, sc.class_names, y_pred, proba, info, sc.table, sc.name)
     res.novelty = novelty
     res.fold_models = fold_models
     return res
@@ -237,8 +249,8 @@ def predict_held_out(factory: Callable[[], Any], X, y, groups, splits, classes, 
     classes = np.asarray(classes)
     col = {c: k for k, c in enumerate(classes.tolist())}
     keep = [False] * len(splits) if keep is None else list(keep)
-    jobs = (delayed(_run_fold)(factory, X, y, groups, tr, te, {}, True) if kp else
-            delayed(_run_fold)(factory, X, y, groups, tr, te, {}) for (tr, te), kp in zip(splits, keep))
+    jobs = (delayed(_run_fold)(factory, X, y, groups, tr, te, True) if kp else
+            delayed(_run_fold)(factory, X, y, groups, tr, te) for (tr, te), kp in zip(splits, keep))
     out: list[dict] = []
     for (_, te), (cls_k, p, pred, fit_s, pred_s, best, _nov, *model) in zip(
             splits, Parallel(n_jobs=n_jobs, return_as="generator")(jobs)):

@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 from sklearn.metrics import balanced_accuracy_score, roc_auc_score
 
-from terrainml.evaluation.cv import cross_validate
+from terrainml.evaluation.cv import Scoring, cross_validate
 from terrainml.models.novelty import (
     DEFAULT_FALSE_ALARM,
     DEFAULT_K,
@@ -42,7 +42,7 @@ from terrainml.models.novelty import (
     moving_windows,
 )
 
-__all__ = ["leave_one_class_out", "OpenSetResult", "open_set_markdown", "flagged_at_false_alarm",
+__all__ = ["leave_one_class_out", "NoveltySettings", "OpenSetResult", "open_set_markdown", "flagged_at_false_alarm",
            "REACH_FALSE_ALARM"]
 
 #: the false-alarm line at which the score's reach is read (share of known windows)
@@ -118,11 +118,21 @@ def flagged_at_false_alarm(known: np.ndarray, unknown: np.ndarray, false_alarm: 
     return float((unknown > threshold).mean())
 
 
+@dataclass(frozen=True)
+class NoveltySettings:
+    """The novelty score's settings (:func:`~terrainml.models.novelty.fit_novelty`): scorer
+    ``method`` and ``k``, the threshold's target ``novelty_false_alarm`` (share of moving known
+    windows over it) and its ``inner_folds`` (None: one run out at a time)."""
+
+    method: str = DEFAULT_METHOD
+    k: int = DEFAULT_K
+    novelty_false_alarm: float = DEFAULT_FALSE_ALARM
+    inner_folds: int | None = None
+
+
 def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequence, class_names: Sequence[str],
-                        moving: np.ndarray | None = None, method: str = DEFAULT_METHOD, k: int = DEFAULT_K,
-                        false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int | None = None, seed: int = 0,
-                        n_jobs: int | None = 1,
-                        progress: Callable[[str], None] | None = None) -> OpenSetResult:
+                        moving: np.ndarray | None = None, novelty: NoveltySettings | None = None, seed: int = 0,
+                        n_jobs: int | None = 1, progress: Callable[[str], None] | None = None) -> OpenSetResult:
     """Each class held out of training in turn, scored as the unknown.
 
     Parameters
@@ -133,7 +143,7 @@ def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequen
     folds : outer (train_idx, test_idx) grouped by run (:func:`~terrainml.evaluation.folds.grouped_folds`).
     classes : class ids, names ``class_names`` (same order).
     moving : bool (n,), the moving windows (default :func:`moving_windows`).
-    method, k, false_alarm, inner_folds : the novelty settings (:func:`~terrainml.models.novelty.fit_novelty`).
+    novelty : :class:`NoveltySettings` (None: the defaults).
     seed : seed of the inner folds. n_jobs : joblib jobs over folds.
     progress : callback with a short message per held-out class.
 
@@ -141,6 +151,7 @@ def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequen
     -------
     OpenSetResult
     """
+    nov = novelty or NoveltySettings()
     y, groups = W.y, W.groups
     gate = moving_mask(W)  # what OpenSetModel gates on (the same windows' wheel speeds)
     if moving is None:  # the gate is the default moving mask; without speed channels, say so
@@ -151,10 +162,11 @@ def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequen
         if progress:
             progress(f"open set: {name} held out as the unknown")
         folds_u = [(tr[y[tr] != u], te) for tr, te in folds]
-        res = cross_validate(lambda: OpenSetModel(factory(), method=method, k=k, false_alarm=false_alarm,
-                                                  inner_folds=inner_folds, random_state=seed),
-                             W, y, groups, folds=folds_u, n_jobs=n_jobs, classes=classes,
-                             class_names=class_names, name=f"without {name}")
+        res = cross_validate(lambda: OpenSetModel(factory(), method=nov.method, k=nov.k,
+                                                  novelty_false_alarm=nov.novelty_false_alarm,
+                                                  inner_folds=nov.inner_folds, random_state=seed),
+                             W, y, groups, folds=folds_u, n_jobs=n_jobs,
+                             scoring=Scoring(classes, class_names, name=f"without {name}"))
         done = res.fold_of >= 0
         thr = np.array([m["novelty_threshold"] for m in res.fold_metrics])
         flag = np.zeros(len(y), dtype=bool)
@@ -175,8 +187,9 @@ def leave_one_class_out(factory: Callable[[], Any], W, *, folds, classes: Sequen
             "unknown_flagged_reach": flagged_at_false_alarm(judged[known], judged[unk & moving]),
         })
         scores[name], flagged[name] = np.where(done, res.novelty, np.nan), flag
-    settings = {"method": method, "k": int(k), "false_alarm_target": float(false_alarm),
-                "inner_folds": "one run out" if inner_folds is None else int(inner_folds), "folds": len(folds),
+    settings = {"method": nov.method, "k": int(nov.k), "false_alarm_target": float(nov.novelty_false_alarm),
+                "inner_folds": "one run out" if nov.inner_folds is None else int(nov.inner_folds),
+                "folds": len(folds),
                 "seed": int(seed),
                 "moving_mps": MOVING_MPS, "reach_false_alarm": REACH_FALSE_ALARM}
     names = dict(zip(classes, class_names))

@@ -13,7 +13,7 @@ the model folder:
 * ``evaluate --open-set`` (:func:`write_open_set_report`): ``open_set.md`` / ``.json``, every
   window's out-of-fold novelty score per held-out class (``open_set_scores.parquet``) and the ROC
   curves (``open_set_roc.png``);
-* with ``train(..., open_set=True)``, the leave-one-class-out table of the served model's novelty
+* with ``TrainOptions(open_set=True)``, the leave-one-class-out table of the served model's novelty
   score (:mod:`terrainml.evaluation.open_set`; ``report.json``: ``open_set``).
 """
 

@@ -50,7 +50,7 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import StandardScaler
 from sklearn.svm import SVC
 
-from terrainml.evaluation.cv import CVResult, average_results, cross_validate
+from terrainml.evaluation.cv import CVResult, Scoring, average_results, cross_validate
 from terrainml.evaluation.folds import chunk_folds, grouped_folds
 from terrainml.features.chunks import (SIDE_CHANNELS, ChunkSet, chunk_windows, make_chunks,  # noqa: F401
                                        windows_per_chunk)
@@ -129,9 +129,9 @@ def protocol_models(quick: bool = False, track_m: float = HUSKY_TRACK_M,
                              gamma_grid=gamma_grid, inner_folds=3, random_state=0, n_jobs=n_jobs)
 
     def cnn():
-        from terrainml.models.cnn import CNNClassifier  # noqa: PLC0415 - torch, only for the CNN
+        from terrainml.models.cnn import CNNClassifier, CNNConfig  # noqa: PLC0415 - torch, only for the CNN
 
-        return CNNClassifier(max_epochs=epochs, patience=patience, random_state=0, n_threads=2)
+        return CNNClassifier(CNNConfig(max_epochs=epochs, patience=patience), random_state=0, n_threads=2)
 
     def hgb():
         return BoostedTrees(SideChannelFeatures(track_m=track_m), max_iter=150 if quick else 300)
@@ -227,8 +227,8 @@ def run_protocol(data: ProtocolData, protocol: str, models: Sequence[str], *, n_
         tick = None if progress is None else (lambda k, n, m=m: progress(m, k, n))
         with warnings.catch_warnings():  # few windows of a class in an inner split: expected
             warnings.simplefilter("ignore", UserWarning)
-            done[m] = cross_validate(factories[m], W, y, groups, folds=folds, classes=classes,
-                                     class_names=names, name=f"({protocol}) {m}", progress=tick)
+            done[m] = cross_validate(factories[m], W, y, groups, folds=folds, progress=tick,
+                                     scoring=Scoring(classes, names, name=f"({protocol}) {m}"))
     return {name: done[name] if "+" not in name else
             average_results([done[q] for q in name.split("+")], name=f"({protocol}) {name}")
             for name in models}

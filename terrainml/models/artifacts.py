@@ -38,12 +38,6 @@ manifest, which it signs) and raises :class:`SignatureError` naming the folder.
 
 from __future__ import annotations
 
-import errno
-import hashlib
-import json
-import math
-import os
-import stat
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -55,21 +49,20 @@ import skops.io as sio
 from terrainml import __version__
 from terrainml.atomic import write_text
 from terrainml.features.windows import WindowSpec
-from terrainml.hashing import sha256_file
 from terrainml.models.calibration import CalibratedModel, Temperature
+from terrainml.models.manifest import (SCHEMA, SCHEMA_VERSION, ArtifactError, json_safe, read_manifest,
+                                       verify_artifact, write_manifest)
 from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.models.novelty import NoveltyError, NoveltyScorer, model_feature_names
 from terrainml.models.signing import (MANIFEST_NAME, SIGNATURE_NAME, PublicKeyLike, SignatureError,
                                       verify_artifact_signature)
 from terrainml.robot import RobotSpec
 
-__all__ = ["ArtifactError", "Artifact", "save_artifact", "load_artifact", "verify_artifact",
+__all__ = ["ArtifactError", "Artifact", "TrainingProvenance", "save_artifact", "load_artifact", "verify_artifact",
            "attach_members", "load_members", "MEMBERS_DIR",
            "read_manifest", "write_manifest", "ALLOWED_SKOPS_TYPES", "MANIFEST_NAME", "SCHEMA",
            "SCHEMA_VERSION", "SIGNATURE_NAME", "SignatureError", "json_safe"]
 
-SCHEMA = "terrainml.model"
-SCHEMA_VERSION = 1
 SKOPS_NAME = "model.skops"
 
 #: Types skops may instantiate besides its own defaults (checked against
@@ -117,39 +110,6 @@ ALLOWED_SKOPS_TYPES: frozenset[str] = frozenset({
 })
 
 
-class ArtifactError(ValueError):
-    """A model folder cannot be trusted or used (the message names the file)."""
-
-
-def json_safe(obj: Any) -> Any:
-    """Recursively convert numpy scalars/arrays to Python and non-finite floats to None."""
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return json_safe(obj.tolist())
-    if isinstance(obj, (np.bool_, bool)):
-        return bool(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
-
-
-def _canonical(doc: dict) -> str:
-    return json.dumps(doc, indent=2, sort_keys=True, allow_nan=False, ensure_ascii=True) + "\n"
-
-
-def _self_hash(doc: dict) -> str:
-    body = {k: v for k, v in doc.items() if k != "manifest_sha256"}
-    return hashlib.sha256(_canonical(body).encode()).hexdigest()
-
-
 # ---------------------------------------------------------------------------- saving
 def _model_kind(model: Any) -> str:
     name = type(model).__name__
@@ -178,12 +138,35 @@ def save_model_files(directory: Path, name: str, model: Any) -> tuple[str, list[
     return kind, [Path(p) for p in model.save(sub)]
 
 
-def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Sequence[int],
-                  class_names: Sequence[str], channels: Sequence[str], window_spec: WindowSpec,
-                  robot: RobotSpec, training_fingerprint: str, metrics_summary: dict | None = None,
-                  default_model: str | None = None, preset: str = "robust",
+@dataclass(frozen=True)
+class TrainingProvenance:
+    """What the models of a folder were trained on, as the manifest records it.
+
+    Attributes
+    ----------
+    classes : class ids (labels of the models), physical order. class_names : their names.
+    channels : raw-window channel names. window_spec : WindowSpec used to cut them.
+    robot : RobotSpec the data came from. training_fingerprint : sha256 of the training windows.
+    preset : estimation preset used to build the data.
+    sensors : sensor groups the models need (``wheels``, ``currents``, ``imu``, ``cam``); the
+        predictor checks health only on those (None: all the robot has).
+    feature_family : ``canonical`` or ``side_channel`` (design §8), or None.
+    """
+
+    classes: Sequence[int]
+    class_names: Sequence[str]
+    channels: Sequence[str]
+    window_spec: WindowSpec
+    robot: RobotSpec
+    training_fingerprint: str
+    preset: str = "robust"
+    sensors: Sequence[str] | None = None
+    feature_family: str | None = None
+
+
+def save_artifact(directory: str | Path, models: dict[str, Any], provenance: TrainingProvenance, *,
+                  default_model: str | None = None, metrics_summary: dict | None = None,
                   attachments: Mapping[str, str] | None = None, extra: dict | None = None,
-                  sensors: Sequence[str] | None = None, feature_family: str | None = None,
                   calibration: Mapping[str, dict] | None = None,
                   novelty: tuple[str, NoveltyScorer, dict] | None = None) -> dict:
     """Write models and attachments, then the manifest over all files.
@@ -194,20 +177,14 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
     models : {name: fitted model} (``SVMClassifier``, ``CNNClassifier``, ``BoostedTrees`` or a
         ``ProbabilityAverage`` whose members are also in ``models`` under the names of its
         ``A+B`` name), e.g. {"svm": m, "hgb": t, "svm+hgb": avg}.
-    classes : class ids (labels of the models), physical order.
-    class_names : names of the classes.
-    channels : raw-window channel names. window_spec : WindowSpec used to cut them.
-    robot : RobotSpec the data came from. training_fingerprint : sha256 of the training windows.
-    metrics_summary : {model: {metric: {mean, std}}}, stored as is.
+    provenance : :class:`TrainingProvenance`, the classes, channels, window spec, robot, data
+        fingerprint, preset, sensor groups and feature family of the training.
     default_model : model served by default (first of ``models`` when None).
-    preset : estimation preset used to build the data.
+    metrics_summary : {model: {metric: {mean, std}}}, stored as is.
     attachments : {file name: text} written into ``directory`` and listed in the manifest under
         ``attachments`` (e.g. ``{"desired_slip_table.json": table.to_json()}``); verified on load
         like every file, read by whoever knows their format (:attr:`Artifact.attachments`).
     extra : more JSON-able fields stored under ``extra``.
-    sensors : sensor groups the models need (``wheels``, ``currents``, ``imu``, ``cam``); the
-        predictor checks health only on those (None: all the robot has).
-    feature_family : ``canonical`` or ``side_channel`` (design §8).
     calibration : {model name: :meth:`~terrainml.models.calibration.Temperature.to_dict`}, stored
         in that model's entry; :func:`load_artifact` then serves the model's probabilities
         through it (:class:`~terrainml.models.calibration.CalibratedModel`).
@@ -230,19 +207,24 @@ def save_artifact(directory: str | Path, models: dict[str, Any], *, classes: Seq
     doc = {
         "schema": SCHEMA, "schema_version": SCHEMA_VERSION, "terrainml_version": __version__,
         "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "classes": [int(c) for c in classes], "class_names": [str(c) for c in class_names],
-        "channels": [str(c) for c in channels], "window_spec": window_spec.to_dict(),
-        "robot": {"name": robot.name, "sha256": robot.sha256(), "spec": robot.to_dict()},
-        "training_fingerprint": str(training_fingerprint), "preset": str(preset),
+        **_provenance_fields(provenance),
         "models": entries, "default_model": default_model or next(iter(models)),
         "attachments": sorted(attachments or {}),
         "metrics_summary": metrics_summary or {}, "extra": extra or {},
-        "sensors": None if sensors is None else [str(g) for g in sensors],
-        "feature_family": feature_family,
     }
     if nov_entry is not None:  # absent (not null) without a scorer: older folders read the same
         doc["novelty"] = nov_entry
     return write_manifest(directory, doc)
+
+
+def _provenance_fields(p: TrainingProvenance) -> dict:
+    """The manifest's fields of the training's provenance."""
+    return {"classes": [int(c) for c in p.classes], "class_names": [str(c) for c in p.class_names],
+            "channels": [str(c) for c in p.channels], "window_spec": p.window_spec.to_dict(),
+            "robot": {"name": p.robot.name, "sha256": p.robot.sha256(), "spec": p.robot.to_dict()},
+            "training_fingerprint": str(p.training_fingerprint), "preset": str(p.preset),
+            "sensors": None if p.sensors is None else [str(g) for g in p.sensors],
+            "feature_family": p.feature_family}
 
 
 def _model_entry(directory: Path, name: str, model: Any, models: dict[str, Any],
@@ -275,125 +257,7 @@ def _novelty_entry(directory: Path, novelty: tuple[str, NoveltyScorer, dict], mo
     return {**scorer.config(), **dict(info), "model": nov_name, "file": path.relative_to(directory).as_posix()}
 
 
-def write_manifest(directory: str | Path, doc: dict | None = None) -> dict:
-    """(Re)write ``manifest.json`` hashing every file in ``directory`` (recursively).
-
-    ``doc`` None re-reads the existing manifest (without verifying files) and refreshes the
-    file list, e.g. after reports were added. The signature (``manifest.sig``, if any) is not
-    hashed: it signs the manifest, and a rewritten manifest no longer matches it (sign again).
-    """
-    directory = Path(directory)
-    if doc is None:
-        doc = json.loads((directory / MANIFEST_NAME).read_text())
-    doc = {k: v for k, v in doc.items() if k not in ("files", "manifest_sha256")}
-    files = {}
-    for p in sorted(directory.rglob("*")):
-        rel = p.relative_to(directory).as_posix()
-        # the folder's own manifest and signature only: a sensor member's manifest is a file
-        # of this folder like any other (hashed, so signing this manifest covers the members)
-        if p.is_file() and rel not in (MANIFEST_NAME, SIGNATURE_NAME):
-            files[rel] = {"sha256": sha256_file(p), "bytes": p.stat().st_size}
-    doc["files"] = files
-    doc = json_safe(doc)
-    doc["manifest_sha256"] = _self_hash(doc)
-    write_text(directory / MANIFEST_NAME, _canonical(doc))   # last, whole or not at all
-    return doc
-
-
 # ---------------------------------------------------------------------------- loading
-_KINDS = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-          (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"),
-          (stat.S_ISDIR, "a folder"))
-
-
-def file_problem(path: Path) -> str | None:
-    """Why ``path`` is not a readable regular file (None when it is), its real cause.
-
-    "missing" only when nothing is there (a dangling symlink says where it points); a symlink
-    loop, a device (``/dev/zero``), a FIFO, a socket or a folder are named as such, so a model
-    file replaced by one is refused before it is opened (reading a FIFO blocks, a device never
-    ends). A symlink to a regular file is followed.
-    """
-    try:
-        st = path.stat()
-    except FileNotFoundError:
-        if path.is_symlink():
-            return f"a symlink to {os.readlink(path)!r}, which does not exist"
-        return "missing"
-    except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            return "a symlink loop"
-        return f"cannot be read ({exc.strerror or exc})"
-    if stat.S_ISREG(st.st_mode):
-        return None
-    what = next((name for test, name in _KINDS if test(st.st_mode)), "not a regular file")
-    via = f" (a symlink to {os.readlink(path)!r})" if path.is_symlink() else ""
-    return f"{what}{via}, not a regular file"
-
-
-def read_manifest(directory: str | Path) -> dict:
-    """Read and verify ``manifest.json`` itself (canonical form, self-hash, schema)."""
-    directory = Path(directory)
-    path = directory / MANIFEST_NAME
-    if not directory.is_dir():
-        raise ArtifactError(f"{directory}: no such model folder (train one with `terrainml train`)")
-    problem = file_problem(path)
-    if problem == "missing":
-        raise ArtifactError(f"{path}: manifest missing; not a terrainml model folder")
-    if problem is not None:
-        raise ArtifactError(f"{path}: manifest is {problem}")
-    raw = path.read_bytes()
-    try:
-        text = raw.decode("utf-8")
-        doc = json.loads(text)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ArtifactError(f"{path}: corrupt manifest (not valid JSON: {exc})") from None
-    if not isinstance(doc, dict):
-        raise ArtifactError(f"{path}: corrupt manifest (not a JSON object)")
-    if doc.get("schema") != SCHEMA:
-        raise ArtifactError(f"{path}: not a terrainml model manifest (schema {doc.get('schema')!r})")
-    if doc.get("schema_version") != SCHEMA_VERSION:
-        raise ArtifactError(f"{path}: manifest schema version {doc.get('schema_version')!r}; this "
-                            f"terrainml reads version {SCHEMA_VERSION}")
-    if doc.get("manifest_sha256") != _self_hash(doc):
-        raise ArtifactError(f"{path}: manifest sha256 mismatch: the manifest was modified after "
-                            "it was written")
-    if text != _canonical(doc):
-        raise ArtifactError(f"{path}: manifest is not in its canonical form: it was modified "
-                            "after it was written")
-    return doc
-
-
-def verify_artifact(directory: str | Path) -> dict:
-    """Verify the manifest and the sha256 of every file it lists; return the manifest."""
-    directory = Path(directory)
-    doc = read_manifest(directory)
-    files = doc.get("files")
-    if not isinstance(files, dict) or not files:
-        raise ArtifactError(f"{directory / MANIFEST_NAME}: manifest lists no files")
-    for rel, info in files.items():
-        p = directory / rel
-        problem = file_problem(p)
-        if problem is not None:
-            raise ArtifactError(f"{p}: file listed in the manifest is {problem}")
-        if p.stat().st_size != info.get("bytes"):
-            raise ArtifactError(f"{p}: size {p.stat().st_size} B differs from the manifest's "
-                                f"{info.get('bytes')} B: the file was modified")
-        if sha256_file(p) != info.get("sha256"):
-            raise ArtifactError(f"{p}: sha256 mismatch: the file was modified after training")
-    for name, entry in doc.get("models", {}).items():
-        for rel in entry.get("files", []):
-            if rel not in files:
-                raise ArtifactError(f"{directory / rel}: model file of {name!r} not hashed in the manifest")
-    for rel in doc.get("attachments") or []:
-        if rel not in files:
-            raise ArtifactError(f"{directory / rel}: attachment not hashed in the manifest")
-    nov = doc.get("novelty")
-    if nov is not None and (not isinstance(nov, dict) or nov.get("file") not in files):
-        raise ArtifactError(f"{directory / MANIFEST_NAME}: novelty entry names no file hashed in the manifest")
-    return doc
-
-
 # ---------------------------------------------------------------------------- sensor members
 #: sub-folder of a model folder that holds its sensor members, one model folder each
 MEMBERS_DIR = "members"

@@ -30,8 +30,8 @@ is flagged when it moves and its score is over the threshold.
 The threshold (:func:`fit_novelty`) is set in inner grouped folds of the training windows only:
 the scorer is refit on the training runs of every inner fold and scores the windows of its
 held-out runs (known ground, never seen by that scorer); the threshold is the ``1 -
-false_alarm`` quantile of those out-of-fold scores (of the moving ones, with the gate), so about
-``false_alarm`` of a new run on known ground is flagged. The inner folds hold one training run
+novelty_false_alarm`` quantile of those out-of-fold scores (of the moving ones, with the gate), so about
+``novelty_false_alarm`` of a new run on known ground is flagged. The inner folds hold one training run
 out at a time (:func:`threshold_splits`): an inner scorer then sees all the training runs but
 one, as the final scorer (fitted on all of them) sees a new run. With three inner folds, whose
 scorers saw two thirds of the runs, held-out windows lay further from their references than a
@@ -493,7 +493,7 @@ def threshold_splits(y, groups, inner_folds: int | None = None, seed: int = 0) -
 
 
 def fit_novelty(F: np.ndarray, y, groups, *, moving: np.ndarray | None = None, method: str = DEFAULT_METHOD,
-                k: int = DEFAULT_K, false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int | None = None,
+                k: int = DEFAULT_K, novelty_false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int | None = None,
                 seed: int = 0) -> tuple[NoveltyScorer, dict]:
     """Fit a scorer on training features and set its threshold in inner grouped folds.
 
@@ -504,7 +504,7 @@ def fit_novelty(F: np.ndarray, y, groups, *, moving: np.ndarray | None = None, m
     moving : bool (n,) or None, the moving windows (:func:`moving_mask`): given, the threshold is
         set on the moving held-out windows only and the scorer gets the gate ``moving_mps``.
     method, k : see :class:`NoveltyScorer`.
-    false_alarm : target share of held-out known windows above the threshold, in (0, 0.5).
+    novelty_false_alarm : target share of held-out known windows above the threshold, in (0, 0.5).
     inner_folds : None (default, one run out at a time) or a number of grouped folds
         (:func:`threshold_splits`). seed : seed of numbered folds.
 
@@ -513,7 +513,7 @@ def fit_novelty(F: np.ndarray, y, groups, *, moving: np.ndarray | None = None, m
     (scorer fitted on all of ``F`` with its ``threshold``, info dict: ``false_alarm_target``,
     ``inner_folds`` (the number of folds used), ``inner_scores_n``, ``seed``).
     """
-    check_false_alarm(false_alarm)
+    check_false_alarm(novelty_false_alarm)
     F = np.asarray(F, dtype=np.float64)
     y, groups = np.asarray(y), np.asarray(groups)
     judged = np.ones(len(y), dtype=bool) if moving is None else np.asarray(moving, dtype=bool)
@@ -528,8 +528,8 @@ def fit_novelty(F: np.ndarray, y, groups, *, moving: np.ndarray | None = None, m
                            + " (too few runs per class)")
     oof = np.concatenate(oof)
     scorer = NoveltyScorer(method, k, moving_mps=None if moving is None else MOVING_MPS).fit(F, y)
-    scorer.threshold = float(np.quantile(oof, 1.0 - float(false_alarm)))
-    return scorer, {"false_alarm_target": float(false_alarm), "inner_folds": len(splits),
+    scorer.threshold = float(np.quantile(oof, 1.0 - float(novelty_false_alarm)))
+    return scorer, {"false_alarm_target": float(novelty_false_alarm), "inner_folds": len(splits),
                     "inner_scores_n": int(len(oof)), "seed": int(seed)}
 
 
@@ -548,7 +548,7 @@ class OpenSetModel(ClassifierMixin, BaseEstimator):
     Parameters
     ----------
     base : unfitted classifier with a feature space (:func:`model_features`).
-    method, k, false_alarm, inner_folds : see :func:`fit_novelty`. random_state : seed of the
+    method, k, novelty_false_alarm, inner_folds : see :func:`fit_novelty`. random_state : seed of the
         inner folds.
 
     Attributes
@@ -558,11 +558,11 @@ class OpenSetModel(ClassifierMixin, BaseEstimator):
     """
 
     def __init__(self, base: Any = None, method: str = DEFAULT_METHOD, k: int = DEFAULT_K,
-                 false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int | None = None, random_state: int = 0):
+                 novelty_false_alarm: float = DEFAULT_FALSE_ALARM, inner_folds: int | None = None, random_state=0):
         self.base = base
         self.method = method
         self.k = k
-        self.false_alarm = false_alarm
+        self.novelty_false_alarm = novelty_false_alarm
         self.inner_folds = inner_folds
         self.random_state = random_state
 
@@ -575,7 +575,7 @@ class OpenSetModel(ClassifierMixin, BaseEstimator):
         self.model_.fit(X, y, groups=groups)
         self.scorer_, self.novelty_info_ = fit_novelty(
             model_features(self.model_, X), y, groups, moving=moving_mask(X), method=self.method, k=self.k,
-            false_alarm=self.false_alarm, inner_folds=self.inner_folds, seed=self.random_state)
+            novelty_false_alarm=self.novelty_false_alarm, inner_folds=self.inner_folds, seed=self.random_state)
         self.novelty_threshold_ = float(self.scorer_.threshold)
         self.classes_ = np.asarray(self.model_.classes_)
         return self

@@ -57,6 +57,8 @@ def export_onnx(clf, path, opset: int = DEFAULT_OPSET) -> Path:
     import onnx  # noqa: PLC0415 - optional (cnn extra)
     import torch  # noqa: PLC0415 - optional (cnn extra)
 
+    from terrainml.models.cnn_files import cnn_config  # noqa: PLC0415 - torch, optional (cnn extra)
+
     check_is_fitted(clf, "model_")
     path = Path(path)
     if path.is_dir() or path.suffix == "":
@@ -72,7 +74,7 @@ def export_onnx(clf, path, opset: int = DEFAULT_OPSET) -> Path:
                           dynamic_axes={INPUT_NAME: {0: "n_windows"}, OUTPUT_NAME: {0: "n_windows"}},
                           do_constant_folding=True)
     proto = onnx.load_from_string(buf.getvalue())
-    config = clf._config()
+    config = cnn_config(clf)
     meta = {
         "terrainml_format": "terrainml.cnn.onnx",
         "classes": json.dumps(config["classes"]),

@@ -2,7 +2,7 @@
 
 :func:`train_auto` takes the user's ingested runs and
 
-1. cuts them with every candidate window spec (:data:`~terrainml.pipeline.select.SELECT_SPECS`;
+1. cuts them with every candidate window spec (:data:`~terrainml.pipeline.candidates.SELECT_SPECS`;
    a spec that cannot be cut, or keeps too few windows of a class, is named and left out);
 2. selects the spec and the model under nested run-grouped CV (:func:`~terrainml.pipeline.
    select.select`): the honest figure of the choice comes from outer folds it never saw;
@@ -36,26 +36,23 @@ import pandas as pd
 from terrainml.atomic import write_text
 from terrainml.evaluation.metrics import latency_per_window_ms
 from terrainml.evaluation.report import selection_markdown, write_report
-from terrainml.features.windows import window_spec
+from terrainml.features.windows import WindowSpec
 from terrainml.models.artifacts import json_safe, save_artifact, write_manifest
 from terrainml.models.calibration import CalibratedModel, Temperature
 from terrainml.models.ensemble import ProbabilityAverage
-from terrainml.models.novelty import DEFAULT_FALSE_ALARM, check_false_alarm
 from terrainml.pipeline.dataset import Dataset, build_from_tables
 from terrainml.pipeline.progress import ProgressFn, report
-from terrainml.pipeline.replay import (MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S, ReplayRefused, pooled_replay,
-                                       replay_refusal)
+from terrainml.pipeline.options import SelectionOptions, ServeOptions, TrainOptions
+from terrainml.pipeline.replay import ReplayRefused, pooled_replay, replay_refusal
 from terrainml.pipeline import train as train_lib  # make_factory read at call time
-from terrainml.pipeline.select import Selection, candidate_specs, select
-from terrainml.pipeline.train import (MIN_RUNS_PER_CLASS, SINGLE_RUN_RULE, TABLE_FILE, FoldModel, TrainResult,
-                                      class_names_of, desired_slip_table_for, feature_family, replay_folds,
+from terrainml.pipeline.candidates import candidate_window_specs
+from terrainml.pipeline.select import Selection, select
+from terrainml.pipeline.train import (MIN_RUNS_PER_CLASS, TABLE_FILE, FoldModel, TrainResult, class_names_of,
+                                      dataset_summary, desired_slip_table_for, provenance_of, replay_folds,
                                       served_novelty)
 from terrainml.robot import RobotSpec
 
-__all__ = ["train_auto", "build_candidates", "AutoResult", "ReplayRefused", "DEFAULT_BUDGET_MIN"]
-
-#: ``--budget-min`` default
-DEFAULT_BUDGET_MIN = 30.0
+__all__ = ["train_auto", "build_candidates", "AutoResult", "ReplayRefused"]
 
 
 @dataclass
@@ -71,17 +68,20 @@ class AutoResult:
     dataset: Dataset | None = None  # the chosen spec's windows (its sensor members subset them)
 
 
-def build_candidates(tables: Sequence[pd.DataFrame], robot: RobotSpec, specs: str | Sequence[str] = "auto",
-                     preset: str = "robust", sensors: Sequence[str] | None = None, n_jobs: int = 1,
+def build_candidates(tables: Sequence[pd.DataFrame], robot: RobotSpec,
+                     specs: str | Sequence[str | WindowSpec] = "auto", preset: str = "robust",
+                     sensors: Sequence[str] | None = None, n_jobs: int = 1,
                      progress: ProgressFn | None = None) -> tuple[dict, dict]:
-    """({spec: Dataset}, {spec: why it cannot be cut}) of the runs for every candidate spec
-    (``progress``: a :class:`~terrainml.pipeline.progress.Step` of stage ``windows`` per spec)."""
+    """({spec name: Dataset}, {spec name: why it cannot be cut}) of the runs for every candidate
+    spec (``auto``, names or parsed specs; ``progress``: a
+    :class:`~terrainml.pipeline.progress.Step` of stage ``windows`` per spec)."""
     out, failed = {}, {}
-    names = candidate_specs(specs)
-    for i, name in enumerate(names):
+    parsed = candidate_window_specs(specs)
+    names = [s.name for s in parsed]
+    for i, (name, unresolved) in enumerate(zip(names, parsed)):
         report(progress, "windows", i, len(names), "specs", f"cutting the runs with the {name!r} spec")
         try:
-            spec = window_spec(name).resolve(robot, sensors)
+            spec = unresolved.resolve(robot, sensors)
             ds = build_from_tables(tables, robot, preset, spec, n_jobs=n_jobs)
         except Exception as exc:  # noqa: BLE001 - a spec this robot cannot feed is a reported non-candidate
             failed[name] = f"{type(exc).__name__}: {exc}"
@@ -94,7 +94,7 @@ def build_candidates(tables: Sequence[pd.DataFrame], robot: RobotSpec, specs: st
     return out, failed
 
 
-def _fit_final(ds: Dataset, model: str, seed: int, temperature: float, say) -> tuple[dict, dict, dict]:
+def _fit_final(ds: Dataset, model: str, seed: int, say) -> tuple[dict, dict, dict]:
     """Fitted models to save ({name: model}), fit times and chosen parameters of the chosen model."""
     W = ds.windows
     fitted, times, params = {}, {}, {}
@@ -116,20 +116,12 @@ def _fit_final(ds: Dataset, model: str, seed: int, temperature: float, say) -> t
 def _save(out: Path, ds: Dataset, fitted: dict, served: str, temperature: float, table: Any,
           extra: dict | None = None, metrics: dict | None = None, novelty: Any = None) -> dict:
     """Save a model folder as ``terrainml predict`` loads it; ``novelty``: (name, scorer, info) or None."""
-    W = ds.windows
-    classes = sorted(set(W.y.tolist()))
-    names = _names(ds, classes)
-    return save_artifact(out, fitted, classes=classes, class_names=names, channels=W.channels, window_spec=ds.spec,
-                         robot=ds.robot, training_fingerprint=ds.fingerprint, metrics_summary=metrics or {},
-                         default_model=served, preset=ds.preset, sensors=ds.sensors,
-                         feature_family=feature_family(W.channels),
+    classes = sorted(set(ds.windows.y.tolist()))
+    return save_artifact(out, fitted, provenance_of(ds, classes), metrics_summary=metrics or {},
+                         default_model=served,
                          attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
                          extra=extra or {}, calibration={served: Temperature(temperature).to_dict()},
                          novelty=novelty)
-
-
-def _names(ds: Dataset, classes: Sequence[int]) -> list[str]:
-    return class_names_of(ds, classes)
 
 
 def _texts_only(say: ProgressFn) -> ProgressFn:
@@ -138,8 +130,8 @@ def _texts_only(say: ProgressFn) -> ProgressFn:
     return lambda msg: say(msg) if isinstance(msg, str) else None
 
 
-def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, seed: int, say,
-                  false_alarm: float = DEFAULT_FALSE_ALARM) -> list[dict]:
+def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, opt: TrainOptions,
+                  say) -> list[dict]:
     """Replay of every outer fold's held-out runs through its calibrated model and its novelty score
     (fitted on the fold's training runs only), saved and loaded as ``predict`` loads them
     (:func:`~terrainml.pipeline.train.replay_folds`). The outer folds hold the runs of the
@@ -159,102 +151,92 @@ def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, s
     out = []
     for k, (spec, f) in enumerate(folds):  # a fold's spec may differ from another's (chosen per fold)
         report(say, "served replay", k, len(folds), "folds", f"fold {k + 1}: {len(f.runs)} held-out runs")
-        (res,) = replay_folds([f], data[spec], tables, table, segment_s, seed, _texts_only(say), false_alarm)
+        (res,) = replay_folds([f], data[spec], tables, table, segment_s, opt.seed, _texts_only(say),
+                              opt.novelty_false_alarm)
         out.append({**res, "fold": k})
     report(say, "served replay", len(folds), len(folds), "folds")
     return out
 
 
-def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str | Path, *,
-               specs: str | Sequence[str] = "auto", models: str | Sequence[str] = "auto", folds: int = 5,
-               seed: int = 0, n_jobs: int = 1, budget_min: float | None = DEFAULT_BUDGET_MIN,
-               preset: str = "robust", sensors: Sequence[str] | None = None, replay: bool = True,
-               segment_s: float = REPLAY_SEGMENT_S, allow_unproven: bool = False,
-               min_classified_share: float = MIN_CLASSIFIED_SHARE, datasets: dict | None = None,
-               open_set: bool = False, novelty_false_alarm: float = DEFAULT_FALSE_ALARM,
-               nested: bool = True, progress: ProgressFn | None = None, catalogue: str | None = None,
-               preflight: dict | None = None) -> AutoResult:
+def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str | Path,
+               options: TrainOptions | None = None, selection: SelectionOptions | None = None,
+               serve: ServeOptions | None = None, *, datasets: dict | None = None,
+               progress: ProgressFn | None = None, preflight: dict | None = None) -> AutoResult:
     """Select, validate on the served path, calibrate and save a model (see the module docstring).
 
     Parameters
     ----------
-    tables : ingested run tables (one per run, per-row ``terrain`` labels), or None with
-        ``datasets`` (e.g. a windows file: no other spec can be cut and nothing replayed).
+    tables : ingested run tables (one per run, per-row ``terrain`` labels): the candidates are cut
+        from them and every outer fold's held-out runs replayed; or None with ``datasets`` (e.g. a
+        windows file: no other spec can be cut and nothing replayed).
     robot : RobotSpec. out : model folder, created.
-    specs : ``auto`` or window spec names. models : ``auto`` (svm, hgb, svm+hgb) or model names.
-    folds : K run groups. seed : of the run partition and the models. n_jobs : joblib jobs.
-    budget_min : time budget, min (None: none); see :func:`~terrainml.pipeline.select.select`.
-    preset : estimation preset. sensors : sensor groups the model may use (None: all).
-    replay : replay the outer folds' held-out runs (needs ``tables``).
-    segment_s : s of every held-out run replayed. allow_unproven : save a model that the replay
-    refuses (the report says so). min_classified_share : the refusal threshold.
-    datasets : {spec: Dataset} already cut (then ``specs`` is not used).
-    open_set : also run the leave-one-class-out evaluation of the chosen model's novelty score on
-        the chosen windows (:func:`~terrainml.pipeline.train.evaluate_open_set`; report section).
-    novelty_false_alarm : the novelty threshold's target (default 0.05), for the served model, the
-        replay's fold models and the open-set evaluation alike (:func:`~terrainml.pipeline.train.train`).
-    nested : False for one spec and one model fixed beforehand (a sensor member): its grouped
-        K-fold CV, with no inner level (:func:`~terrainml.pipeline.select.select`).
+    options : :class:`~terrainml.pipeline.options.TrainOptions`: folds (K run groups), seed, joblib
+        jobs, the novelty threshold's target (for the served model, the replay's fold models and
+        the open-set evaluation alike) and ``open_set`` (also the leave-one-class-out evaluation
+        of the chosen model's novelty score on the chosen windows: report section). None: defaults.
+    selection : :class:`~terrainml.pipeline.options.SelectionOptions`: candidate window specs
+        and models, time budget (:func:`~terrainml.pipeline.select.select`), nested or not, the
+        preset and sensor groups the windows are cut with. None: defaults.
+    serve : :class:`~terrainml.pipeline.options.ServeOptions`: replay length, refusal threshold,
+        ``allow_unproven``, terrain catalogue of the desired-slip table. None: defaults.
+    datasets : {spec: Dataset} already cut (then ``selection.specs`` is not used).
     progress : callback with a short message per step and a
         :class:`~terrainml.pipeline.progress.Step` per unit of the stages ``windows``,
         ``selection`` (per fit), ``served replay`` (per fold), ``final fit`` and ``open set``.
-    catalogue : terrain catalogue of the desired-slip table (``--catalogue``); None: built-in, or
-        class-free serving when none has the classes.
     preflight : the report entry of the checks run before (:mod:`terrainml.pipeline.preflight`).
 
     Returns
     -------
     AutoResult. Raises :class:`ReplayRefused` (after writing the report) when the replay refuses
-    the model and ``allow_unproven`` is False.
+    the model and ``serve.allow_unproven`` is False.
     """
     say = progress or (lambda msg: None)
     out = Path(out)
-    check_false_alarm(novelty_false_alarm)
+    opt, choice, serve = options or TrainOptions(), selection or SelectionOptions(), serve or ServeOptions()
     t0 = time.perf_counter()
-    data, failed = _candidate_data(tables, robot, specs, preset, sensors, n_jobs, datasets, say)
+    data, failed = _candidate_data(tables, robot, choice, opt.n_jobs, datasets, say)
     t_windows = time.perf_counter() - t0
     first = next(iter(data.values()))
-    table = desired_slip_table_for(first, robot, catalogue)
-    budget_s = None if budget_min is None else 60.0 * float(budget_min)
-    sel = select(data, models, folds=folds, seed=seed, n_jobs=n_jobs, budget_s=budget_s, table=table,
-                 progress=say, nested=nested)
+    table = desired_slip_table_for(first, robot, serve.catalogue)
+    budget_s = None if choice.budget_min is None else 60.0 * float(choice.budget_min)
+    sel = select(data, choice.models, folds=opt.folds, seed=opt.seed, n_jobs=opt.n_jobs, budget_s=budget_s,
+                 table=table, progress=say, nested=choice.nested)
     sel.infeasible = {**failed, **sel.infeasible}
     t_sel = time.perf_counter() - t0 - t_windows
-    replay = replay and tables is not None
-    folds_replay = (_replay_folds(sel, data, tables, table, segment_s, seed, say, novelty_false_alarm)
-                    if replay else [])
+    replay = tables is not None
+    folds_replay = (_replay_folds(sel, data, tables, table, serve.segment_s, opt, say) if replay else [])
     pooled = pooled_replay([f for f in folds_replay if f.get("moving_ticks")]) if folds_replay else {}
-    refusal = replay_refusal(pooled, min_classified_share) if replay else ""
+    refusal = replay_refusal(pooled, serve.min_classified_share) if replay else ""
     t_replay = time.perf_counter() - t0 - t_windows - t_sel
     ds = data[sel.chosen.spec]
     res_doc = {"selection": _selection_doc(sel), "preflight": preflight,
                "replay": {"folds": folds_replay, "pooled": pooled, "refusal": refusal,
-                          "overridden": bool(refusal and allow_unproven), "segment_s": segment_s,
-                          "min_classified_share": min_classified_share}}
-    if refusal and not allow_unproven:
+                          "overridden": bool(refusal and serve.allow_unproven), "segment_s": serve.segment_s,
+                          "min_classified_share": serve.min_classified_share}}
+    if refusal and not serve.allow_unproven:
         out.mkdir(parents=True, exist_ok=True)
         _write_docs(out, None, res_doc, sel)
         raise ReplayRefused(f"{refusal}; not saved; override with --allow-unproven", out)
-    tr, final_s = _fit_and_save(out, ds, sel, table, seed, say, novelty_false_alarm)
+    tr, final_s = _fit_and_save(out, ds, sel, table, opt, say)
     timing = {"windows_s": t_windows, "select_s": t_sel, "replay_s": t_replay, "final_fit_s": final_s,
               "total_s": time.perf_counter() - t0}
-    if open_set:
+    if opt.open_set:
         report(say, "open set", 0, None, "", f"each class of {sel.chosen.name} held out in turn")
-        tr.open_set = train_lib.evaluate_open_set(ds, sel.chosen.model, folds=folds, seed=seed, n_jobs=n_jobs,
-                                                  progress=say, false_alarm=novelty_false_alarm)
+        tr.open_set = train_lib.evaluate_open_set(ds, sel.chosen.model, opt, progress=say)
     res_doc["timing_s"] = timing
     _write_docs(out, tr, res_doc, sel)
     tr.manifest = write_manifest(out)
     return AutoResult(sel, folds_replay, pooled, refusal, tr, timing, ds)
 
 
-def _fit_and_save(out: Path, ds: Dataset, sel: Selection, table: Any, seed: int, say,
-                  false_alarm: float = DEFAULT_FALSE_ALARM) -> tuple[TrainResult, float]:
+def _fit_and_save(out: Path, ds: Dataset, sel: Selection, table: Any, opt: TrainOptions,
+                  say) -> tuple[TrainResult, float]:
     """The chosen candidate fitted on every window, calibrated, with its novelty score, saved.
 
     Returns the TrainResult of the report and the seconds of the final fits.
     """
-    fitted, times, params = _fit_final(ds, sel.chosen.model, seed, sel.temperature, say)
+    seed = opt.seed
+    fitted, times, params = _fit_final(ds, sel.chosen.model, seed, say)
     served = sel.chosen.model
     cal = CalibratedModel(fitted[served], Temperature(sel.temperature))
     lat = latency_per_window_ms(cal, ds.windows, n_calls=min(200, max(20, len(ds.windows))))
@@ -263,9 +245,10 @@ def _fit_and_save(out: Path, ds: Dataset, sel: Selection, table: Any, seed: int,
     fit_s = float(sum(times.values()))
     tr = TrainResult(out, {served: {"cv": cv, "fit_time_s": fit_s, "latency": lat,
                                     "params": params if len(params) > 1 else next(iter(params.values()))}},
-                     served, sel.class_ids, sel.class_names, len(sel.partition), seed, _summary(ds, sel), None,
+                     served, sel.class_ids, sel.class_names, len(sel.partition), seed, _summary(ds), None,
                      fitted={served: cal})
-    novelty = served_novelty(fitted[served], served, ds.windows, seed, say, false_alarm)  # its fitted windows
+    # the novelty score of the windows the served model was fitted on
+    novelty = served_novelty(fitted[served], served, ds.windows, seed, say, opt.novelty_false_alarm)
     _save(out, ds, fitted, served, sel.temperature, table, novelty=novelty,
           extra={"folds": len(sel.partition), "seed": seed, "n_windows": len(ds.windows),
                  "latency_ms": {served: lat}, "selection": {"chosen": sel.chosen.name,
@@ -274,35 +257,27 @@ def _fit_and_save(out: Path, ds: Dataset, sel: Selection, table: Any, seed: int,
     return tr, fit_s
 
 
-def _candidate_data(tables, robot: RobotSpec, specs, preset: str, sensors, n_jobs: int,
+def _candidate_data(tables, robot: RobotSpec, choice: SelectionOptions, n_jobs: int,
                     datasets: dict | None, say) -> tuple[dict, dict]:
     """({spec: Dataset}, {spec: why not}) of the candidates; ValueError when none can be cut."""
     if datasets is not None:
         data, failed = dict(datasets), {}
     else:
-        data, failed = build_candidates(tables, robot, specs, preset, sensors, n_jobs, say)
+        sensors = None if choice.sensors is None else list(choice.sensors)
+        data, failed = build_candidates(tables, robot, choice.specs, choice.preset, sensors, n_jobs, say)
     if not data:
         raise ValueError("no window spec can be cut from these runs: " +
                          "; ".join(f"{s}: {r}" for s, r in failed.items()))
     return data, failed
 
 
-def _summary(ds: Dataset, sel: Selection) -> dict:
-    W = ds.windows
-    classes = sorted(set(W.y.tolist()))
-    names = _names(ds, classes)
+def _summary(ds: Dataset) -> dict:
+    """The report's dataset summary of the chosen spec's windows (runs per class from its runs table)."""
+    classes = sorted(set(ds.windows.y.tolist()))
     runs = ds.runs[ds.runs["run_class"] >= 0]
-    per = runs.groupby("run_class").size().to_dict()
-    name_of = dict(zip(classes, names))
-    excluded = [{"class": name_of.get(int(c), str(c)), "runs": int(n),
-                 "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: {SINGLE_RUN_RULE}"}
-                for c, n in per.items() if n < MIN_RUNS_PER_CLASS]
-    return {"n_runs": int(len(np.unique(W.groups))), "n_windows": int(len(W)),
-            "windows_per_class": {n: int((W.y == c).sum()) for c, n in zip(classes, names)},
-            "runs_per_class": {name_of.get(int(c), str(c)): int(n) for c, n in per.items()},
-            "excluded_classes": excluded, "feature_family": feature_family(W.channels), "sensors": ds.sensors,
-            "window_spec": ds.spec.name, "robot": ds.robot.name, "preset": ds.preset, "channels": list(W.channels),
-            "fingerprint": ds.fingerprint, "rejections": ds.counts}
+    per = {int(c): int(n) for c, n in runs.groupby("run_class").size().to_dict().items()}
+    excluded = [c for c, n in per.items() if n < MIN_RUNS_PER_CLASS]
+    return dataset_summary(ds, dict(zip(classes, class_names_of(ds, classes))), per, excluded)
 
 
 def _selection_doc(sel: Selection) -> dict:

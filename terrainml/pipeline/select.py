@@ -79,16 +79,12 @@ from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.dataset import Dataset
 from terrainml.pipeline.progress import ProgressFn, report
 from terrainml.pipeline import train as train_lib  # make_factory read at call time
-from terrainml.pipeline.train import MIN_RUNS_PER_CLASS, parse_models
+from terrainml.pipeline.candidates import AUTO_MODELS, parse_auto_models
+from terrainml.pipeline.train import MIN_RUNS_PER_CLASS
 
-__all__ = ["Candidate", "Level", "Selection", "select", "candidate_specs", "AUTO_MODELS", "SELECT_SPECS",
-           "SCREEN_TREES", "SCREEN_MARGIN", "MIN_WINDOWS_PER_CLASS", "parse_auto_models", "spec_feasibility",
-           "fit_temperature"]
+__all__ = ["Candidate", "Level", "Selection", "select", "SCREEN_TREES", "SCREEN_MARGIN", "MIN_WINDOWS_PER_CLASS",
+           "spec_feasibility", "fit_temperature"]
 
-#: window specs tried by ``--windows auto`` (those the data can feed)
-SELECT_SPECS = ("short", "chunks", "state", "steady")
-#: models tried by ``--model auto``
-AUTO_MODELS = ("svm", "hgb", "svm+hgb")
 #: the screening model: boosted trees this small on features computed once per spec
 SCREEN_TREES = 40
 SCREEN_LEARNING_RATE = 0.25
@@ -98,15 +94,6 @@ SCREEN_MARGIN = 0.03
 #: a spec keeping fewer windows of a class (or that class in fewer runs than
 #: :data:`~terrainml.pipeline.train.MIN_RUNS_PER_CLASS`) is not a candidate
 MIN_WINDOWS_PER_CLASS = 30
-
-
-def parse_auto_models(spec: str | Sequence[str]) -> list[str]:
-    """``auto`` -> :data:`AUTO_MODELS`; ``auto,cnn`` adds the CNN; else :func:`parse_models`."""
-    items = [m.strip() for m in (spec.split(",") if isinstance(spec, str) else spec) if m.strip()]
-    out: list[str] = []
-    for m in items:
-        out += list(AUTO_MODELS) if m == "auto" else [m]
-    return parse_models(out)
 
 
 @dataclass(frozen=True)
@@ -181,15 +168,6 @@ class Selection:
     budget_note: str = ""
     outer_models: list = field(default_factory=list)
     nested: bool = True
-
-
-def candidate_specs(names: str | Sequence[str]) -> list[str]:
-    """``auto`` -> :data:`SELECT_SPECS`; else the comma-separated spec names."""
-    items = [s.strip() for s in (names.split(",") if isinstance(names, str) else names) if s.strip()]
-    out: list[str] = []
-    for s in items:
-        out += list(SELECT_SPECS) if s == "auto" else [s]
-    return list(dict.fromkeys(out))
 
 
 def spec_feasibility(ds: Dataset, cv_classes: Sequence[int], names: Mapping[int, str]) -> str:

@@ -21,15 +21,14 @@ trained on: it is named, left out of the cross-validation and of the served repl
 (``report.json``: ``excluded_classes``) and kept in the final fit
 (:data:`~terrainml.pipeline.preflight.SINGLE_RUN_RULE`).
 
-With a :class:`ServePlan` holding the ingested runs, :func:`train` also proves the served model
+Given the ingested runs (``tables``), :func:`train` also proves the served model
 on the served path before it saves it: every fold's model (fitted without the fold's runs) is
 saved and loaded as ``terrainml predict`` loads it and serves a course of the fold's held-out
 runs (:func:`replay_folds`, :mod:`terrainml.pipeline.replay`, the same replay as the selecting
 ``train``); a model whose replay classifies too little is refused
 (:class:`~terrainml.pipeline.replay.ReplayRefused`, report written, no model saved) unless
-``allow_unproven``.
-
-:func:`evaluate` loads a verified model folder and scores it on another dataset.
+``allow_unproven`` (:class:`~terrainml.pipeline.options.ServeOptions`). The options come as
+frozen records resolved once by the command line (:mod:`terrainml.pipeline.options`).
 """
 
 from __future__ import annotations
@@ -38,41 +37,41 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from tempfile import TemporaryDirectory
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
 
 from terrainml.classes import TERRAIN_CLASSES
-from terrainml.evaluation.cv import average_results, cross_validate
+from terrainml.evaluation.cv import Scoring, average_results, cross_validate
 from terrainml.evaluation.folds import grouped_folds
-from terrainml.evaluation.metrics import classification_metrics, is_ordered, latency_per_window_ms
-from terrainml.evaluation.open_set import OpenSetResult, leave_one_class_out
+from terrainml.evaluation.metrics import latency_per_window_ms
+from terrainml.evaluation.open_set import NoveltySettings, OpenSetResult, leave_one_class_out
 from terrainml.evaluation.report import write_report
 from terrainml.features.sets import FEATURE_SUBSETS, FeatureSet
 from terrainml.features.side_channel import SideChannelFeatures, track_of
 from terrainml.features.windows import is_side_channel_set
 from terrainml.lookup.table import DesiredSlipTable
-from terrainml.models.artifacts import (Artifact, ArtifactError, load_artifact, save_artifact,
+from terrainml.models.artifacts import (Artifact, ArtifactError, TrainingProvenance, save_artifact,
                                         write_manifest)
 from terrainml.models.calibration import Temperature
 from terrainml.models.ensemble import ProbabilityAverage
-from terrainml.models.novelty import DEFAULT_FALSE_ALARM, NoveltyError, check_false_alarm, fit_model_novelty
+from terrainml.models.novelty import DEFAULT_FALSE_ALARM, NoveltyError, fit_model_novelty
 from terrainml.models.svm import SVMClassifier
 from terrainml.models.trees import BoostedTrees
+from terrainml.pipeline.candidates import MODEL_KINDS, parse_models
 from terrainml.pipeline.dataset import Dataset
+from terrainml.pipeline.options import ServeOptions, TrainOptions
 from terrainml.pipeline.progress import report
 from terrainml.pipeline.preflight import MIN_RUNS_PER_CLASS, SINGLE_RUN_RULE, table_for_classes
-from terrainml.pipeline.replay import (MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S, ReplayRefused, make_course,
+from terrainml.pipeline.replay import (ReplayRefused, make_course,
                                        pooled_replay, replay_course, replay_refusal)
 
-__all__ = ["MODEL_KINDS", "TABLE_FILE", "make_factory", "train", "evaluate", "TrainResult",
-           "desired_slip_table_for", "served_table", "parse_models", "feature_family",
-           "MIN_RUNS_PER_CLASS", "ClassMismatchError", "parse_class_map", "served_novelty",
-           "evaluate_open_set", "ServePlan", "FoldModel", "replay_folds", "class_names_of"]
+__all__ = ["TABLE_FILE", "make_factory", "train", "TrainResult", "desired_slip_table_for", "served_table",
+           "feature_family", "MIN_RUNS_PER_CLASS", "served_novelty",
+           "evaluate_open_set", "FoldModel", "replay_folds", "class_names_of", "provenance_of",
+           "dataset_summary"]
 
-#: base model kinds; ``A+B`` averages the probabilities of A and B
-MODEL_KINDS = ("svm", "cnn", "hgb")
 #: SVM search grid of the side-channel family (the BorealTC protocols' ``svm``)
 SIDE_C_GRID = (3.0, 10.0, 30.0, 100.0)
 SIDE_GAMMA_GRID = ("scale", 0.001, 0.002)
@@ -86,32 +85,6 @@ def _cnn_class():
     except ImportError as exc:  # pragma: no cover - cnn.py ships with the package
         raise RuntimeError(f"the CNN model is not available in this install ({exc})") from None
     return CNNClassifier
-
-
-class ClassMismatchError(ValueError):
-    """The data's (or a table's) class names differ from the model's (both sets listed)."""
-
-
-def parse_models(spec: str | Sequence[str]) -> list[str]:
-    """Model names from ``svm``, ``cnn``, ``hgb``, ``all`` (svm and cnn) or ``A+B`` averages.
-
-    ``"svm,svm+hgb"`` -> ``["svm", "svm+hgb"]``. ValueError names an unknown kind.
-    """
-    items = [m.strip() for m in (spec.split(",") if isinstance(spec, str) else spec) if m.strip()]
-    out: list[str] = []
-    for m in items:
-        names = ["svm", "cnn"] if m == "all" else [m]
-        for name in names:
-            parts = name.split("+")
-            bad = [q for q in parts if q not in MODEL_KINDS]
-            if bad or len(set(parts)) != len(parts):
-                raise ValueError(f"unknown model {name!r}; expected {', '.join(MODEL_KINDS)}, all, or "
-                                 "an average of distinct ones such as svm+hgb")
-            if name not in out:
-                out.append(name)
-    if not out:
-        raise ValueError("no model given")
-    return out
 
 
 def feature_family(channels: Sequence[str]) -> str:
@@ -149,7 +122,7 @@ def make_factory(kind: str, ds: Dataset, seed: int = 0, subset: str = "all", n_j
         return lambda: SVMClassifier(features=fs, random_state=seed, n_jobs=n_jobs, **params)
     if kind == "cnn":
         CNN = _cnn_class()
-        return lambda: CNN(channel_names=tuple(ds.windows.channels), random_state=seed, **params)
+        return lambda: CNN.from_params(channel_names=tuple(ds.windows.channels), random_state=seed, **params)
     raise ValueError(f"unknown model kind {kind!r}; expected one of {MODEL_KINDS}")
 
 
@@ -206,27 +179,6 @@ class TrainResult:
 
 
 @dataclass
-class ServePlan:
-    """How :func:`train` proves and equips the model for serving.
-
-    Attributes
-    ----------
-    tables : the ingested run tables the dataset was cut from (None: no replay, e.g. a windows file).
-    segment_s : s of every held-out run replayed. allow_unproven : save a model the replay
-        refuses (the report says so). min_classified_share : the refusal threshold.
-    catalogue : terrain catalogue of the desired-slip table (``--catalogue``), None: built-in.
-    preflight : the report's entry of the checks run before (or None).
-    """
-
-    tables: Sequence[pd.DataFrame] | None = None
-    segment_s: float = REPLAY_SEGMENT_S
-    allow_unproven: bool = False
-    min_classified_share: float = MIN_CLASSIFIED_SHARE
-    catalogue: str | None = None
-    preflight: dict | None = None
-
-
-@dataclass
 class FoldModel:
     """One fold's model, to serve on the fold's held-out runs (:func:`replay_folds`).
 
@@ -253,9 +205,20 @@ def class_names_of(ds: Dataset, classes: Sequence[int]) -> list[str]:
             for c in classes]
 
 
+def provenance_of(ds: Dataset, classes: Sequence[int],
+                  class_names: Sequence[str] | None = None) -> TrainingProvenance:
+    """The provenance saved with models fitted on ``ds``'s windows of ``classes`` (named
+    ``class_names``, default :func:`class_names_of`)."""
+    W = ds.windows
+    names = class_names_of(ds, classes) if class_names is None else list(class_names)
+    return TrainingProvenance(classes=list(classes), class_names=names, channels=W.channels, window_spec=ds.spec,
+                              robot=ds.robot, training_fingerprint=ds.fingerprint, preset=ds.preset,
+                              sensors=ds.sensors, feature_family=feature_family(W.channels))
+
+
 def replay_folds(folds: Sequence[FoldModel], ds: Dataset, tables: Sequence[pd.DataFrame], table: Any,
                  segment_s: float, seed: int, say: Callable[[str], None],
-                 false_alarm: float = DEFAULT_FALSE_ALARM) -> list[dict]:
+                 novelty_false_alarm: float = DEFAULT_FALSE_ALARM) -> list[dict]:
     """Replay of every fold's held-out runs through its model and its novelty score (fitted on the
     fold's training windows only), saved and loaded as ``terrainml predict`` loads them.
 
@@ -277,13 +240,10 @@ def replay_folds(folds: Sequence[FoldModel], ds: Dataset, tables: Sequence[pd.Da
             out.append({"fold": k, "runs": 0, "moving_ticks": 0, "chosen": f.label or f.served})
             continue
         model = f.fitted[f.served]
-        novelty = served_novelty(model, f.served, f.train_windows, seed, say, false_alarm)
+        novelty = served_novelty(model, f.served, f.train_windows, seed, say, novelty_false_alarm)
         classes = sorted(int(c) for c in np.asarray(model.classes_).tolist())
         with TemporaryDirectory() as tmp:
-            save_artifact(Path(tmp) / "m", f.fitted, classes=classes, class_names=class_names_of(ds, classes),
-                          channels=ds.windows.channels, window_spec=ds.spec, robot=ds.robot,
-                          training_fingerprint=ds.fingerprint, default_model=f.served, preset=ds.preset,
-                          sensors=ds.sensors, feature_family=feature_family(ds.windows.channels),
+            save_artifact(Path(tmp) / "m", f.fitted, provenance_of(ds, classes), default_model=f.served,
                           attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
                           calibration={f.served: Temperature(f.temperature).to_dict()}, novelty=novelty)
             course = make_course([by_id[r] for r in runs], runs, segment_s=segment_s)
@@ -295,9 +255,11 @@ def replay_folds(folds: Sequence[FoldModel], ds: Dataset, tables: Sequence[pd.Da
     return out
 
 
-def _ablation(ds: Dataset, folds, seed: int, n_jobs: int, table, classes, cv_all=None,
-              params: dict | None = None, windows=None) -> pd.DataFrame:
-    W = ds.windows if windows is None else windows
+def _ablation(ds: Dataset, plan: _CVPlan, opt: TrainOptions, table: Any, cv_all: Any) -> pd.DataFrame:
+    """The SVM feature-set ablation on the CV folds: one row per feature subset the robot feeds
+    (``cv_all``: the CV of the ``all`` subset, already run)."""
+    W = plan.Wcv
+    params = opt.model_params.get("svm")
     rows = []
     for subset in FEATURE_SUBSETS:
         try:
@@ -307,8 +269,9 @@ def _ablation(ds: Dataset, folds, seed: int, n_jobs: int, table, classes, cv_all
         if subset == "all" and cv_all is not None:
             res = cv_all
         else:
-            res = cross_validate(make_factory("svm", ds, seed, subset, params=params), W, W.y,
-                                 W.groups, folds=folds, n_jobs=n_jobs, table=table, classes=classes)
+            res = cross_validate(make_factory("svm", ds, opt.seed, subset, params=params), W, W.y,
+                                 W.groups, folds=plan.folds, n_jobs=opt.n_jobs,
+                                 scoring=Scoring(plan.cv_classes, table=table))
         s = res.summary
         get = lambda k, q: s.get(k, {}).get(q, float("nan"))  # noqa: E731
         rows.append({"subset": subset, "n_features": n_feat,
@@ -319,35 +282,32 @@ def _ablation(ds: Dataset, folds, seed: int, n_jobs: int, table, classes, cv_all
     return pd.DataFrame(rows)
 
 
-def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds: int = 5, seed: int = 0,
-          n_jobs: int = 1, ablation: bool = True, model_params: dict | None = None,
-          progress: Callable[[str], None] | None = None, open_set: bool = False,
-          novelty_false_alarm: float = DEFAULT_FALSE_ALARM, serve: ServePlan | None = None) -> TrainResult:
+def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), options: TrainOptions | None = None,
+          serve: ServeOptions | None = None, *, tables: Sequence[pd.DataFrame] | None = None,
+          preflight: dict | None = None, progress: Callable[[str], None] | None = None) -> TrainResult:
     """Cross-validate, fit, report and save models on a window dataset.
 
     Parameters
     ----------
     ds : Dataset (from :func:`terrainml.pipeline.dataset.build_dataset` or ``read_windows``).
     out : model folder (``runs/NAME``), created.
-    models : model kinds among ``svm``, ``cnn``.
-    folds : outer grouped folds. seed : seed of folds and models.
-    n_jobs : joblib jobs over folds.
-    ablation : run the SVM feature-set ablation.
-    model_params : {kind: {param: value}} constructor overrides.
+    models : model kinds among ``svm``, ``cnn``, ``hgb`` or averages ``A+B``.
+    options : :class:`~terrainml.pipeline.options.TrainOptions` (folds, seed, jobs, ablation,
+        open set, novelty target, model parameters); None: the defaults.
+    serve : :class:`~terrainml.pipeline.options.ServeOptions` (replay length, refusal, terrain
+        catalogue); None: the defaults.
+    tables : the ingested run tables the dataset was cut from: every fold's held-out runs are
+        replayed through the served path (refusal). None: no replay (e.g. a windows file).
+    preflight : the report's entry of the checks run before (or None).
     progress : callback with a short message per stage and a
         :class:`~terrainml.pipeline.progress.Step` per fit (stages ``cross-validation``,
         ``final fit``, ``ablation``, ``open set``).
-    open_set : also run the leave-one-class-out evaluation of the served model's novelty score
-        on the same folds (:mod:`terrainml.evaluation.open_set`; one more CV per class).
-    novelty_false_alarm : the novelty threshold's target, the share of moving known windows of a
-        held-out training run over it (default 0.05; higher finds more unknown ground and serves
-        more known ground the safe cap: docs/models.md "Unknown ground").
-    serve : :class:`ServePlan`: the runs to replay every fold's held-out runs from (served path,
-        refusal), the terrain catalogue, the checks' report entry. None: no replay, built-in tables.
 
     The served model's novelty score (:mod:`terrainml.models.novelty`, threshold from inner
-    grouped folds of the training windows) is fitted and saved with it when the model has a
-    feature space (svm, hgb or an average with one of them).
+    grouped folds of the training windows at ``options.novelty_false_alarm``) is fitted and saved
+    with it when the model has a feature space (svm, hgb or an average with one of them). With
+    ``options.open_set`` the leave-one-class-out evaluation of that score runs on the same folds
+    (:mod:`terrainml.evaluation.open_set`; one more CV per class).
 
     Returns
     -------
@@ -358,14 +318,14 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     say = progress or (lambda msg: None)
     out = Path(out)
     models = parse_models(models)
-    check_false_alarm(novelty_false_alarm)
-    serve = serve or ServePlan()
-    plan = _cv_plan(ds, folds, seed, say)
+    opt = options or TrainOptions()
+    serve = serve or ServeOptions()
+    seed = opt.seed
+    plan = _cv_plan(ds, opt.folds, seed, say)
     W = plan.W
     table = desired_slip_table_for(ds, ds.robot, serve.catalogue)
     bases = list(dict.fromkeys(q for m in models for q in m.split("+")))
-    results, fitted, factories = _fit_bases(ds, bases, plan, table, seed, n_jobs, model_params, say,
-                                            keep_folds=serve.tables is not None)
+    results, fitted, factories = _fit_bases(ds, bases, plan, table, opt, say, keep_folds=tables is not None)
     for name in models:
         if "+" in name:
             members = name.split("+")
@@ -379,30 +339,27 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), folds:
     results = {k: results[k] for k in [*models, *[b for b in bases if b not in models]]}
     fitted = {k: fitted[k] for k in results}
     abl = None
-    if ablation and "svm" in models and feature_family(W.channels) == "canonical":
+    if opt.ablation and "svm" in models and feature_family(W.channels) == "canonical":
         report(say, "ablation", 0, None, "", "svm feature sets")
-        abl = _ablation(ds, plan.folds, seed, n_jobs, table, plan.cv_classes, results["svm"]["cv"],
-                        (model_params or {}).get("svm"), windows=plan.Wcv)
+        abl = _ablation(ds, plan, opt, table, results["svm"]["cv"])
     order = list(results)
     default = max((k for k in results if k in models),
                   key=lambda k: (results[k]["cv"].summary["balanced_accuracy"]["mean"], -order.index(k)))
-    summary = _dataset_summary(ds, plan)
+    summary = dataset_summary(ds, plan.name_of, plan.runs_per_class, plan.excluded)
     res = TrainResult(out, results, default, plan.classes.tolist(), plan.names, len(plan.folds), seed, summary,
-                      abl, fitted=fitted, preflight=serve.preflight)
-    if serve.tables is not None:
-        res.replay = _served_replay(ds, plan, default, results, table, serve, seed, say, novelty_false_alarm)
+                      abl, fitted=fitted, preflight=preflight)
+    if tables is not None:
+        res.replay = _served_replay(ds, plan, default, results, table, tables, serve, opt, say)
         if res.replay["refusal"] and not serve.allow_unproven:
             write_report(out, res)
             raise ReplayRefused(f"{res.replay['refusal']}; not saved; override with --allow-unproven", out)
-    novelty = served_novelty(fitted[default], default, W, seed, say, novelty_false_alarm)
-    if open_set and novelty is not None:
+    novelty = served_novelty(fitted[default], default, W, seed, say, opt.novelty_false_alarm)
+    if opt.open_set and novelty is not None:
         report(say, "open set", 0, None, "", f"each class of {default} held out in turn")
-        res.open_set = _open_set(default, factories, plan, seed, n_jobs, say, novelty_false_alarm)
+        res.open_set = _open_set(default, factories, plan, opt, say)
     metrics_summary = {k: r["cv"].summary for k, r in results.items()}
-    save_artifact(out, fitted, classes=plan.classes.tolist(), class_names=plan.names, channels=W.channels,
-                  window_spec=ds.spec, robot=ds.robot, training_fingerprint=ds.fingerprint,
-                  metrics_summary=metrics_summary, default_model=default, preset=ds.preset,
-                  sensors=ds.sensors, feature_family=feature_family(W.channels), novelty=novelty,
+    save_artifact(out, fitted, provenance_of(ds, plan.classes.tolist(), plan.names),
+                  metrics_summary=metrics_summary, default_model=default, novelty=novelty,
                   attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
                   extra={"folds": len(plan.folds), "seed": seed, "n_windows": len(W),
                          "latency_ms": {k: r["latency"] for k, r in results.items()},
@@ -460,17 +417,17 @@ def _cv_plan(ds: Dataset, folds: int, seed: int, say: Callable[[str], None]) -> 
                    [name_of[int(c)] for c in cv_classes])
 
 
-def _fit_bases(ds: Dataset, bases: list[str], plan: _CVPlan, table, seed: int, n_jobs: int,
-               model_params: dict | None, say: Callable[[str], None],
-               keep_folds: bool = False) -> tuple[dict, dict, dict]:
+def _fit_bases(ds: Dataset, bases: list[str], plan: _CVPlan, table: Any, opt: TrainOptions,
+               say: Callable[[str], None], keep_folds: bool = False) -> tuple[dict, dict, dict]:
     """Cross-validate and fit every base model kind on all windows: (results, fitted, factories) by kind;
     ``keep_folds``: the CV results keep their fold models (the served replay serves them)."""
     W, Wcv = plan.W, plan.Wcv
     results: dict[str, dict] = {}
     fitted: dict[str, Any] = {}
     factories: dict[str, Callable[[], Any]] = {}
+    seed, n_jobs = opt.seed, opt.n_jobs
     for kind in bases:
-        params = (model_params or {}).get(kind, {})
+        params = dict(opt.model_params.get(kind, {}))
         inner_jobs = 1 if n_jobs != 1 else None
         if kind == "cnn" and n_jobs != 1:
             params = {"n_threads": 1, **params}
@@ -478,8 +435,8 @@ def _fit_bases(ds: Dataset, bases: list[str], plan: _CVPlan, table, seed: int, n
         factories[kind] = factory
         n_cv, before = len(bases) * len(plan.folds), len(results) * len(plan.folds)
         report(say, "cross-validation", before, n_cv, "fits", f"{kind}: grouped {len(plan.folds)}-fold CV")
-        cv = cross_validate(factory, Wcv, Wcv.y, Wcv.groups, folds=plan.folds, n_jobs=n_jobs, table=table,
-                            classes=plan.cv_classes, class_names=plan.cv_names, name=kind, keep_models=keep_folds,
+        cv = cross_validate(factory, Wcv, Wcv.y, Wcv.groups, folds=plan.folds, n_jobs=n_jobs, keep_models=keep_folds,
+                            scoring=Scoring(plan.cv_classes, plan.cv_names, table, kind),
                             progress=lambda i, n: report(say, "cross-validation", before + i, n_cv, "fits", kind))
         report(say, "final fit", len(results), len(bases), "models", f"{kind} on {len(W)} windows")
         model = factory()
@@ -495,8 +452,9 @@ def _fit_bases(ds: Dataset, bases: list[str], plan: _CVPlan, table, seed: int, n
     return results, fitted, factories
 
 
-def _served_replay(ds: Dataset, plan: _CVPlan, default: str, results: dict, table: Any, serve: ServePlan,
-                   seed: int, say: Callable[[str], None], false_alarm: float) -> dict:
+def _served_replay(ds: Dataset, plan: _CVPlan, default: str, results: dict, table: Any,
+                   tables: Sequence[pd.DataFrame], serve: ServeOptions, opt: TrainOptions,
+                   say: Callable[[str], None]) -> dict:
     """The served model's fold models replayed on their folds' held-out runs (:func:`replay_folds`):
     the report's ``replay`` entry (per fold, pooled, the refusal or "")."""
     Wcv = plan.Wcv
@@ -509,7 +467,7 @@ def _served_replay(ds: Dataset, plan: _CVPlan, default: str, results: dict, tabl
         if len(parts) > 1:
             fitted[default] = ProbabilityAverage.from_fitted(fold_models)
         folds.append(FoldModel(sorted(set(groups[te].tolist())), fitted, default, Wcv.subset(tr)))
-    per_fold = replay_folds(folds, ds, serve.tables, table, serve.segment_s, seed, say, false_alarm)
+    per_fold = replay_folds(folds, ds, tables, table, serve.segment_s, opt.seed, say, opt.novelty_false_alarm)
     pooled = pooled_replay([f for f in per_fold if f.get("moving_ticks")])
     refusal = replay_refusal(pooled, serve.min_classified_share)
     return {"folds": per_fold, "pooled": pooled, "refusal": refusal,
@@ -517,155 +475,72 @@ def _served_replay(ds: Dataset, plan: _CVPlan, default: str, results: dict, tabl
             "min_classified_share": serve.min_classified_share}
 
 
-def _dataset_summary(ds: Dataset, plan: _CVPlan) -> dict:
-    """The report's dataset summary: runs, windows and runs per class, excluded classes, provenance."""
-    W = plan.W
-    y, groups = W.y, W.groups
-    name_of, runs_per_class = plan.name_of, plan.runs_per_class
-    return {"n_runs": int(len(np.unique(groups))), "n_windows": int(len(W)),
-            "windows_per_class": {str(n): int((y == c).sum()) for c, n in zip(plan.classes, plan.names)},
-            "runs_per_class": {name_of[c]: n for c, n in runs_per_class.items()},
-            "excluded_classes": [{"class": name_of[c], "runs": runs_per_class[c],
+def dataset_summary(ds: Dataset, name_of: Mapping[int, str], runs_per_class: Mapping[int, int],
+                    excluded: Sequence[int]) -> dict:
+    """The report's dataset summary: runs, windows per class (of ``name_of``, class id -> name, in
+    class order), runs per class, the ``excluded`` classes (fewer than :data:`MIN_RUNS_PER_CLASS`
+    runs) and the windows' provenance."""
+    W = ds.windows
+    name = lambda c: name_of.get(int(c), str(c))  # noqa: E731
+    return {"n_runs": int(len(np.unique(W.groups))), "n_windows": int(len(W)),
+            "windows_per_class": {str(n): int((W.y == c).sum()) for c, n in name_of.items()},
+            "runs_per_class": {name(c): int(n) for c, n in runs_per_class.items()},
+            "excluded_classes": [{"class": name(c), "runs": int(runs_per_class[c]),
                                   "reason": f"fewer than {MIN_RUNS_PER_CLASS} runs: {SINGLE_RUN_RULE}"}
-                                 for c in plan.excluded],
-            "feature_family": feature_family(W.channels), "sensors": ds.sensors,
-            "window_spec": ds.spec.name,
+                                 for c in excluded],
+            "feature_family": feature_family(W.channels), "sensors": ds.sensors, "window_spec": ds.spec.name,
             "robot": ds.robot.name, "preset": ds.preset, "channels": list(W.channels),
             "fingerprint": ds.fingerprint, "rejections": ds.counts}
 
 
 def served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], None],
-                   false_alarm: float = DEFAULT_FALSE_ALARM):
+                   novelty_false_alarm: float = DEFAULT_FALSE_ALARM):
     """(name, scorer, info) of the served model's novelty score, or None (named) without one;
-    ``false_alarm``: the threshold's target (:func:`~terrainml.models.novelty.fit_novelty`)."""
-    say(f"{name}: novelty score (threshold at {100 * false_alarm:g} % of the training runs' moving windows, "
-        "one run held out at a time)")
+    ``novelty_false_alarm``: the threshold's target (:func:`~terrainml.models.novelty.fit_novelty`)."""
+    say(f"{name}: novelty score (threshold at {100 * novelty_false_alarm:g} % of the training runs' moving "
+        "windows, one run held out at a time)")
     try:
-        scorer, info = fit_model_novelty(model, W, seed=seed, false_alarm=false_alarm)
+        scorer, info = fit_model_novelty(model, W, seed=seed, novelty_false_alarm=novelty_false_alarm)
     except NoveltyError as exc:
         say(f"{name}: no novelty score ({exc})")
         return None
     return name, scorer, info
 
 
-def _open_set(default: str, factories: dict, plan: _CVPlan, seed: int, n_jobs: int,
-              say: Callable[[str], None], false_alarm: float = DEFAULT_FALSE_ALARM):
+def _open_set(default: str, factories: dict, plan: _CVPlan, opt: TrainOptions, say: Callable[[str], None]):
     """Leave-one-class-out evaluation of the served model's novelty on the CV folds."""
     members = [factories[q] for q in default.split("+")]
     factory = members[0] if len(members) == 1 else (lambda: ProbabilityAverage([f() for f in members]))
     return leave_one_class_out(factory, plan.Wcv, folds=plan.folds, classes=plan.cv_classes.tolist(),
-                               class_names=plan.cv_names, seed=seed, n_jobs=n_jobs, progress=say,
-                               false_alarm=false_alarm)
+                               class_names=plan.cv_names, seed=opt.seed, n_jobs=opt.n_jobs, progress=say,
+                               novelty=NoveltySettings(novelty_false_alarm=opt.novelty_false_alarm))
 
 
-def evaluate_open_set(ds: Dataset, model: str = "svm", folds: int = 5, seed: int = 0, n_jobs: int = 1,
-                      progress: Callable[[str], None] | None = None,
-                      false_alarm: float = DEFAULT_FALSE_ALARM) -> OpenSetResult:
+def evaluate_open_set(ds: Dataset, model: str = "svm", options: TrainOptions | None = None,
+                      progress: Callable[[str], None] | None = None) -> OpenSetResult:
     """Leave-one-class-out evaluation of a model kind's novelty score on a window dataset.
 
     The same classes, grouped folds and factories as :func:`train` (``_cv_plan``,
     :func:`make_factory`); each CV class in turn is held out of training and plays the unknown
     (:func:`~terrainml.evaluation.open_set.leave_one_class_out`). ``model``: ``svm``, ``hgb``
-    or an average such as ``svm+hgb`` (a model with a feature space; not ``cnn``).
-    ``false_alarm``: the threshold's target, as :func:`train`'s ``novelty_false_alarm``.
+    or an average such as ``svm+hgb`` (a model with a feature space; not ``cnn``). ``options``:
+    folds, seed, jobs and the novelty threshold's target, as :func:`train`'s (None: defaults).
 
     Raises ValueError naming the model for a kind without a feature space or several models,
     and (from the plan) for a dataset with fewer than 3 classes that have 2 runs or more.
     """
     say = progress or (lambda msg: None)
+    opt = options or TrainOptions()
     kinds = parse_models(model)
     if len(kinds) != 1:
         raise ValueError(f"open-set evaluation takes one model, got {kinds}")
     name = kinds[0]
     if "cnn" in name.split("+"):
         raise ValueError(f"model {name!r}: the CNN has no feature space for the novelty score; use svm or hgb")
-    plan = _cv_plan(ds, folds, seed, say)
+    plan = _cv_plan(ds, opt.folds, opt.seed, say)
     if len(plan.cv_classes) < 3:
         raise ValueError(f"open-set evaluation needs at least 3 classes with >= {MIN_RUNS_PER_CLASS} runs "
                          f"(one held out, two known); the dataset has {plan.cv_names}")
-    inner_jobs = 1 if n_jobs != 1 else None
-    factories = {q: make_factory(q, ds, seed, n_jobs=inner_jobs) for q in name.split("+")}
-    return _open_set(name, factories, plan, seed, n_jobs, say, false_alarm)
-
-
-def parse_class_map(text: str | None) -> dict[str, str]:
-    """``"A=B,C=D"`` -> ``{"A": "B", "C": "D"}`` (data class name -> model class name)."""
-    out: dict[str, str] = {}
-    for item in (text or "").split(","):
-        if not item.strip():
-            continue
-        if item.count("=") != 1 or not all(p.strip() for p in item.split("=")):
-            raise ValueError(f"--class-map: {item!r} is not DATA_CLASS=MODEL_CLASS")
-        a, b = (p.strip() for p in item.split("="))
-        out[a] = b
-    return out
-
-
-def match_classes(data_names: Sequence[str], model_names: Sequence[str],
-                  class_map: dict[str, str] | None = None, source: str = "the data") -> dict[str, str]:
-    """Data class name -> model class name, matched by name (never by id).
-
-    Every data class must be one of the model's (after ``class_map``); otherwise
-    :class:`ClassMismatchError` lists both sets and the names that differ.
-    """
-    class_map = dict(class_map or {})
-    unknown_keys = sorted(set(class_map) - set(data_names))
-    if unknown_keys:
-        raise ClassMismatchError(f"--class-map names {unknown_keys}, which {source} does not have "
-                                 f"(its classes: {sorted(data_names)})")
-    mapping = {n: class_map.get(n, n) for n in data_names}
-    missing = sorted({n for n, m in mapping.items() if m not in set(model_names)})
-    if missing:
-        raise ClassMismatchError(
-            f"class names differ: {source} has {sorted(data_names)}, the model has {sorted(model_names)}; "
-            f"not in the model: {missing}. Map them with --class-map DATA=MODEL,... if they are the "
-            "same terrain under another name")
-    return mapping
-
-
-def evaluate(model_dir: str | Path, ds: Dataset, model: str | None = None,
-             class_map: dict[str, str] | None = None, **load_kwargs: Any) -> dict:
-    """Score a saved model (verified on load) on a dataset, classes matched by name.
-
-    ``class_map`` maps data class names to model class names (``--class-map A=B``); a data class
-    the model lacks is refused (:class:`ClassMismatchError`, both sets listed). ``load_kwargs`` go
-    to :func:`~terrainml.models.artifacts.load_artifact` (e.g. ``trusted_keys``).
-
-    Returns
-    -------
-    dict with ``balanced_accuracy, accuracy, macro_f1, desired_slip_error_mean, n_windows``, the
-    other metrics of :func:`classification_metrics`, ``model``, ``model_dir``,
-    ``training_fingerprint`` and ``data_fingerprint``.
-    """
-    art = load_artifact(model_dir, model, **load_kwargs)
-    W = ds.windows
-    model_names = list(art.class_names) or [str(c) for c in art.class_ids]
-    data_ids = sorted(set(W.y.tolist()))
-    all_names = W.attrs.get("all_class_names")
-    if all_names is not None:
-        data_name = {i: str(all_names[i]) if 0 <= i < len(all_names) else str(i) for i in data_ids}
-    else:
-        data_name = {i: n for i, n in zip(ds.class_ids, ds.class_names)}
-        data_name = {i: data_name.get(i, TERRAIN_CLASSES[i] if 0 <= i < len(TERRAIN_CLASSES) else str(i))
-                     for i in data_ids}
-    mapping = match_classes([data_name[i] for i in data_ids], model_names, class_map)
-    model_id = dict(zip(model_names, art.class_ids))
-    relabel = {i: int(model_id[mapping[data_name[i]]]) for i in data_ids}
-    missing = [c for c in art.channels if c not in W.channels]
-    if missing:
-        raise ValueError(f"the data lacks channels {missing} the model {art.model_name!r} was trained on")
-    W = W.select_channels(art.channels)
-    if len(W) == 0:
-        raise ValueError("the evaluation data has no windows")
-    proba = np.asarray(art.model.predict_proba(W), dtype=float)
-    classes = np.asarray(art.model.classes_)
-    y_pred = classes[np.argmax(proba, axis=1)]
-    y_true = np.asarray([relabel[int(v)] for v in W.y], dtype=np.int64)
-    m = classification_metrics(y_true, y_pred, proba, classes, served_table(art),
-                               ordered=is_ordered(art.class_names or None))
-    m.update({"model": art.model_name, "model_kind": art.kind, "model_dir": str(model_dir),
-              "training_fingerprint": art.manifest.get("training_fingerprint"),
-              "data_fingerprint": ds.fingerprint,
-              "class_names": art.class_names,
-              "class_map": {k: v for k, v in mapping.items() if k != v}})
-    return m
+    inner_jobs = 1 if opt.n_jobs != 1 else None
+    factories = {q: make_factory(q, ds, opt.seed, n_jobs=inner_jobs) for q in name.split("+")}
+    return _open_set(name, factories, plan, opt, say)

@@ -44,12 +44,12 @@ def freq_data():
 @pytest.fixture(scope="session")
 def fitted(freq_data):
     """A CNN fitted on the first 4 runs of each class (runs 4-5 of each class held out)."""
-    from terrainml.models.cnn import CNNClassifier
+    from terrainml.models.cnn import CNNClassifier, CNNConfig
 
     X, y, g = freq_data
     run_no = np.array([int(s[3:]) for s in g])
     train = (run_no % 6) < 4
-    clf = CNNClassifier(random_state=0, max_epochs=30, patience=10, n_threads=1)
+    clf = CNNClassifier(CNNConfig(max_epochs=30, patience=10), random_state=0, n_threads=1)
     clf.fit(X[train], y[train], g[train])
     return clf, X, y, g, train
 

@@ -8,7 +8,8 @@ import torch
 from sklearn.base import clone
 from sklearn.metrics import balanced_accuracy_score
 
-from terrainml.models.cnn import CNNClassifier, _inner_split
+from terrainml.models.cnn import CNNClassifier
+from terrainml.models.cnn_training import inner_split as _inner_split
 
 
 def test_learns_frequency_class_on_held_out_runs(fitted):
@@ -27,7 +28,7 @@ def test_learns_mean_class_two_classes_string_labels_20_channels(window_factory)
     labels = np.where(y == 0, "pavement", "wet_mud")
     run_no = np.array([int(s[3:]) for s in g])
     train = (run_no % 5) < 4
-    clf = CNNClassifier(random_state=3, max_epochs=15, n_threads=1,
+    clf = CNNClassifier.from_params(random_state=3, max_epochs=15, n_threads=1,
                         channel_names=[f"c{i}" for i in range(20)])
     clf.fit(X[train], labels[train], g[train])
     assert list(clf.classes_) == ["pavement", "wet_mud"]
@@ -42,9 +43,9 @@ def test_same_seed_identical_weights_and_predictions(freq_data):
     X, y, g = freq_data
     sub = slice(0, None, 2)
     kw = dict(random_state=11, max_epochs=4, n_threads=1)
-    a = CNNClassifier(**kw).fit(X[sub], y[sub], g[sub])
-    b = CNNClassifier(**kw).fit(X[sub], y[sub], g[sub])
-    c = CNNClassifier(**{**kw, "random_state": 12}).fit(X[sub], y[sub], g[sub])
+    a = CNNClassifier.from_params(**kw).fit(X[sub], y[sub], g[sub])
+    b = CNNClassifier.from_params(**kw).fit(X[sub], y[sub], g[sub])
+    c = CNNClassifier.from_params(**{**kw, "random_state": 12}).fit(X[sub], y[sub], g[sub])
     sa, sb, sc = (m.model_.state_dict() for m in (a, b, c))
     assert all(torch.equal(sa[k], sb[k]) for k in sa)
     assert np.array_equal(a.predict_proba(X), b.predict_proba(X))
@@ -68,7 +69,7 @@ def test_fit_leaves_global_torch_state_alone(freq_data):
 
     torch.set_num_threads = spy
     try:
-        CNNClassifier(random_state=0, max_epochs=1, n_threads=1).fit(X[::4], y[::4], g[::4])
+        CNNClassifier.from_params(random_state=0, max_epochs=1, n_threads=1).fit(X[::4], y[::4], g[::4])
     finally:
         torch.set_num_threads = real_set
     assert seen and seen[0] == 1  # n_threads applied ...
@@ -96,7 +97,7 @@ def test_normalisation_ignores_missing_samples_and_constant_channels(window_fact
     X[:, 0, :50] = np.nan          # e.g. slip while the camera was out
     X[:, 1, :] = 9.81               # a constant channel
     X[:, 2, :] = np.nan             # an all-missing channel (robot without camera)
-    clf = CNNClassifier(random_state=0, max_epochs=2, n_threads=1).fit(X, y, g)
+    clf = CNNClassifier.from_params(random_state=0, max_epochs=2, n_threads=1).fit(X, y, g)
     expected0 = np.nanmean(X[:, 0, :].astype(np.float64))
     assert clf.mean_[0] == pytest.approx(expected0, rel=1e-5)
     assert clf.scale_[0] == pytest.approx(np.nanstd(X[:, 0, :].astype(np.float64)), rel=1e-5)
@@ -132,7 +133,7 @@ def test_inner_validation_split_never_splits_a_run(freq_data):
 ])
 def test_bad_params_are_refused_at_fit(freq_data, params, match):
     X, y, g = freq_data
-    clf = CNNClassifier(**params)  # constructing never fails (sklearn convention)
+    clf = CNNClassifier.from_params(**params)  # constructing never fails (sklearn convention)
     with pytest.raises(ValueError, match=match):
         clf.fit(X[::12], y[::12], g[::12])
 
@@ -150,7 +151,7 @@ def test_bad_inputs_are_refused(fitted):
 
 
 def test_clone_and_get_params_roundtrip():
-    clf = CNNClassifier(conv_channels=(8, 8), kernel_sizes=(3, 3), random_state=4)
+    clf = CNNClassifier.from_params(conv_channels=(8, 8), kernel_sizes=(3, 3), random_state=4)
     other = clone(clf)
     assert other.get_params() == clf.get_params()
 
@@ -165,7 +166,7 @@ def test_windows_input_carries_channel_names_and_runs(window_factory):
     meta = pd.DataFrame({"run_id": g, "terrain": y, "t_start_s": 0.0, "t_end_s": 2.0,
                          "start_index": 0})
     win = windows_mod.Windows(X.astype(np.float64), names, meta)
-    clf = CNNClassifier(random_state=0, max_epochs=3, n_threads=1).fit(win, win.y)
+    clf = CNNClassifier.from_params(random_state=0, max_epochs=3, n_threads=1).fit(win, win.y)
     assert clf.channel_names_ == list(names)
     reordered = win.select_channels(list(reversed(names)))
     np.testing.assert_array_equal(clf.predict_proba(reordered), clf.predict_proba(X))
@@ -187,7 +188,7 @@ def test_inner_split_keeps_every_class_in_training():
 def test_refit_uses_every_window_for_the_chosen_epochs(freq_data):
     X, y, g = freq_data
     sub = slice(0, None, 3)
-    clf = CNNClassifier(random_state=0, max_epochs=6, patience=3, refit=True, n_threads=1)
+    clf = CNNClassifier.from_params(random_state=0, max_epochs=6, patience=3, refit=True, n_threads=1)
     clf.fit(X[sub], y[sub], g[sub])
     assert len(clf.refit_history_) == clf.best_epoch_
     assert all(np.isnan(r["val_loss"]) for r in clf.refit_history_)  # no validation in the refit

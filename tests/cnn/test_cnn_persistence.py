@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from terrainml.models.cnn import CONFIG_NAME, WEIGHTS_NAME, CNNClassifier
+from terrainml.models.cnn import CNNClassifier
+from terrainml.models.cnn_files import CONFIG_NAME, WEIGHTS_NAME
 from terrainml.models.onnx_export import OnnxCNN, export_onnx
 
 
@@ -47,7 +48,7 @@ def test_roundtrip_keeps_string_classes_and_architecture(window_factory, tmp_pat
     X, y, g = window_factory(n_classes=2, n_channels=4, runs_per_class=3, windows_per_run=4,
                              kind="mean", seed=2)
     labels = np.array(["dry_sand", "pavement"])[y]
-    clf = CNNClassifier(random_state=0, max_epochs=2, n_threads=1, window_stats=window_stats,
+    clf = CNNClassifier.from_params(random_state=0, max_epochs=2, n_threads=1, window_stats=window_stats,
                         conv_channels=(8, 16), kernel_sizes=(5, 3)).fit(X, labels, g)
     clf.save(tmp_path)
     loaded = CNNClassifier.load(tmp_path)

@@ -11,7 +11,9 @@ from typer.testing import CliRunner
 
 from terrainml.models import artifacts
 from terrainml.models.artifacts import ArtifactError, load_artifact
-from terrainml.pipeline.train import evaluate, served_table, train
+from terrainml.pipeline.evaluate import evaluate
+from terrainml.pipeline.options import TrainOptions
+from terrainml.pipeline.train import served_table, train
 
 SMALL = {"svm": {"C_grid": (10.0,), "gamma_grid": ("scale",)},
          "cnn": {"max_epochs": 2, "conv_channels": (4, 4, 4), "patience": 1}}
@@ -20,7 +22,7 @@ SMALL = {"svm": {"C_grid": (10.0,), "gamma_grid": ("scale",)},
 @pytest.fixture(scope="module")
 def trained(dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("runs") / "both"
-    res = train(dataset, out, models=("svm", "cnn"), folds=3, seed=0, model_params=SMALL)
+    res = train(dataset, out, models=("svm", "cnn"), options=TrainOptions(folds=3, seed=0, model_params=SMALL))
     return out, res
 
 

@@ -28,7 +28,7 @@ def _clusters(rng, n_per_run=40, runs=4):
 def test_far_windows_score_above_known_ones_and_threshold_meets_target(method):
     rng = np.random.default_rng(0)
     F, y, g = _clusters(rng)
-    scorer, info = fit_novelty(F, y, g, method=method, k=5, false_alarm=0.05, inner_folds=4, seed=0)
+    scorer, info = fit_novelty(F, y, g, method=method, k=5, novelty_false_alarm=0.05, inner_folds=4, seed=0)
     fresh, _, _ = _clusters(np.random.default_rng(1))
     far = rng.normal(size=(200, 6))
     far[:, 1] += 8.0  # 8 sd away along an axis no class varies on
@@ -158,8 +158,8 @@ def test_moving_gate_sets_the_threshold_on_moving_windows_and_never_flags_standi
     F, y, g = _clusters(rng, n_per_run=60)
     still = np.arange(len(y)) % 3 == 0
     F[still, 2] += 6.0
-    ungated, _ = fit_novelty(F, y, g, k=5, false_alarm=0.05, inner_folds=4, seed=0)
-    gated, _ = fit_novelty(F, y, g, moving=~still, k=5, false_alarm=0.05, inner_folds=4, seed=0)
+    ungated, _ = fit_novelty(F, y, g, k=5, novelty_false_alarm=0.05, inner_folds=4, seed=0)
+    gated, _ = fit_novelty(F, y, g, moving=~still, k=5, novelty_false_alarm=0.05, inner_folds=4, seed=0)
     assert ungated.moving_mps is None and gated.moving_mps is not None
     fresh, _, _ = _clusters(np.random.default_rng(5), n_per_run=60)  # new runs, all moving
     moving = np.ones(len(fresh), dtype=bool)
@@ -198,7 +198,7 @@ def test_one_run_out_threshold_realises_its_target_on_new_runs():
         F, y, g = _runs(np.random.default_rng(seed))
         fresh, _, _ = _runs(np.random.default_rng(100 + seed), n_runs=40)
         for folds in realised:
-            scorer, info = fit_novelty(F, y, g, false_alarm=0.05, inner_folds=folds, seed=0)
+            scorer, info = fit_novelty(F, y, g, novelty_false_alarm=0.05, inner_folds=folds, seed=0)
             realised[folds].append(scorer.flag(scorer.score(fresh)).mean())
         assert info["inner_folds"] == 24  # one run out: as many folds as training runs
     assert 0.03 <= np.mean(realised[None]) <= 0.07

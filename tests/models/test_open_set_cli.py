@@ -90,15 +90,15 @@ def test_train_open_set_flag_reaches_the_training(windows_file, tmp_path, monkey
 
     seen = {}
 
-    def fake_train(ds, out, kinds, **kw):
-        seen.update(kw)
+    def fake_train(ds, out, kinds, options, *args, **kw):
+        seen["options"] = options
         raise ValueError("stop after the call")
 
     monkeypatch.setattr(train_mod, "train", fake_train)
     r = CliRunner().invoke(app, ["train", "--data", str(windows_file), "--model", "svm", "--no-members",
                                  "--open-set", "--out", str(tmp_path / "m"), "-q"])
     assert r.exit_code == 2 and "stop after the call" in r.output
-    assert seen.get("open_set") is True
+    assert seen["options"].open_set is True
 
 
 def test_train_open_set_flag_reaches_the_selecting_training(windows_file, tmp_path, monkeypatch):
@@ -106,15 +106,15 @@ def test_train_open_set_flag_reaches_the_selecting_training(windows_file, tmp_pa
 
     seen = {}
 
-    def fake_train_auto(tables, robot, out, **kw):
-        seen.update(kw)
+    def fake_train_auto(tables, robot, out, options, *args, **kw):
+        seen["options"] = options
         raise ValueError("stop after the call")
 
     monkeypatch.setattr(autotrain, "train_auto", fake_train_auto)
     r = CliRunner().invoke(app, ["train", "--data", str(windows_file), "--open-set", "--out", str(tmp_path / "m"),
                                  "-q"])
     assert r.exit_code == 2 and "stop after the call" in r.output
-    assert seen.get("open_set") is True
+    assert seen["options"].open_set is True
 
 
 def test_evaluate_open_set_of_a_model_folder_uses_its_model_kind_and_window_spec(windows_file, tmp_path):

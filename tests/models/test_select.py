@@ -10,7 +10,8 @@ from terrainml.evaluation.folds import folds_of_partition, run_partition
 from terrainml.features.windows import window_spec
 from terrainml.models.calibration import Temperature
 from terrainml.pipeline.dataset import Dataset, build_dataset
-from terrainml.pipeline.select import fit_temperature, parse_auto_models, select, spec_feasibility
+from terrainml.pipeline.candidates import parse_auto_models
+from terrainml.pipeline.select import fit_temperature, select, spec_feasibility
 from terrainml.pipeline.train import make_factory
 
 

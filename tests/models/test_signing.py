@@ -29,6 +29,7 @@ from terrainml.models.artifacts import ArtifactError, load_artifact, read_manife
 from terrainml.models.signing import (MANIFEST_NAME, SIGNATURE_NAME, SignatureError, generate_keypair,
                                       key_fingerprint, load_public_key, sign_artifact, verify_artifact_signature)
 from terrainml.pipeline.dataset import write_windows
+from terrainml.pipeline.options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.schema import write_run_parquet
 
@@ -39,7 +40,7 @@ SMALL = {"svm": {"C_grid": (10.0,), "gamma_grid": ("scale",)}}
 @pytest.fixture(scope="module")
 def trained(dataset, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("signed") / "svm"
-    train(dataset, out, models=("svm",), folds=3, seed=0, ablation=False, model_params=SMALL)
+    train(dataset, out, models=("svm",), options=TrainOptions(folds=3, seed=0, ablation=False, model_params=SMALL))
     return out
 
 

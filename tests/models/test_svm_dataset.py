@@ -7,6 +7,7 @@ import pandas as pd
 import pytest
 
 from terrainml.evaluation.cv import cross_validate
+from terrainml.evaluation.folds import grouped_folds
 from terrainml.pipeline.dataset import (DatasetError, build_dataset, find_logs, read_windows,
                                       write_windows)
 from terrainml.models.svm import SVMClassifier
@@ -72,8 +73,8 @@ def test_parallel_and_dask_builds_equal_sequential(log_dir, dataset):
 def test_svm_cv_same_seed_same_predictions_and_classes_from_data(dataset):
     w = dataset.windows
     f = make_factory("svm", dataset, seed=4, params=SMALL_GRID)
-    a = cross_validate(f, w, w.y, w.groups, n_splits=3, seed=4)
-    b = cross_validate(f, w, w.y, w.groups, n_splits=3, seed=4)
+    a = cross_validate(f, w, w.y, w.groups, folds=grouped_folds(w.y, w.groups, 3, 4))
+    b = cross_validate(f, w, w.y, w.groups, folds=grouped_folds(w.y, w.groups, 3, 4))
     np.testing.assert_array_equal(a.y_pred, b.y_pred)
     np.testing.assert_array_equal(a.proba, b.proba)
     assert a.summary["balanced_accuracy"]["mean"] >= 0.9  # classes are well separated by construction

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from terrainml.evaluation.cv import CVResult, average_results, cross_validate
+from terrainml.evaluation.cv import CVResult, Scoring, average_results, cross_validate
 from terrainml.evaluation.folds import check_groups_not_split
 from terrainml.experiments.borealtc import chunk_windows, make_chunks, protocol_folds, windows_per_chunk
 from terrainml.features.side_channel import side_channel_features
@@ -183,7 +183,8 @@ def test_cross_validate_labels_only_model_recall_and_confusion_hand_worked():
                          "chunk_id": np.arange(n) // 2})
     w = Windows(np.zeros((n, 1, 4)), ("c",), meta)
     folds, runs = protocol_folds(w, "b", n_splits=2, seed=0)
-    res = cross_validate(lambda: _Always(1), w, y, runs, folds=folds, class_names=["A", "B", "C"])
+    res = cross_validate(lambda: _Always(1), w, y, runs, folds=folds,
+                         scoring=Scoring(class_names=["A", "B", "C"]))
     assert isinstance(res, CVResult) and res.proba is None
     assert res.accuracy == pytest.approx(1 / 3)
     assert res.balanced_accuracy == pytest.approx(1 / 3)
@@ -216,7 +217,8 @@ def test_average_results_is_the_mean_of_probabilities():
     folds = [(np.array([2, 3]), np.array([0, 1])), (np.array([0, 1]), np.array([2, 3]))]
     p1 = np.array([[0.9, 0.1], [0.4, 0.6], [0.2, 0.8], [0.6, 0.4]])
     p2 = np.array([[0.8, 0.2], [0.8, 0.2], [0.3, 0.7], [0.7, 0.3]])
-    r1, r2 = (cross_validate(lambda p=p: _Fixed(p), X, y, runs, folds=folds, class_names=["a", "b"])
+    r1, r2 = (cross_validate(lambda p=p: _Fixed(p), X, y, runs, folds=folds,
+                             scoring=Scoring(class_names=["a", "b"]))
               for p in (p1, p2))
     assert r1.y_pred.tolist() == [0, 1, 1, 0] and r2.y_pred.tolist() == [0, 0, 1, 0]
     avg = average_results([r1, r2])

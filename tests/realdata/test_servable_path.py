@@ -14,7 +14,9 @@ from terrainml.features.windows import window_spec
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import load_artifact, write_manifest
 from terrainml.pipeline.dataset import build_from_tables
-from terrainml.pipeline.train import ClassMismatchError, evaluate, train
+from terrainml.pipeline.evaluate import ClassMismatchError, evaluate
+from terrainml.pipeline.options import TrainOptions
+from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
 from terrainml.stream.classify import ModelLoadError, load_serving_model
 from terrainml.stream.predictor import Predictor
@@ -66,8 +68,8 @@ def wheel_model(boreal_tables, tmp_path_factory):
     pick = [t for c in sorted(by) for t in by[c][: (1 if c == 3 else 3)]]
     ds = build_from_tables(pick, HUSKY, spec=_wheel_spec(windows_per_chunk=2))
     out = tmp_path_factory.mktemp("m") / "wheel"
-    res = train(ds, out, ["hgb", "svm+hgb"], folds=2, seed=0,
-                model_params={"hgb": {"max_iter": 30}, "svm": {"C_grid": (10.0,), "gamma_grid": ("scale",)}})
+    res = train(ds, out, ["hgb", "svm+hgb"], TrainOptions(
+        folds=2, seed=0, model_params={"hgb": {"max_iter": 30}, "svm": {"C_grid": (10.0,), "gamma_grid": ("scale",)}}))
     return out, ds, res
 
 
@@ -167,7 +169,7 @@ def test_a_course_of_held_out_runs_without_imu_is_served(boreal_tables, tmp_path
     held = course_runs(tables, k)
     ds = build_from_tables([t for t in tables if str(t["run_id"].iloc[0]) not in held], HUSKY,
                            spec=_wheel_spec())
-    train(ds, tmp_path / "m", ["hgb"], folds=2, seed=0, ablation=False)
+    train(ds, tmp_path / "m", ["hgb"], TrainOptions(folds=2, seed=0, ablation=False))
     course = make_course(tables, held, segment_s=30.0)
     assert not any(c.startswith("imu_") for c in course.columns)
     p = Predictor.from_model_dir(tmp_path / "m")

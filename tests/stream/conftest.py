@@ -33,7 +33,7 @@ def model_dir(tmp_path_factory):
     from terrainml.features.sets import FeatureSet
     from terrainml.features.windows import WindowSpec
     from terrainml.lookup.table import DesiredSlipTable
-    from terrainml.models.artifacts import save_artifact
+    from terrainml.models.artifacts import TrainingProvenance, save_artifact
     from terrainml.models.svm import SVMClassifier
 
     robot = load_robot()
@@ -41,9 +41,10 @@ def model_dir(tmp_path_factory):
     clf = SVMClassifier(FeatureSet.for_robot(robot), C_grid=[10.0], gamma_grid=["scale"],
                         inner_folds=2).fit(wins, wins.y)
     out = tmp_path_factory.mktemp("model") / "tiny"
-    save_artifact(out, {"svm": clf}, classes=list(CLASS_IDS),
-                  class_names=[TERRAIN[c] for c in CLASS_IDS], channels=list(wins.channels),
-                  window_spec=WindowSpec(), robot=robot, training_fingerprint="test",
+    save_artifact(out, {"svm": clf}, TrainingProvenance(
+                      classes=list(CLASS_IDS), class_names=[TERRAIN[c] for c in CLASS_IDS],
+                      channels=list(wins.channels), window_spec=WindowSpec(), robot=robot,
+                      training_fingerprint="test"),
                   attachments={"desired_slip_table.json": DesiredSlipTable.build(robot).to_json()})
     return out
 

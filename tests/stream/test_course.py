@@ -24,7 +24,7 @@ def sim_model_dir(tmp_path_factory):
     from terrainml.features.sets import FeatureSet
     from terrainml.features.windows import Windows, WindowSpec, cut_windows
     from terrainml.lookup.table import DesiredSlipTable
-    from terrainml.models.artifacts import save_artifact
+    from terrainml.models.artifacts import TrainingProvenance, save_artifact
     from terrainml.models.svm import SVMClassifier
     from terrainml.sim.generate import simulate
     from terrainml.sim.output import run_table
@@ -45,10 +45,10 @@ def sim_model_dir(tmp_path_factory):
     clf = SVMClassifier(FeatureSet.for_robot(robot), C_grid=[1.0, 10.0], gamma_grid=["scale"],
                         inner_folds=2).fit(wins, wins.y)
     out = tmp_path_factory.mktemp("simmodel") / "course_svm"
-    save_artifact(out, {"svm": clf}, classes=TRAIN_CLASSES,
-                  class_names=[TERRAIN_CLASSES[c] for c in TRAIN_CLASSES],
-                  channels=list(wins.channels), window_spec=WindowSpec(), robot=robot,
-                  training_fingerprint="test-course",
+    save_artifact(out, {"svm": clf}, TrainingProvenance(
+                      classes=TRAIN_CLASSES, class_names=[TERRAIN_CLASSES[c] for c in TRAIN_CLASSES],
+                      channels=list(wins.channels), window_spec=WindowSpec(), robot=robot,
+                      training_fingerprint="test-course"),
                   attachments={"desired_slip_table.json": DesiredSlipTable.build(robot).to_json()})
     return out
 

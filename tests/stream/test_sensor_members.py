@@ -18,7 +18,8 @@ import pytest
 from terrainml.testing import kinematic_run, trapezoid_speed
 from terrainml.features.side_channel import SideChannelFeatures, track_of
 from terrainml.features.windows import SIDE_CHANNEL_NAMES, Windows, window_spec
-from terrainml.models.artifacts import ArtifactError, attach_members, load_artifact, save_artifact
+from terrainml.models.artifacts import (ArtifactError, TrainingProvenance, attach_members, load_artifact,
+                                        save_artifact)
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.members import member_subsets, train_members
 from terrainml.robot import load_robot
@@ -52,9 +53,9 @@ def _save(folder, channels, sensors, seed=0):
     W, spec = _windows(list(channels), seed)
     model = BoostedTrees(SideChannelFeatures(rate_hz=100.0, track_m=track_of(HUSKY)), random_state=0,
                          max_iter=20).fit(W, W.y)
-    save_artifact(folder, {"hgb": model}, classes=[0, 1], class_names=NAMES, channels=channels,
-                  window_spec=spec, robot=HUSKY, training_fingerprint="test", sensors=sensors,
-                  feature_family="side_channel",
+    save_artifact(folder, {"hgb": model}, TrainingProvenance(
+                      classes=[0, 1], class_names=NAMES, channels=channels, window_spec=spec, robot=HUSKY,
+                      training_fingerprint="test", sensors=sensors, feature_family="side_channel"),
                   metrics_summary={"hgb": {"balanced_accuracy": {"mean": 0.9, "std": 0.0}}})
 
 

@@ -20,7 +20,7 @@ import pytest
 from terrainml.testing import kinematic_run, trapezoid_speed
 from terrainml.features.side_channel import SideChannelFeatures, track_of
 from terrainml.features.windows import SIDE_CHANNEL_NAMES, Windows, window_spec
-from terrainml.models.artifacts import save_artifact
+from terrainml.models.artifacts import TrainingProvenance, save_artifact
 from terrainml.models.trees import BoostedTrees
 from terrainml.robot import load_robot
 from terrainml.stream.config import ServingConfig
@@ -48,9 +48,9 @@ def side_model(tmp_path_factory):
     model = BoostedTrees(SideChannelFeatures(rate_hz=100.0, track_m=track_of(HUSKY)), random_state=0,
                          max_iter=10).fit(W, y)
     out = tmp_path_factory.mktemp("side") / "m"
-    save_artifact(out, {"hgb": model}, classes=[0, 1], class_names=NAMES, channels=SIDE_CHANNEL_NAMES,
-                  window_spec=spec, robot=HUSKY, training_fingerprint="test",
-                  sensors=["wheels", "currents", "imu"], feature_family="side_channel")
+    save_artifact(out, {"hgb": model}, TrainingProvenance(
+        classes=[0, 1], class_names=NAMES, channels=SIDE_CHANNEL_NAMES, window_spec=spec, robot=HUSKY,
+        training_fingerprint="test", sensors=["wheels", "currents", "imu"], feature_family="side_channel"))
     return out
 
 

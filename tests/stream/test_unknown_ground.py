@@ -33,7 +33,7 @@ from terrainml.estimation.run import estimate_run
 from terrainml.features.sets import FeatureSet
 from terrainml.features.windows import Windows, WindowSpec, cut_windows
 from terrainml.lookup.table import DesiredSlipTable
-from terrainml.models.artifacts import load_artifact, save_artifact
+from terrainml.models.artifacts import TrainingProvenance, load_artifact, save_artifact
 from terrainml.models.novelty import fit_model_novelty
 from terrainml.models.svm import SVMClassifier
 from terrainml.pipeline.dataset import build_dataset
@@ -79,9 +79,10 @@ def folders(tmp_path_factory):
     out = {}
     for name, nov in (("with", ("svm", scorer, info)), ("without", None)):
         out[name] = tmp_path_factory.mktemp("unknown") / name
-        save_artifact(out[name], {"svm": clf}, classes=list(KNOWN),
-                      class_names=[TERRAIN_CLASSES[c] for c in KNOWN], channels=list(W.channels),
-                      window_spec=SPEC, robot=ROBOT, training_fingerprint="test-unknown",
+        save_artifact(out[name], {"svm": clf}, TrainingProvenance(
+                          classes=list(KNOWN), class_names=[TERRAIN_CLASSES[c] for c in KNOWN],
+                          channels=list(W.channels), window_spec=SPEC, robot=ROBOT,
+                          training_fingerprint="test-unknown"),
                       attachments={"desired_slip_table.json": DesiredSlipTable.build(ROBOT).to_json()},
                       novelty=nov)
     return out
