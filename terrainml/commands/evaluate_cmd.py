@@ -61,12 +61,12 @@ def evaluate(
     """Score a saved model (verified on load) on other data; classes matched by name. With
     --open-set: how well the novelty score finds ground the model was never trained on.
 
-    Example: [bold]terrainml evaluate runs/svm --data data/sim_seed2 --out runs/svm/eval_seed2.json[/]
+    Example: terrainml evaluate runs/svm --data data/sim_seed2 --out runs/svm/eval_seed2.json
 
-    Example (signed models only): [bold]terrainml evaluate runs/svm --data data/sim_seed2 --trusted-key release.pub[/]
+    Example (signed models only): terrainml evaluate runs/svm --data data/sim_seed2 --trusted-key release.pub
 
-    Example (unknown ground): [bold]terrainml evaluate --open-set --data ../shared/datasets/borealtc --format
-    borealtc --model hgb --out runs/open_set_boreal[/]
+    Example (unknown ground): terrainml evaluate --open-set --data ../shared/datasets/borealtc --format
+    borealtc --model hgb --out runs/open_set_boreal
     """
     check_n_jobs(n_jobs)
     if open_set:

@@ -26,7 +26,7 @@ def keygen(out: Path = typer.Option(..., "--out", "-o", help="Private key file t
                                     "key goes to OUT.pub.")) -> None:
     """Create an ed25519 key pair for signing model folders: OUT (private, mode 0600) and OUT.pub.
 
-    Example: [bold]terrainml model keygen --out keys/release[/] (keep keys/release secret; ship keys/release.pub)
+    Example: terrainml model keygen --out keys/release (keep keys/release secret; ship keys/release.pub)
     """
     from terrainml.models.signing import generate_keypair, key_fingerprint, load_public_key, public_key_path
 
@@ -50,7 +50,7 @@ def sign(
 ) -> None:
     """Verify a model folder (every file's sha256), then sign its manifest (manifest.sig).
 
-    Example: [bold]terrainml model sign runs/svm --key keys/release[/]
+    Example: terrainml model sign runs/svm --key keys/release
     """
     from terrainml.models.artifacts import ArtifactError, verify_artifact
     from terrainml.models.signing import SignatureError, sign_artifact
@@ -72,7 +72,7 @@ def verify(
 ) -> None:
     """Check a model folder's files and its signature by one of the trusted keys (exit 2 if not).
 
-    Example: [bold]terrainml model verify runs/svm --trusted-key keys/release.pub[/]
+    Example: terrainml model verify runs/svm --trusted-key keys/release.pub
     """
     from terrainml.models.artifacts import ArtifactError, verify_artifact
     from terrainml.models.signing import SignatureError, verify_artifact_signature

@@ -134,11 +134,11 @@ def train(
     (runs per class, class names against the catalogue, sensors); the folder appears at --out
     only once complete (members included).
 
-    Example: [bold]terrainml train --data ../shared/datasets/borealtc --format borealtc --out runs/boreal[/]
+    Example: terrainml train --data ../shared/datasets/borealtc --format borealtc --out runs/boreal
 
-    Example: [bold]terrainml train --data data/windows.parquet --model svm --folds 5 --seed 0 --out runs/svm[/]
+    Example: terrainml train --data data/windows.parquet --model svm --folds 5 --seed 0 --out runs/svm
 
-    Example (from logs, both models): [bold]terrainml train --data data/sim --model all --out runs/all[/]
+    Example (from logs, both models): terrainml train --data data/sim --model all --out runs/all
     """
     selecting, kinds, specs = _train_mode(data, model, windows)
     if folds < 2:

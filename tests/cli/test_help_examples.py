@@ -12,15 +12,8 @@ import re
 import pytest
 from cli_tree import check_example, command_paths, help_examples, readme_examples
 
-#: examples of commands outside this area (commands/model_cmds.py) still written as reST
-#: (``terrainml ...``): with the backticks they are no command line
-_NOT_YET_PLAIN = {
-    "evaluate": "evaluate (commands/model_cmds.py) writes its examples as ``terrainml evaluate ...``",
-    "train": "train (commands/model_cmds.py) writes its examples as ``terrainml train ...``",
-    "model keygen": "model keygen (commands/model_cmds.py) writes its example as ``terrainml model keygen ...``",
-    "model sign": "model sign (commands/model_cmds.py) writes its example as ``terrainml model sign ...``",
-    "model verify": "model verify (commands/model_cmds.py) writes its example as ``terrainml model verify ...``",
-}
+#: commands whose examples are not yet plain command lines: none
+_NOT_YET_PLAIN: dict[str, str] = {}
 
 #: README examples that do not run as written today (the README is being rewritten): none
 _README_KNOWN_BAD: dict[str, str] = {}

@@ -14,16 +14,8 @@ from cli_tree import command_paths, render_help
 #: a rich style tag printed instead of applied
 _RICH_TAG = re.compile(r"\[/[a-z ]*\]|\[(?:bold|dim|italic|underline|red|green|yellow|blue|cyan|magenta)\b[^\]]*\]")
 
-#: help texts of commands outside this area (commands/model_cmds.py) that still hold reST markup
-_NOT_YET_CLEAN = {
-    (): "the root help lists evaluate's first paragraph (commands/model_cmds.py), with ``--open-set``",
-    ("evaluate",): "evaluate (commands/model_cmds.py): ``--open-set`` and the ``terrainml evaluate ...`` examples",
-    ("train",): "train (commands/model_cmds.py): ``--windows auto --model auto`` and the ``terrainml train ...`` "
-                "examples",
-    ("model", "keygen"): "model keygen (commands/model_cmds.py): the ``terrainml model keygen ...`` example",
-    ("model", "sign"): "model sign (commands/model_cmds.py): the ``terrainml model sign ...`` example",
-    ("model", "verify"): "model verify (commands/model_cmds.py): the ``terrainml model verify ...`` example",
-}
+#: help texts that still hold reST markup: none
+_NOT_YET_CLEAN: dict[tuple[str, ...], str] = {}
 
 
 def _cases():
