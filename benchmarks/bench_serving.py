@@ -34,9 +34,9 @@ import numpy as np
 
 from terrainml.features.windows import Windows, cut_windows
 from terrainml.models.novelty import proba_and_features
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.ring import is_label
-from terrainml.stream.sources import iter_table_samples
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.tick.ring import is_label
+from terrainml.stream.transports.sources import iter_table_samples
 
 #: held out: declared on 2026-12-02 before the 48-seed training courses and the 3-window confirmation
 #: were measured on them, never tuned on (9101-9104, 9401-9404 and 9601-9604 were used and retired)

@@ -12,7 +12,7 @@ Protocol, fixed before it was run (nothing here is tuned on its figures):
   FLOORING, ICE and SANDY_LOAM run except the last one of each class;
 * the course: 30 s from the middle of each run, IMU kept, alternating a held-out known run (the
   four in turn) and a SNOW run, for every SNOW run: known, SNOW_00, known, SNOW_01, ...;
-  :class:`~terrainml.stream.predictor.Predictor` serves it tick by tick as ``terrainml predict``;
+  :class:`~terrainml.stream.tick.predictor.Predictor` serves it tick by tick as ``terrainml predict``;
 * per SNOW segment: the wheel distance (mean rim speed integrated) from the segment's start to
   its first ``unknown_terrain`` tick, and the share of its moving ticks served ``unknown_terrain``;
   per known segment: the shares of its moving ticks served ``unknown_terrain`` and the labelled
@@ -39,9 +39,9 @@ from terrainml.io.ingest import load_dataset
 from terrainml.pipeline.dataset import build_from_tables
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.fusion import SETTLE_M
-from terrainml.stream.predictor import Predictor
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.fusion import SETTLE_M
+from terrainml.stream.tick.predictor import Predictor
 
 UNKNOWN = "SNOW"
 SEGMENT_S = 30.0

@@ -3,7 +3,7 @@
 A higher false-alarm target flags more of unknown ground and more of known ground. Known ground
 pays where the flags run together: at a change between known terrains, flagged until every
 wheel has crossed and the drive has settled (0.8-3.7 m). The filter's ``settle_m``
-(:data:`terrainml.stream.fusion.SETTLE_M`) makes flags that begin on known ground enter unknown
+(:data:`terrainml.stream.tick.fusion.SETTLE_M`) makes flags that begin on known ground enter unknown
 only once they outlast that distance; unknown ground entered from known ground pays it as delay.
 
 This study serves held-out *tuning* courses (the ``mixed`` scenario of ``make demo``'s course,
@@ -35,12 +35,12 @@ import numpy as np
 from terrainml.models.novelty import fit_model_novelty
 from terrainml.pipeline.dataset import read_windows
 from terrainml.sim.generate import simulate, write_run
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.fusion import SETTLE_M
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.runner import CLASSIFY_LAG_TICKS
-from terrainml.stream.sample import InvalidSample
-from terrainml.stream.sources import open_source
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.fusion import SETTLE_M
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.app.runner import CLASSIFY_LAG_TICKS
+from terrainml.stream.tick.sample import InvalidSample
+from terrainml.stream.transports.sources import open_source
 
 DEMO = Path("runs/demo")
 OPEN_SET = Path("runs/open_set_models")

@@ -72,7 +72,7 @@ _SETTLE_M_HELP = (
 def _record_format(record_format: Optional[str], record_unknown: Optional[Path]) -> str:
     """The recorder's format from ``--record-format`` (exit 2 without ``--record-unknown`` or
     for a format the recorder does not write)."""
-    from terrainml.stream.recorder import RECORD_FORMATS
+    from terrainml.stream.app.recorder import RECORD_FORMATS
 
     if record_format is not None and record_unknown is None:
         fail(f"--record-format {record_format}: needs --record-unknown DIR (the folder to record into)")
@@ -138,8 +138,8 @@ def register(app: typer.Typer) -> None:
             None, "--settle-m", min=0.0,
             help=_SETTLE_M_HELP),
     ) -> None:
-        from terrainml.stream.config import ServingConfig
-        from terrainml.stream.runner import CLASSIFY_LAG_TICKS, run_predict
+        from terrainml.stream.tick.config import ServingConfig
+        from terrainml.stream.app.runner import CLASSIFY_LAG_TICKS, run_predict
 
         fmt_rec = _record_format(record_format, record_unknown)
         # resolved here, once: the stream takes a RobotSpec and a ServingConfig

@@ -50,8 +50,8 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.lookup import terramechanics as tm
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.predictor import Predictor
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.predictor import Predictor
 
 __all__ = ["AccelLimitController", "CurrentLimitController", "LimiterController", "fixed_cap",
            "mission_limiter_config", "no_control", "oracle", "oracle_cap", "terrain_aware"]
@@ -149,7 +149,7 @@ class LimiterController:
     limiter : :class:`SlipLimiterConfig` (default :func:`mission_limiter_config`).
     refiner : :class:`CapRefinerConfig`.
     table : desired-slip table (default ``DesiredSlipTable.build(robot)``).
-    predictor : a :class:`~terrainml.stream.predictor.Predictor` stepping the estimator (the
+    predictor : a :class:`~terrainml.stream.tick.predictor.Predictor` stepping the estimator (the
         served policy); otherwise an :class:`OnlineEstimator` gives the wheel-centre speeds.
     preset : EKF preset of the online estimator.
     """

@@ -29,7 +29,7 @@ Policies
 ``fixed``          slip PID towards a fixed target: ``sgn(v_long) 0.1`` in traction and steady,
                    ``sgn(v_long) (-0.1)`` in braking (the "0.1 everywhere" baseline)
 ``terrain-aware``  slip PID towards the served desired slip: with ``model`` the online predictor
-                   (:class:`terrainml.stream.predictor.Predictor`: EKF, windows, classifier,
+                   (:class:`terrainml.stream.tick.predictor.Predictor`: EKF, windows, classifier,
                    lookup policy and fallback); without a model the class given by ``true_class``
                    / ``class_lookup`` with the lookup table (an oracle classifier)
 
@@ -80,9 +80,9 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.lookup.policy import desired_slip_per_wheel
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.policy import safe_cap_for
-from terrainml.stream.predictor import Predictor
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.policy import safe_cap_for
+from terrainml.stream.tick.predictor import Predictor
 
 __all__ = ["FIXED_TARGET", "LAWS", "ON_FALLBACK", "POLICIES", "STEADY_TARGETS", "FixedTargetTable",
            "SlipController", "limiter_config", "tuned_config"]

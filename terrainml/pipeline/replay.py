@@ -1,7 +1,7 @@
 """Served-path validation: held-out runs replayed through the online predictor.
 
 Window scores say how often a window is named right; a robot is served by
-:class:`~terrainml.stream.predictor.Predictor`, which cuts its own windows online, fuses them,
+:class:`~terrainml.stream.tick.predictor.Predictor`, which cuts its own windows online, fuses them,
 ages them by distance and falls back when it has no fresh, confident class. A model whose
 windows are good but which the online rules never let classify is useless on the robot, and no
 window score shows it. So before ``train`` saves a model, the model of every outer fold (fitted
@@ -14,7 +14,7 @@ interleaved so the course changes terrain between pieces. :func:`replay_course` 
 
 * ``right_share``: share of moving labelled ticks served the labelled class (a fallback tick is
   never right); moving = the predictor's odometer advancing at >= :data:`MOVING_MPS`, as in
-  :func:`terrainml.stream.runner.replay_summary`; ``right_share_settled`` leaves out
+  :func:`terrainml.stream.app.runner.replay_summary`; ``right_share_settled`` leaves out
   ``settle_s`` after each label change;
 * ``fallback_share``: share of moving labelled ticks served a fallback;
 * ``classified_share``: share of moving labelled ticks served a class (1 - fallback share);
@@ -34,9 +34,9 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.runner import CLASSIFY_LAG_TICKS, MOVING_MPS
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.app.runner import CLASSIFY_LAG_TICKS, MOVING_MPS
 
 __all__ = ["make_course", "replay_course", "replay_refusal", "pooled_replay", "REPLAY_SEGMENT_S",
            "MIN_CLASSIFIED_SHARE", "SETTLE_S", "ReplayRefused"]
@@ -124,7 +124,7 @@ def replay_course(model_dir: str | Path, course: pd.DataFrame, settle_s: float =
     """Serve ``course`` tick by tick through ``Predictor.from_model_dir(model_dir)`` and score it.
 
     ``config``: serving settings (default: those of ``terrainml predict``, classification
-    :data:`~terrainml.stream.runner.CLASSIFY_LAG_TICKS` ticks behind).
+    :data:`~terrainml.stream.app.runner.CLASSIFY_LAG_TICKS` ticks behind).
 
     Returns
     -------

@@ -68,7 +68,7 @@ def test_course_interleaves_classes_and_keeps_time_continuous():
 def test_cli_train_auto_selects_replays_and_saves_a_calibrated_model(tmp_path):
     from terrainml.cli import app
     from terrainml.models.calibration import CalibratedModel
-    from terrainml.stream.classify import load_serving_model
+    from terrainml.stream.tick.classify import load_serving_model
 
     logs = write_logs(tmp_path / "logs", runs_per_class=3, seed=5)
     out = tmp_path / "m"

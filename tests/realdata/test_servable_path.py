@@ -16,8 +16,8 @@ from terrainml.models.artifacts import load_artifact, write_manifest
 from terrainml.pipeline.dataset import build_from_tables
 from terrainml.pipeline.train import ClassMismatchError, evaluate, train
 from terrainml.robot import load_robot
-from terrainml.stream.classify import ModelLoadError, load_serving_model
-from terrainml.stream.predictor import Predictor
+from terrainml.stream.tick.classify import ModelLoadError, load_serving_model
+from terrainml.stream.tick.predictor import Predictor
 
 pytestmark = pytest.mark.acceptance  # BorealTC builds and serves: `make test-all`
 

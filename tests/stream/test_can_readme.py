@@ -3,7 +3,7 @@
 import re
 from pathlib import Path
 
-from terrainml.stream.sinks import REASON_CODES, UNKNOWN_REASON_CODE
+from terrainml.stream.transports.sinks import REASON_CODES, UNKNOWN_REASON_CODE
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 

@@ -26,9 +26,9 @@ from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
 
 from terrainml.classes import TERRAIN_CLASSES
-from terrainml.stream.foxglove_sink import FoxgloveSink
-from terrainml.stream.message import DesiredSlip
-from terrainml.stream.sinks import GuardedSink, SinkError, open_sink
+from terrainml.stream.transports.foxglove_sink import FoxgloveSink
+from terrainml.stream.tick.message import DesiredSlip
+from terrainml.stream.transports.sinks import GuardedSink, SinkError, open_sink
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from terrainml.features.windows import WindowSpec
-from terrainml.stream.fusion import TerrainFilter, confirm_windows_for
+from terrainml.stream.tick.fusion import TerrainFilter, confirm_windows_for
 
 K = 4
 

@@ -23,7 +23,7 @@ def test_mcap_log_replayed_tick_by_tick_into_an_mcap_recording(sim_log, model_di
     from mcap.reader import make_reader
 
     from terrainml.io.ingest import load_run
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.runner import run_predict
 
     n_ticks = len(load_run(sim_log, robot=load_robot()).table)
     out = tmp_path / "served.mcap"
@@ -39,7 +39,7 @@ def test_mcap_log_replayed_tick_by_tick_into_an_mcap_recording(sim_log, model_di
 
 
 def test_realtime_paces_a_log_at_its_time_stamps(sim_log):
-    from terrainml.stream.sources import open_source
+    from terrainml.stream.transports.sources import open_source
 
     n = 0
     for s in open_source(str(sim_log), robot=load_robot(), realtime=True):
@@ -55,7 +55,7 @@ def test_realtime_paces_a_log_at_its_time_stamps(sim_log):
 
 def test_replay_summary_segments_cover_every_tick(sim_log, model_dir):
     from terrainml.io.ingest import load_run
-    from terrainml.stream.runner import replay_summary
+    from terrainml.stream.app.runner import replay_summary
 
     segs = replay_summary(model_dir, sim_log)
     assert sum(s["ticks"] for s in segs) == len(load_run(sim_log, robot=load_robot()).table)
@@ -92,7 +92,7 @@ def _side_csv(tmp_path):
 
 def test_csv_source_with_a_dataset_spec_gets_si_units_and_sides(tmp_path):
     """--format SPEC: m/s side speeds become rad/s = v / R on both wheels of a side, mA become A."""
-    from terrainml.stream.sources import open_source
+    from terrainml.stream.transports.sources import open_source
 
     csv, spec = _side_csv(tmp_path)
     samples = list(open_source(str(csv), robot=load_robot("husky"), dataset=str(spec)))
@@ -103,7 +103,7 @@ def test_csv_source_with_a_dataset_spec_gets_si_units_and_sides(tmp_path):
         assert s[f"wheel{i}_omega_radps"] == pytest.approx(v / R_HUSKY)  # 0.33 / 0.1651 = 1.9988 rad/s
     assert s["wheel1_current_a"] == pytest.approx(1.5) and s["wheel4_current_a"] == pytest.approx(2.5)
     # without the spec the file's columns mean nothing to the canonical table: refused, named
-    from terrainml.stream.sources import SourceError
+    from terrainml.stream.transports.sources import SourceError
 
     with pytest.raises(SourceError, match="drive_01.csv"):
         next(iter(open_source(str(csv), robot=load_robot("husky"))))
@@ -116,7 +116,7 @@ def test_topic_map_reads_a_log_with_other_topic_names(tmp_path):
     from terrainml.io import topics
     from terrainml.io.mcap_writer import RosMcapWriter
     from terrainml.io.topicmap import load_topic_map
-    from terrainml.stream.sources import SourceError, open_source
+    from terrainml.stream.transports.sources import SourceError, open_source
 
     names = {topics.IMU: "/robot/imu", topics.WHEEL_JOINTS: "/robot/joints",
              topics.MOTOR_CURRENT: "/robot/currents"}
@@ -143,7 +143,7 @@ def test_topic_map_reads_a_log_with_other_topic_names(tmp_path):
 
 
 def test_topics_and_format_are_refused_for_udp_and_stdin():
-    from terrainml.stream.sources import SourceError, open_source
+    from terrainml.stream.transports.sources import SourceError, open_source
 
     for src in ("-", "udp://127.0.0.1:0"):
         with pytest.raises(SourceError, match="apply to a log file"):
@@ -155,9 +155,9 @@ def test_predict_on_a_full_disk_counts_every_lost_tick_of_the_mcap_sink(sim_log,
     """Issue 31 case 3: the recording's disk is full (ENOSPC from its file object): serving goes
     on (exit 0, every tick on stdout), the summary counts each lost tick, not one error, and no
     recording is left at the sink's path as if complete."""
-    import terrainml.stream.sinks as sinks
+    import terrainml.stream.transports.sinks as sinks
     from terrainml.io.ingest import load_run
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.runner import run_predict
 
     from disk_full import full_disk_open
 

@@ -22,9 +22,9 @@ from terrainml.models.artifacts import ArtifactError, attach_members, load_artif
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.members import member_subsets, train_members
 from terrainml.robot import load_robot
-from terrainml.stream.classify import ModelLoadError, load_serving_model
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.sources import iter_table_samples
+from terrainml.stream.tick.classify import ModelLoadError, load_serving_model
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.transports.sources import iter_table_samples
 
 HUSKY = load_robot("husky")
 NAMES = ["ASPHALT", "SNOW"]  # BorealTC names: the borealtc catalogue gives their table

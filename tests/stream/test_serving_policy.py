@@ -9,7 +9,7 @@ import pytest
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import load_robot
-from terrainml.stream.policy import FALLBACK_REASONS, NO_CLASS_ID, ServingPolicy
+from terrainml.stream.tick.policy import FALLBACK_REASONS, NO_CLASS_ID, ServingPolicy
 
 
 class HandTable:

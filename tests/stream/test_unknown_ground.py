@@ -40,13 +40,13 @@ from terrainml.pipeline.dataset import build_dataset
 from terrainml.pipeline.labels import label_run
 from terrainml.robot import load_robot
 from terrainml.schema import read_run_parquet
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.fusion import SETTLE_M, TerrainFilter
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.recorder import RECORD_FORMATS, UnknownGroundRecorder
-from terrainml.stream.ros2.source import STAMP_ORIGIN_KEY
-from terrainml.stream.runner import serve
-from terrainml.stream.sources import iter_table_samples
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.fusion import SETTLE_M, TerrainFilter
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.app.recorder import RECORD_FORMATS, UnknownGroundRecorder
+from terrainml.stream.transports.ros2.source import STAMP_ORIGIN_KEY
+from terrainml.stream.app.runner import serve
+from terrainml.stream.transports.sources import iter_table_samples
 from terrainml.testing import kinematic_run, trapezoid_speed
 
 ROBOT = load_robot()
@@ -345,7 +345,7 @@ def test_record_unknown_writes_exactly_the_unknown_stretch_as_a_run_that_dataset
 
 @pytest.mark.parametrize("fmt", ["parquet", "mcap"])
 def test_a_failed_write_is_counted_and_serving_goes_on(folders, drive, tmp_path, monkeypatch, fmt):
-    import terrainml.stream.recorder as recorder
+    import terrainml.stream.app.recorder as recorder
 
     def full_disk(*a, **k):
         raise OSError(28, "No space left on device")
@@ -379,7 +379,7 @@ def test_a_failed_write_is_counted_and_serving_goes_on(folders, drive, tmp_path,
 
 
 def test_a_record_folder_that_cannot_be_created_is_refused_before_serving(folders, tmp_path, capsys):
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.runner import run_predict
 
     blocker = tmp_path / "a_file"
     blocker.write_text("not a folder")
@@ -390,7 +390,7 @@ def test_a_record_folder_that_cannot_be_created_is_refused_before_serving(folder
 
 
 def test_recording_with_a_model_without_novelty_warns_that_nothing_will_be_recorded(folders, tmp_path, capsys):
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.runner import run_predict
 
     for name, warned in (("without", True), ("with", False)):
         run_predict(model=folders[name], source=str(tmp_path / "never_read.parquet"), sinks=["stdout"],
@@ -400,7 +400,7 @@ def test_recording_with_a_model_without_novelty_warns_that_nothing_will_be_recor
 
 
 def test_a_second_recording_into_the_same_folder_never_overwrites_the_first(folders, drive, tmp_path, monkeypatch):
-    import terrainml.stream.recorder as recorder
+    import terrainml.stream.app.recorder as recorder
 
     epoch = recorder.time.gmtime(0)
     monkeypatch.setattr(recorder.time, "gmtime", lambda *a: epoch)  # both recordings start in the same second

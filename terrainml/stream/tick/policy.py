@@ -1,8 +1,8 @@
 """The serving decision of one tick: fused class or the class-free safe cap (design §10-11).
 
 Every fallback rule of serving and its priority live here, in :meth:`ServingPolicy.reason`;
-the predictor (:mod:`terrainml.stream.predictor`) only gathers the facts of the tick. The
-predictor fuses classifications over distance (:mod:`terrainml.stream.fusion`); this module
+the predictor (:mod:`terrainml.stream.tick.predictor`) only gathers the facts of the tick. The
+predictor fuses classifications over distance (:mod:`terrainml.stream.tick.fusion`); this module
 turns the fused posterior into what a tick serves:
 
 * **a class**: the argmax of the posterior, with the posterior as confidence, when it is at
@@ -18,7 +18,7 @@ turns the fused posterior into what a tick serves:
 Reasons, by priority (:data:`FALLBACK_REASONS`): ``clock_jump`` (the tick's stamp is off the
 timeline, the chain did not run) > ``estimator_unhealthy`` > ``classifier_error`` (the last
 attempt raised, no fused class) > ``unknown_terrain`` (the latest classified windows are unlike
-the model's training windows: the fusion filter's ``unknown``, :mod:`terrainml.stream.fusion`;
+the model's training windows: the fusion filter's ``unknown``, :mod:`terrainml.stream.tick.fusion`;
 unknown ground) > ``windows_rejected`` (no class, or a stale one, and every
 window rejected while the robot moved more than ``warn_after_m`` healthy: the message's
 ``fallback_detail`` names the rule and channels) > ``no_classification`` (none yet) > ``stale_classification``
@@ -99,12 +99,12 @@ class PolicyDecision:
 
 
 class FusedClass(Protocol):
-    """What the policy reads of the fusion filter (:class:`~terrainml.stream.fusion.TerrainFilter`)."""
+    """What the policy reads of the fusion filter (:class:`~terrainml.stream.tick.fusion.TerrainFilter`)."""
 
     posterior: np.ndarray | None
     stale: bool
     #: optional (getattr): unknown ground, and the latest window's novelty over its threshold
-    #: (:class:`~terrainml.stream.fusion.TerrainFilter`); absent: known, -1.0
+    #: (:class:`~terrainml.stream.tick.fusion.TerrainFilter`); absent: known, -1.0
 
     def best(self) -> tuple[int, float]: ...
 

@@ -3,9 +3,9 @@
 A *sample* is a mapping of ``str`` keys to values with a ``t_s`` (s) that is a real number
 (``int``, ``float`` or a numpy scalar, not ``bool``) with a finite float value; any other key is a
 canonical run-table column or an extra (values of the wrong type or non-finite only invalidate
-their sensor group, :mod:`terrainml.stream.health`). :func:`check_sample` is the single
-definition: :meth:`terrainml.stream.predictor.Predictor.step` raises its :class:`InvalidSample`,
-and the JSON parser of :mod:`terrainml.stream.sources` counts it as a malformed line.
+their sensor group, :mod:`terrainml.stream.tick.health`). :func:`check_sample` is the single
+definition: :meth:`terrainml.stream.tick.predictor.Predictor.step` raises its :class:`InvalidSample`,
+and the JSON parser of :mod:`terrainml.stream.transports.sources` counts it as a malformed line.
 """
 
 from __future__ import annotations

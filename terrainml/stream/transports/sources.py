@@ -24,14 +24,14 @@ A datagram or line ``{"eos": true}`` ends the stream.
 
 Parsing cannot be crashed (:func:`parse_sample`): every datagram or line is one UTF-8 JSON
 object of at most :data:`MAX_SAMPLE_BYTES`, nested at most :data:`MAX_DEPTH` deep, whose numbers
-all fit a finite float and whose ``t_s`` passes :func:`terrainml.stream.sample.check_sample`.
+all fit a finite float and whose ``t_s`` passes :func:`terrainml.stream.tick.sample.check_sample`.
 Anything else is counted in :class:`SourceCounters` under one of :data:`MALFORMED_REASONS` and
 skipped; nothing raises out of the source. The size cap is checked before parsing, nesting is
 checked before ``json.loads`` (which also never sees more than the cap), and the number hooks of
 ``json.loads`` refuse an integer or float beyond float range and the non-JSON ``NaN`` /
 ``Infinity`` tokens (send ``null`` for a missing value). A ``RecursionError`` is caught as a
 last resort. Values of the wrong type inside a well-formed sample (a string where a number
-belongs) are not malformed: they invalidate their sensor group (:mod:`terrainml.stream.health`).
+belongs) are not malformed: they invalidate their sensor group (:mod:`terrainml.stream.tick.health`).
 """
 
 from __future__ import annotations
@@ -49,9 +49,9 @@ from typing import IO, Any, Iterator
 
 from terrainml.io.damage import DamageSummary, damage_summary
 from terrainml.io.ingest import load_run
-from terrainml.stream.ros2.names import is_ros2_spec
-from terrainml.stream.ros2.source import Ros2SourceError, iter_ros2_samples
-from terrainml.stream.sample import InvalidSample, check_sample
+from terrainml.stream.transports.ros2.names import is_ros2_spec
+from terrainml.stream.transports.ros2.source import Ros2SourceError, iter_ros2_samples
+from terrainml.stream.tick.sample import InvalidSample, check_sample
 
 log = logging.getLogger("terrainml.stream")
 
@@ -347,8 +347,8 @@ def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
 
     ``topic_map`` / ``dataset``: how a log file is read (:func:`iter_log_samples`); refused
     (SourceError) for UDP and stdin, whose samples already carry canonical names. ``clock``
-    (a :class:`~terrainml.stream.config.ServingConfig`: its ``max_clock_gap_s`` and
-    ``reanchor_after``) and ``watch`` (:class:`~terrainml.stream.inputs.InputWatch`, shared with
+    (a :class:`~terrainml.stream.tick.config.ServingConfig`: its ``max_clock_gap_s`` and
+    ``reanchor_after``) and ``watch`` (:class:`~terrainml.stream.tick.inputs.InputWatch`, shared with
     the ROS 2 sink's ``/diagnostics``) reach the ROS 2 source.
     """
     s = spec.strip()

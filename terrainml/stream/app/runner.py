@@ -21,14 +21,14 @@ from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from terrainml.robot import RobotSpec
-from terrainml.stream.classify import ModelLoadError
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.inputs import InputWatch
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.recorder import RECORD_FORMATS, UnknownGroundRecorder
-from terrainml.stream.sample import InvalidSample
-from terrainml.stream.sinks import GuardedSink, SinkError, open_sink
-from terrainml.stream.sources import SourceCounters, SourceError, open_source
+from terrainml.stream.tick.classify import ModelLoadError
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.inputs import InputWatch
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.app.recorder import RECORD_FORMATS, UnknownGroundRecorder
+from terrainml.stream.tick.sample import InvalidSample
+from terrainml.stream.transports.sinks import GuardedSink, SinkError, open_sink
+from terrainml.stream.transports.sources import SourceCounters, SourceError, open_source
 
 log = logging.getLogger("terrainml.stream")
 
@@ -44,7 +44,7 @@ def serve(predictor: Predictor, samples: Iterable[dict], sinks: Sequence[Any],
           on_message: Any = None, watch: InputWatch | None = None) -> int:
     """Feed every sample to the predictor and every message to every sink; return #messages.
 
-    A sample the predictor refuses (:class:`~terrainml.stream.sample.InvalidSample`, already
+    A sample the predictor refuses (:class:`~terrainml.stream.tick.sample.InvalidSample`, already
     counted in ``predictor.counters``) is skipped; serving goes on. ``watch``: a live source's
     topics; once it knows the sensor groups the source maps, the predictor is told
     (:meth:`Predictor.set_mapped_groups`) before the first tick.
@@ -114,13 +114,13 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
     in the background thread :data:`CLASSIFY_LAG_TICKS` ticks behind) are resolved by the
     caller (the CLI). ``topics`` (a topic map for an MCAP/bag source) and ``dataset`` (a dataset
     spec for a CSV/Parquet source: names, units, sides) say how a log file is read, as for
-    ``terrainml ingest`` (:func:`terrainml.stream.sources.open_source`).
+    ``terrainml ingest`` (:func:`terrainml.stream.transports.sources.open_source`).
 
     ``trusted_keys``: public keys (``KEY.pub``); the model must be signed by one of them, else it
     is refused (exit 2, the message names the folder and the reason) before anything is served.
 
     ``record_unknown``: a folder; every stretch served ``unknown_terrain`` is written there as a
-    run for labelling (:class:`~terrainml.stream.recorder.UnknownGroundRecorder`), in
+    run for labelling (:class:`~terrainml.stream.app.recorder.UnknownGroundRecorder`), in
     ``record_format`` (``parquet`` or ``mcap``: a ROS 2 MCAP of the served robot's messages); a
     folder that cannot be created or an unknown format is refused (exit 2) before serving, a
     failed write later is only counted.

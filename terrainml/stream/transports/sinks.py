@@ -59,10 +59,10 @@ from mcap.writer import Writer
 
 from terrainml.atomic import part_path
 from terrainml.io.topics import WHEEL_STATE_CODES
-from terrainml.stream.foxglove_sink import DEFAULT_FOXGLOVE_SINK, FoxgloveSink, class_names_for
-from terrainml.stream.message import FALLBACK_REASONS, TOPIC, DesiredSlip, json_schema
-from terrainml.stream.ros2.names import Ros2NameError, is_ros2_spec
-from terrainml.stream.ros2.sink import Ros2Sink
+from terrainml.stream.transports.foxglove_sink import DEFAULT_FOXGLOVE_SINK, FoxgloveSink, class_names_for
+from terrainml.stream.tick.message import FALLBACK_REASONS, TOPIC, DesiredSlip, json_schema
+from terrainml.stream.transports.ros2.names import Ros2NameError, is_ros2_spec
+from terrainml.stream.transports.ros2.sink import Ros2Sink
 
 log = logging.getLogger("terrainml.stream")
 
@@ -340,7 +340,7 @@ def open_sink(spec: str, *, n_wheels: int | None = None, n_classes: int | None =
     ``class_names`` names the class ids 0..K-1 where a sink shows names (Foxglove); default the
     eight classes of design §6.1. ``robot`` (wheel names and geometry) and ``sensors`` (the model's
     sensor groups) are what the ROS 2 sink states in its layout, odometry and diagnostics;
-    ``watch`` (:class:`~terrainml.stream.inputs.InputWatch`) gives its ``/diagnostics`` the input
+    ``watch`` (:class:`~terrainml.stream.tick.inputs.InputWatch`) gives its ``/diagnostics`` the input
     topics' freshness.
     """
     s = spec.strip()

@@ -39,7 +39,7 @@ slip_measured_note   str             only when slip is not observable (a live so
 The last three are additions to design §11's field list (say which sensors served and
 why the windows are rejected: how unlike the training windows the ground is); a
 message without them (an older log) still reads. CAN carries ``unknown_terrain`` as reason code
-8 but not ``novelty`` (its frames have no byte free; :mod:`terrainml.stream.sinks`).
+8 but not ``novelty`` (its frames have no byte free; :mod:`terrainml.stream.transports.sinks`).
 
 JSON never contains NaN or infinity. :meth:`DesiredSlip.to_dict` replaces any non-finite
 number by its documented safe value (:data:`SAFE_VALUES`): slips 0.0, confidence 0.0,

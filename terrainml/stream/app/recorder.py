@@ -1,7 +1,7 @@
 """Unknown ground handed back for labelling: ``terrainml predict --record-unknown DIR``.
 
 :class:`UnknownGroundRecorder` takes every served message (with its sample, ``msg.extra["sample"]``,
-as :func:`terrainml.stream.runner.serve` attaches it) and writes each *stretch* of consecutive
+as :func:`terrainml.stream.app.runner.serve` attaches it) and writes each *stretch* of consecutive
 ticks served ``unknown_terrain`` as one run into ``DIR``:
 
 * ``unknown_<UTC start of serving>_<NNN>.parquet``: the canonical run-table rows (design §5) of
@@ -53,7 +53,7 @@ from terrainml.atomic import write_text
 from terrainml.io.mcap_writer import write_run_mcap
 from terrainml.robot import RobotSpec
 from terrainml.schema import column_map, validate_run_table, write_run_parquet
-from terrainml.stream.ros2.source import STAMP_ORIGIN_KEY
+from terrainml.stream.transports.ros2.source import STAMP_ORIGIN_KEY
 
 __all__ = ["UnknownGroundRecorder", "UNKNOWN_REASON", "MAX_ROWS", "RECORD_FORMATS"]
 

@@ -19,7 +19,7 @@ machine's clock, and a ``clock_jump`` tick (``t_s`` off the timeline) would othe
 viewer's timeline years ahead. ``t_s`` stays in the message (use it as the Plot's x axis).
 
 A live view must never stop serving: if the port cannot be bound (in use, no such address) the
-sink logs it, raises on every ``send`` (which :class:`~terrainml.stream.sinks.GuardedSink`
+sink logs it, raises on every ``send`` (which :class:`~terrainml.stream.transports.sinks.GuardedSink`
 counts) and retries binding every ``retry_s`` seconds. A client that connects, lags or drops is
 the SDK's business: a slow client loses the oldest messages, never the predictor's time. With no
 client subscribed a tick costs one call (nothing is serialised).
@@ -37,7 +37,7 @@ import foxglove
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.io.topics import WHEEL_STATE_CODES
 from terrainml.schema import WHEEL_STATES
-from terrainml.stream.message import TOPIC, DesiredSlip, json_schema
+from terrainml.stream.tick.message import TOPIC, DesiredSlip, json_schema
 
 log = logging.getLogger("terrainml.stream")
 

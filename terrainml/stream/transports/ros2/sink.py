@@ -50,14 +50,15 @@ from cyclonedds.topic import Topic
 from terrainml.estimation.slip_odometry import SlipAwareOdometry
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import VALID_GROUPS, valid_column, wheel_col
-from terrainml.stream.inputs import NO_INPUT_S, InputWatch
-from terrainml.stream.message import DesiredSlip
-from terrainml.stream.ros2.names import dds_topic_name, parse_url, qos_for
-from terrainml.stream.ros2.source import STAMP_ORIGIN_KEY
-from terrainml.stream.ros2.types import (Classification, DiagnosticArray, DiagnosticStatus, Float64MultiArray,
-                                         Header, KeyValue, MultiArrayDimension, MultiArrayLayout,
-                                         ObjectHypothesis, Odometry, Point, Pose, PoseWithCovariance,
-                                         Quaternion, Time, Twist, TwistWithCovariance, Vector3)
+from terrainml.stream.tick.inputs import NO_INPUT_S, InputWatch
+from terrainml.stream.tick.message import DesiredSlip
+from terrainml.stream.transports.ros2.names import dds_topic_name, parse_url, qos_for
+from terrainml.stream.transports.ros2.source import STAMP_ORIGIN_KEY
+from terrainml.stream.transports.ros2.types import (
+    Classification, DiagnosticArray, DiagnosticStatus, Float64MultiArray, Header, KeyValue,
+    MultiArrayDimension, MultiArrayLayout, ObjectHypothesis, Odometry, Point, Pose,
+    PoseWithCovariance, Quaternion, Time, Twist, TwistWithCovariance, Vector3,
+)
 
 log = logging.getLogger("terrainml.stream")
 
@@ -117,7 +118,7 @@ class Ros2Sink:
     spec : ``ros2://DOMAIN[?options]``.
     robot : RobotSpec or name (wheel names and geometry).
     sensors : the model's sensor groups (before the first tick: ``sensors_used``).
-    watch : the live source's :class:`~terrainml.stream.inputs.InputWatch` (one status per input
+    watch : the live source's :class:`~terrainml.stream.tick.inputs.InputWatch` (one status per input
         topic, mapped groups, silence); None: a fresh one (no input topics, silence judged by ticks).
     period_s : the diagnostics timer's period, s (wall clock).
     """
@@ -290,7 +291,7 @@ class DiagnosticsState:
     the watch's, so tests drive it by hand.
 
     Serving status ``terrainml: predict``: when every input has been silent for more than
-    :data:`~terrainml.stream.inputs.NO_INPUT_S` (1 s; no input topic message, or no tick for a
+    :data:`~terrainml.stream.tick.inputs.NO_INPUT_S` (1 s; no input topic message, or no tick for a
     source without topics), level ERROR, "no input for N s", whatever the last tick said; else
     the last tick's: OK "serving CLASS", WARN "fallback: REASON", ERROR "estimator unhealthy".
     An input topic silent beyond its timeout is its own status at WARN, naming it.

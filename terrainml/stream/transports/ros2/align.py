@@ -67,7 +67,7 @@ from terrainml.io.ingest.ticks import TickProducer
 from terrainml.io.topicmap import TopicMap
 from terrainml.robot import RobotSpec
 from terrainml.schema import DEFAULT_RATE_HZ, VALID_GROUPS, column_map
-from terrainml.stream.clock import MAX_GAP_S, REANCHOR_AFTER
+from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
 
 log = logging.getLogger("terrainml.stream")
 
