@@ -168,7 +168,8 @@ class DesiredSlip:
 OPTIONAL_FIELDS: tuple[str, ...] = ("slip_measured_note",)
 FIELD_NAMES: tuple[str, ...] = tuple(f for f in DesiredSlip.__dataclass_fields__
                                      if f != "extra" and f not in OPTIONAL_FIELDS)
-#: fields added to design §11's list (issues #28, #30): a message written before them still reads
+#: fields beyond design §11's list (which sensors served, why windows were rejected, how novel
+#: the ground is): a message without them still reads
 ADDED_FIELDS: tuple[str, ...] = ("fallback_detail", "sensors", "novelty")
 
 

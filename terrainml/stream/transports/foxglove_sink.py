@@ -71,7 +71,8 @@ def live_schema(n_wheels: int | None = None, class_names: Sequence[str] | None =
         "properties": {
             "wheel": {"type": "integer", "minimum": 1, "description": "wheel number (wheel1 = 1)"},
             "slip_desired": {"type": "number", "description": "desired slip (signed)"},
-            "slip_measured": {"type": "number", "description": "measured slip"},
+            "slip_measured": {"type": ["number", "null"],
+                              "description": "measured slip; null when not observable"},
             "state": {"type": "string", "enum": list(WHEEL_STATES), "description": "dynamic state"},
             "state_code": {"type": "integer", "enum": sorted(WHEEL_STATE_CODES.values()),
                            "description": "0 idle, 1 steady, 2 traction, 3 braking"},
