@@ -39,13 +39,13 @@ from terrainml.io.ingest import load_dataset
 from terrainml.pipeline.dataset import build_from_tables
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
+from terrainml.models.novelty import MOVING_MPS
 from terrainml.stream.tick.config import ServingConfig
 from terrainml.stream.tick.fusion import SETTLE_M
 from terrainml.stream.tick.predictor import Predictor
 
 UNKNOWN = "SNOW"
 SEGMENT_S = 30.0
-MOVING_MPS = 0.2
 MODEL = "svm+hgb"
 #: the filter's settle_m served: the shipped one first (its table), then 0 (before 2026-12-05)
 SETTLES = (SETTLE_M, 0.0)

@@ -39,12 +39,12 @@ from terrainml.stream.tick.config import ServingConfig
 from terrainml.stream.tick.fusion import SETTLE_M
 from terrainml.stream.tick.predictor import Predictor
 from terrainml.stream.app.runner import CLASSIFY_LAG_TICKS
+from terrainml.stream.app.scoring import MOVING_TICK_MPS
 from terrainml.stream.tick.sample import InvalidSample
 from terrainml.stream.transports.sources import open_source
 
 DEMO = Path("runs/demo")
 OPEN_SET = Path("runs/open_set_models")
-MOVING_MPS = 0.05  # as the demo's figure (stream/runner.replay_summary)
 
 
 def thresholds(targets: list[float]) -> dict[str, float]:
@@ -86,7 +86,7 @@ def serve(model: Path, course: Path, settle_m: float, threshold: float | None = 
             lab = sample.get("terrain")
             lab = -1 if lab is None or lab != lab else int(lab)
             dt = 0.0 if t_prev is None else msg.t_s - t_prev
-            moving = dt > 0 and (p.odometer_m - odo_prev) / dt >= MOVING_MPS
+            moving = dt > 0 and (p.odometer_m - odo_prev) / dt >= MOVING_TICK_MPS
             odo_prev, t_prev = p.odometer_m, msg.t_s
             unknown = msg.fallback_reason == "unknown_terrain"
             new = lab >= 0 and lab not in known

@@ -55,7 +55,7 @@ def test_realtime_paces_a_log_at_its_time_stamps(sim_log):
 
 def test_replay_summary_segments_cover_every_tick(sim_log, model_dir):
     from terrainml.io.ingest import load_run
-    from terrainml.stream.app.runner import replay_summary
+    from terrainml.stream.app.scoring import replay_summary
 
     segs = replay_summary(model_dir, sim_log)
     assert sum(s["ticks"] for s in segs) == len(load_run(sim_log, robot=load_robot()).table)

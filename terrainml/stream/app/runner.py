@@ -11,14 +11,11 @@ import logging
 import signal
 import sys
 import time
-from collections import Counter
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
-import numpy as np
 from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-from rich.table import Table
 
 from terrainml.robot import RobotSpec
 from terrainml.stream.tick.classify import ModelLoadError
@@ -36,8 +33,6 @@ log = logging.getLogger("terrainml.stream")
 CLASSIFY_LAG_TICKS = 10
 #: exit code of ``terrainml predict`` when a live source ended on ``--idle-timeout-s``
 EXIT_IDLE = 3
-#: a tick counts as moving (served-class accuracy of ``replay_summary``) at this body speed, m/s
-MOVING_MPS = 0.05
 
 
 def serve(predictor: Predictor, samples: Iterable[dict], sinks: Sequence[Any],
@@ -256,80 +251,3 @@ def rejection_text(stats: dict[str, Any]) -> str:
              if chans else "")
     return (f"windows rejected: {stats['unsteady_windows']} (by rule, a window may fail several: "
             f"{rules or 'none named'}){where}")
-
-
-def replay_summary(model: str | Path, log_path: str | Path, *, console: Console | None = None,
-                   robot: RobotSpec | None = None) -> list[dict[str, Any]]:
-    """Replay a recorded log through the predictor and print what it served (for ``make demo``).
-
-    Consecutive ticks serving the same class with the same fallback reason form one segment;
-    returns the segments as dicts (``t_start_s``, ``t_end_s``, ``terrain_class``,
-    ``terrain_name``, ``fallback_reason``, ``ticks``, ``mean_slip_desired``, ``true_class``,
-    the most frequent logged ``terrain`` label of the segment when the log has labels, and
-    ``moving_ticks`` / ``moving_right``: labelled ticks with the estimated body speed >= 0.05 m/s,
-    and those of them that served the logged class (a fallback tick is never right)).
-    """
-    console = console or Console(stderr=True, soft_wrap=True)
-    predictor = Predictor.from_model_dir(
-        model, robot=robot, config=ServingConfig(classify_lag_ticks=CLASSIFY_LAG_TICKS))
-    segments: list[dict[str, Any]] = []
-    labels: list[int] = []
-    odo_prev, t_prev = 0.0, None
-    try:
-        for sample in open_source(str(log_path), robot=predictor.robot):
-            try:
-                msg = predictor.step(sample)
-            except InvalidSample:  # counted by the predictor
-                continue
-            if msg is None:
-                continue
-            key = (msg.terrain_class, msg.fallback_reason)
-            if not segments or segments[-1]["_key"] != key:
-                if segments:
-                    _close_segment(segments[-1], labels)
-                segments.append({"_key": key, "t_start_s": msg.t_s, "terrain_class": msg.terrain_class,
-                                 "terrain_name": msg.terrain_name,
-                                 "fallback_reason": msg.fallback_reason, "ticks": 0,
-                                 "moving_ticks": 0, "moving_right": 0,
-                                 "_slip": np.zeros(len(msg.slip_desired))})
-                labels = []
-            seg = segments[-1]
-            seg["t_end_s"] = msg.t_s
-            seg["ticks"] += 1
-            seg["_slip"] += np.asarray(msg.slip_desired)
-            lab = sample.get("terrain")
-            if lab is not None and lab == lab and int(lab) >= 0:
-                labels.append(int(lab))
-            # moving: the estimator's body speed (the predictor's odometer) >= 0.05 m/s
-            dt = 0.0 if t_prev is None else msg.t_s - t_prev
-            moving = dt > 0 and (predictor.odometer_m - odo_prev) / dt >= MOVING_MPS
-            odo_prev, t_prev = predictor.odometer_m, msg.t_s
-            if moving and lab is not None and lab == lab and int(lab) >= 0:
-                seg["moving_ticks"] += 1  # served right: the logged class, never a fallback
-                seg["moving_right"] += int(not msg.fallback and msg.terrain_class == int(lab))
-        if segments:
-            _close_segment(segments[-1], labels)
-        names = predictor.class_names  # by class id, as the served messages name them
-    finally:
-        predictor.close()
-    table = Table(title=f"served by {Path(model).name} on {Path(log_path).name}")
-    for col in ("t (s)", "served class", "fallback", "mean desired slip", "logged class"):
-        table.add_column(col)
-    for seg in segments:
-        table.add_row(f"{seg['t_start_s']:.2f}-{seg['t_end_s']:.2f}", seg["terrain_name"],
-                      seg["fallback_reason"] or "-",
-                      " ".join(f"{v:+.3f}" for v in seg["mean_slip_desired"]),
-                      "-" if seg["true_class"] is None else _label_name(seg["true_class"], names))
-    console.print(table)
-    return segments
-
-
-def _label_name(cid: int, names: Sequence[str]) -> str:
-    """A logged class id by name (the model's names by id), the id itself where it has none."""
-    return names[cid] if 0 <= cid < len(names) else str(cid)
-
-
-def _close_segment(seg: dict[str, Any], labels: list[int]) -> None:
-    seg["mean_slip_desired"] = [float(v) for v in seg.pop("_slip") / max(seg["ticks"], 1)]
-    seg.pop("_key", None)
-    seg["true_class"] = Counter(labels).most_common(1)[0][0] if labels else None
