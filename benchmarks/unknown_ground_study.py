@@ -41,7 +41,7 @@ from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
 from terrainml.models.novelty import MOVING_MPS
 from terrainml.stream.tick.config import ServingConfig
-from terrainml.stream.tick.fusion import SETTLE_M
+from terrainml.stream.tick.fusion import SETTLE_M, FusionConfig
 from terrainml.stream.tick.predictor import Predictor
 
 UNKNOWN = "SNOW"
@@ -127,7 +127,7 @@ def measure() -> dict:
 
 def _serve(model: Path, course: pd.DataFrame, settle_m: float) -> np.ndarray:
     """The messages (as dicts) served tick by tick on ``course`` with the filter's ``settle_m``."""
-    p = Predictor.from_model_dir(model, config=ServingConfig(fusion={"settle_m": settle_m}))
+    p = Predictor.from_model_dir(model, config=ServingConfig(fusion=FusionConfig(settle_m=settle_m)))
     cols = list(course.columns)
     _log(f"serving {len(course)} ticks, settle_m {settle_m:g}")
     try:

@@ -36,9 +36,9 @@ from terrainml.models.novelty import fit_model_novelty
 from terrainml.pipeline.dataset import read_windows
 from terrainml.sim.generate import simulate, write_run
 from terrainml.stream.tick.config import ServingConfig
-from terrainml.stream.tick.fusion import SETTLE_M
+from terrainml.stream.tick.fusion import SETTLE_M, FusionConfig
 from terrainml.stream.tick.predictor import Predictor
-from terrainml.stream.app.runner import CLASSIFY_LAG_TICKS
+from terrainml.stream.app.options import CLASSIFY_LAG_TICKS
 from terrainml.stream.app.scoring import MOVING_TICK_MPS
 from terrainml.stream.tick.sample import InvalidSample
 from terrainml.stream.transports.sources import open_source
@@ -69,7 +69,7 @@ def serve(model: Path, course: Path, settle_m: float, threshold: float | None = 
     of classes the model lacks (n, unknown), and the metres onto each such stretch before its
     first ``unknown_terrain`` tick (inf: never)."""
     p = Predictor.from_model_dir(model, config=ServingConfig(classify_lag_ticks=CLASSIFY_LAG_TICKS,
-                                                             fusion={"settle_m": settle_m}))
+                                                             fusion=FusionConfig(settle_m=settle_m)))
     if threshold is not None:  # flags compare the scorer's threshold (the message's ratio keeps the saved one)
         p.classifier.novelty.threshold = threshold
     known = set(p.policy.class_ids)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
+from typing import Any, List, Optional
 
 import typer
 
@@ -82,6 +82,29 @@ def _record_format(record_format: Optional[str], record_unknown: Optional[Path])
     return fmt_rec
 
 
+def _serve_options(*, model: Path, source: str, sinks: List[str], robot: Optional[str], preset: Optional[str],
+                   realtime: bool, idle_timeout_s: Optional[float], verbose: bool, max_clock_gap_s: float,
+                   reanchor_after: int, trusted_key: Optional[List[Path]], topics: Optional[str], dataset: Any,
+                   record_unknown: Optional[Path], record_format: Optional[str], closed_set: bool,
+                   settle_m: Optional[float]) -> Any:
+    """``predict``'s flags resolved, once, into the :class:`~terrainml.stream.app.options.ServeOptions`
+    the stream takes (exit 2 on a flag that cannot be resolved)."""
+    from terrainml.stream.app.options import CLASSIFY_LAG_TICKS, ServeOptions
+    from terrainml.stream.tick.config import ServingConfig
+    from terrainml.stream.tick.fusion import FusionConfig
+    from terrainml.stream.transports.sources import SourceOptions
+
+    config = ServingConfig(preset=preset, max_clock_gap_s=max_clock_gap_s, reanchor_after=reanchor_after,
+                           classify_lag_ticks=CLASSIFY_LAG_TICKS, open_set=not closed_set,
+                           fusion=FusionConfig() if settle_m is None else FusionConfig(settle_m=settle_m))
+    reading = SourceOptions(realtime=realtime, idle_timeout_s=idle_timeout_s, topic_map=topics, dataset=dataset,
+                            max_clock_gap_s=max_clock_gap_s, reanchor_after=reanchor_after)
+    return ServeOptions(model=model, source=source, sinks=tuple(sinks), robot=open_robot(robot) if robot else None,
+                        config=config, source_options=reading, trusted_keys=tuple(trusted_key or ()),
+                        record_unknown=record_unknown, record_format=_record_format(record_format, record_unknown),
+                        verbose=verbose)
+
+
 def register(app: typer.Typer) -> None:
     """Add this area's commands to the top-level app."""
 
@@ -138,20 +161,13 @@ def register(app: typer.Typer) -> None:
             None, "--settle-m", min=0.0,
             help=_SETTLE_M_HELP),
     ) -> None:
-        from terrainml.stream.tick.config import ServingConfig
-        from terrainml.stream.app.runner import CLASSIFY_LAG_TICKS, run_predict
+        from terrainml.stream.app.runner import run_predict
 
-        fmt_rec = _record_format(record_format, record_unknown)
-        # resolved here, once: the stream takes a RobotSpec and a ServingConfig
-        config = ServingConfig(preset=preset, max_clock_gap_s=max_clock_gap_s,
-                               reanchor_after=reanchor_after, classify_lag_ticks=CLASSIFY_LAG_TICKS,
-                               open_set=not closed_set,
-                               fusion=None if settle_m is None else {"settle_m": settle_m})
-        code = run_predict(model=model, source=source, sinks=list(sink), realtime=realtime,
-                           robot=open_robot(robot) if robot else None, config=config,
-                           idle_timeout_s=idle_timeout_s, verbose=verbose,
-                           trusted_keys=trusted_key or None, topics=topics,
-                           dataset=open_dataset_spec(fmt, allow_outside), record_unknown=record_unknown,
-                           record_format=fmt_rec)
+        code = run_predict(_serve_options(
+            model=model, source=source, sinks=sink, robot=robot, preset=preset, realtime=realtime,
+            idle_timeout_s=idle_timeout_s, verbose=verbose, max_clock_gap_s=max_clock_gap_s,
+            reanchor_after=reanchor_after, trusted_key=trusted_key, topics=topics,
+            dataset=open_dataset_spec(fmt, allow_outside), record_unknown=record_unknown,
+            record_format=record_format, closed_set=closed_set, settle_m=settle_m))
         if code:
             raise typer.Exit(code)

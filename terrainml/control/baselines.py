@@ -50,6 +50,7 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.lookup import terramechanics as tm
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
+from terrainml.schema import est_wheel_col, wheel_col
 from terrainml.stream.tick.config import ServingConfig
 from terrainml.stream.tick.predictor import Predictor
 
@@ -119,9 +120,9 @@ class _Measured:
     """Wheel speeds, set-points and currents of one sample as (N,) arrays."""
 
     def __init__(self, n: int) -> None:
-        self.om = [f"wheel{i}_omega_radps" for i in range(1, n + 1)]
-        self.cmd = [f"wheel{i}_cmd_omega_radps" for i in range(1, n + 1)]
-        self.cur = [f"wheel{i}_current_a" for i in range(1, n + 1)]
+        self.om = [wheel_col("omega", i) for i in range(1, n + 1)]
+        self.cmd = [wheel_col("cmd_omega", i) for i in range(1, n + 1)]
+        self.cur = [wheel_col("current", i) for i in range(1, n + 1)]
 
     @staticmethod
     def _arr(sample: dict, keys: list[str]) -> np.ndarray:
@@ -172,7 +173,7 @@ class LimiterController:
                                                                              has_imu_yaw=False)
         self.msg: Any = None        # the predictor's message of this tick
         self._io = _Measured(n)
-        self._vkeys = [f"v_long{i}_mps" for i in range(1, n + 1)]
+        self._vkeys = [est_wheel_col("v_long", i) for i in range(1, n + 1)]
         self._t_prev: float | None = None
         self._v = np.zeros(n)
         self.n_ticks = 0

@@ -32,7 +32,7 @@ import numpy as np
 from terrainml.classes import class_id
 from terrainml.control.pid import SlipPIDConfig
 from terrainml.control.slip_limiter import SlipLimiterConfig
-from terrainml.control.traction import POLICIES, SlipController
+from terrainml.control.traction import POLICIES, ControlSettings, SlipController
 from terrainml.lookup import terramechanics as tm
 from terrainml.robot import RobotSpec, reference_robot
 from terrainml.sim import physics as ph
@@ -147,8 +147,8 @@ def run_closed_loop(terrain: str | int, policy: str, *, model: str | Path | None
     else:
         scn = step_stop_and_go(cid, speed_mps, duration_s)
     sim = Simulator(scn, rb, ss_sim)
-    ctrl = SlipController(rb, policy, model=model, true_class=cid, law=law, pid=pid,
-                          limiter=limiter, steady_target=steady_target)
+    ctrl = SlipController(rb, policy, ControlSettings(law=law, pid=pid, limiter=limiter, steady_target=steady_target),
+                          model=model, true_class=cid)
     hook = None if policy == "none" else closed_loop_hook(sim, ctrl)
     res = sim.run(controller=hook, progress=progress)
     dist = max(float(res.distance_m), 1e-9)

@@ -37,7 +37,7 @@ import pandas as pd
 
 from terrainml.stream.tick.config import ServingConfig
 from terrainml.stream.tick.predictor import Predictor
-from terrainml.stream.app.runner import CLASSIFY_LAG_TICKS
+from terrainml.stream.app.options import CLASSIFY_LAG_TICKS
 from terrainml.stream.app.scoring import replay_served, score_served
 
 __all__ = ["make_course", "replay_course", "replay_refusal", "pooled_replay", "REPLAY_SEGMENT_S",
@@ -127,7 +127,7 @@ def replay_course(model_dir: str | Path, course: pd.DataFrame, settle_s: float =
     (:func:`terrainml.stream.app.scoring.score_served`).
 
     ``config``: serving settings (default: those of ``terrainml predict``, classification
-    :data:`~terrainml.stream.app.runner.CLASSIFY_LAG_TICKS` ticks behind).
+    :data:`~terrainml.stream.app.options.CLASSIFY_LAG_TICKS` ticks behind).
 
     Returns
     -------

@@ -365,6 +365,7 @@ def test_predict_on_a_log_without_imu_names_the_missing_topic(tmp_path, model_di
     ticks with nothing on stderr naming /imu."""
     from terrainml.io import topics
     from terrainml.io.mcap_writer import RosMcapWriter
+    from terrainml.stream.app.options import ServeOptions
     from terrainml.stream.app.runner import run_predict
 
     path = tmp_path / "noimu.mcap"
@@ -373,7 +374,7 @@ def test_predict_on_a_log_without_imu_names_the_missing_topic(tmp_path, model_di
             t = k / 100
             w.write_wheel_joints(t, [1.0 / 0.165] * 3, [0.0] * 3)
             w.write_motor_current(t, [1.0] * 3)
-    assert run_predict(model=model_dir, source=str(path), sinks=["stdout"]) == 0
+    assert run_predict(ServeOptions(model=model_dir, source=str(path), sinks=("stdout",))) == 0
     err = capsys.readouterr().err
     assert topics.IMU in err and "not in the log" in err
     assert "sensor group 'imu' silent" in err and "never seen" in err

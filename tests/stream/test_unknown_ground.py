@@ -41,7 +41,7 @@ from terrainml.pipeline.labels import label_run
 from terrainml.robot import load_robot
 from terrainml.schema import read_run_parquet
 from terrainml.stream.tick.config import ServingConfig
-from terrainml.stream.tick.fusion import SETTLE_M, TerrainFilter
+from terrainml.stream.tick.fusion import SETTLE_M, FusionConfig, TerrainFilter
 from terrainml.stream.tick.predictor import Predictor
 from terrainml.stream.app.recorder import RECORD_FORMATS, UnknownGroundRecorder
 from terrainml.stream.transports.ros2.source import STAMP_ORIGIN_KEY
@@ -212,7 +212,7 @@ def test_unknown_ground_from_the_start_is_served_unknown_within_u_windows(folder
     table = table.drop(columns=[c for c in table.columns if c.startswith("gt_") or c in ("terrain", "run_id")])
     first = {}
     for settle_m in (SETTLE_M, 0.0):
-        p = Predictor.from_model_dir(folders["with"], config=ServingConfig(fusion={"settle_m": settle_m}))
+        p = Predictor.from_model_dir(folders["with"], config=ServingConfig(fusion=FusionConfig(settle_m=settle_m)))
         out, odo = zip(*((p.step(s), p.odometer_m) for s in iter_table_samples(table)))
         p.close()
         classified = next(i for i, m in enumerate(out) if m.novelty >= 0)
@@ -379,22 +379,24 @@ def test_a_failed_write_is_counted_and_serving_goes_on(folders, drive, tmp_path,
 
 
 def test_a_record_folder_that_cannot_be_created_is_refused_before_serving(folders, tmp_path, capsys):
+    from terrainml.stream.app.options import ServeOptions
     from terrainml.stream.app.runner import run_predict
 
     blocker = tmp_path / "a_file"
     blocker.write_text("not a folder")
-    code = run_predict(model=folders["with"], source=str(tmp_path / "never_read.parquet"), sinks=["stdout"],
-                       record_unknown=blocker / "unknown")
+    code = run_predict(ServeOptions(model=folders["with"], source=str(tmp_path / "never_read.parquet"),
+                                    sinks=("stdout",), record_unknown=blocker / "unknown"))
     err = capsys.readouterr().err
     assert code == 2 and "--record-unknown" in err and "a_file" in err
 
 
 def test_recording_with_a_model_without_novelty_warns_that_nothing_will_be_recorded(folders, tmp_path, capsys):
+    from terrainml.stream.app.options import ServeOptions
     from terrainml.stream.app.runner import run_predict
 
     for name, warned in (("without", True), ("with", False)):
-        run_predict(model=folders[name], source=str(tmp_path / "never_read.parquet"), sinks=["stdout"],
-                    record_unknown=tmp_path / name)
+        run_predict(ServeOptions(model=folders[name], source=str(tmp_path / "never_read.parquet"),
+                                 sinks=("stdout",), record_unknown=tmp_path / name))
         err = capsys.readouterr().err
         assert ("has no novelty scorer" in err) is warned, err
 

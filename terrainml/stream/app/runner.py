@@ -12,25 +12,22 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 from rich.console import Console
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-from terrainml.robot import RobotSpec
 from terrainml.stream.tick.classify import ModelLoadError
-from terrainml.stream.tick.config import ServingConfig
 from terrainml.stream.tick.inputs import InputWatch
 from terrainml.stream.tick.predictor import Predictor
-from terrainml.stream.app.recorder import RECORD_FORMATS, UnknownGroundRecorder
+from terrainml.stream.app.options import ServeOptions
+from terrainml.stream.app.recorder import UnknownGroundRecorder
 from terrainml.stream.tick.sample import InvalidSample
 from terrainml.stream.transports.sinks import GuardedSink, SinkError, open_sink
 from terrainml.stream.transports.sources import SourceCounters, SourceError, open_source
 
 log = logging.getLogger("terrainml.stream")
 
-#: ``terrainml predict`` classifies in a background thread; results apply 10 ticks (0.1 s) later
-CLASSIFY_LAG_TICKS = 10
 #: exit code of ``terrainml predict`` when a live source ended on ``--idle-timeout-s``
 EXIT_IDLE = 3
 
@@ -95,72 +92,41 @@ def _setup_logging(verbose: bool) -> None:
     root.setLevel(logging.INFO if verbose else logging.WARNING)
 
 
-def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = False,
-                robot: RobotSpec | None = None, config: ServingConfig | None = None,
-                idle_timeout_s: float | None = None, verbose: bool = False,
-                trusted_keys: Sequence[str | Path] | None = None, topics: Any = None,
-                dataset: Any = None, record_unknown: str | Path | None = None,
-                record_format: str = RECORD_FORMATS[0]) -> int:
+def run_predict(options: ServeOptions) -> int:
     """Run ``terrainml predict``; return the process exit code (0 ok, 2 unusable input,
     :data:`EXIT_IDLE` (3) a live source silent for ``idle_timeout_s``: the line before says which
     topics and how long).
 
-    ``robot`` (default the model's) and ``config`` (default: the model's preset, classification
-    in the background thread :data:`CLASSIFY_LAG_TICKS` ticks behind) are resolved by the
-    caller (the CLI). ``topics`` (a topic map for an MCAP/bag source) and ``dataset`` (a dataset
-    spec for a CSV/Parquet source: names, units, sides) say how a log file is read, as for
-    ``terrainml ingest`` (:func:`terrainml.stream.transports.sources.open_source`).
-
-    ``trusted_keys``: public keys (``KEY.pub``); the model must be signed by one of them, else it
-    is refused (exit 2, the message names the folder and the reason) before anything is served.
-
-    ``record_unknown``: a folder; every stretch served ``unknown_terrain`` is written there as a
-    run for labelling (:class:`~terrainml.stream.app.recorder.UnknownGroundRecorder`), in
-    ``record_format`` (``parquet`` or ``mcap``: a ROS 2 MCAP of the served robot's messages); a
-    folder that cannot be created or an unknown format is refused (exit 2) before serving, a
-    failed write later is only counted.
+    ``options`` (:class:`~terrainml.stream.app.options.ServeOptions`) is resolved by the caller
+    (the CLI). A model not signed by one of ``options.trusted_keys`` (when any) is refused (exit 2,
+    the message names the folder and the reason) before anything is served. With
+    ``options.record_unknown`` every stretch served ``unknown_terrain`` is written there as a run
+    for labelling (:class:`~terrainml.stream.app.recorder.UnknownGroundRecorder`); a folder that
+    cannot be created or an unknown format is refused (exit 2) before serving, a failed write
+    later is only counted.
     """
     console = Console(stderr=True, soft_wrap=True)
-    _setup_logging(verbose)
-    config = config or ServingConfig(classify_lag_ticks=CLASSIFY_LAG_TICKS)
+    _setup_logging(options.verbose)
+    model = options.model
     try:
-        predictor = Predictor.from_model_dir(model, robot=robot, config=config,
-                                             trusted_keys=trusted_keys)
+        predictor = Predictor.from_model_dir(model, robot=options.robot, config=options.config,
+                                             trusted_keys=options.trusted_keys or None)
     except (ModelLoadError, FileNotFoundError, ValueError) as exc:
         console.print(f"[red]error:[/] model {model}: {exc}")
         return 2
-    opened: list[GuardedSink] = []
-    counters = SourceCounters()
-    try:
-        recorder = None if record_unknown is None else UnknownGroundRecorder(
-            record_unknown, n_wheels=predictor.n, class_names=predictor.class_names, model=str(model),
-            distance=lambda: predictor.odometer_m, fmt=record_format, robot=predictor.robot)
-    except (OSError, ValueError) as exc:
-        what = "cannot create the folder" if isinstance(exc, OSError) else "--record-format"
-        console.print(f"[red]error:[/] --record-unknown {record_unknown}: {what} ({exc})", highlight=False)
+    recorder = _open_recorder(options, predictor, console)
+    if recorder is False:
         predictor.close()
         return 2
-    if recorder is not None and getattr(predictor.classifier, "novelty", None) is None:
-        console.print(f"[yellow]warning:[/] --record-unknown: model {model} has no novelty scorer (a CNN, or a "
-                      "folder without one) or is served --closed-set: it never serves unknown_terrain, so "
-                      "nothing will be recorded",
-                      highlight=False)
-
-    def ready(addr: Any) -> None:
-        where = f"udp://{addr[0]}:{addr[1]}" if addr else source
-        console.print(f"terrainml predict: ready, reading {where}, serving to {', '.join(sinks)}",
-                      highlight=False)
-
     watch = InputWatch()   # the live source's topics, for the ROS 2 sink's /diagnostics
+    counters = SourceCounters()
+    opened = _open_sinks(options.sinks, predictor, watch, console)
+    if opened is None:
+        return 2
     try:
-        for spec in sinks:
-            opened.append(open_sink(spec, n_wheels=predictor.n, n_classes=len(predictor.class_names),
-                                    class_names=predictor.class_names, robot=predictor.robot,
-                                    sensors=predictor.sensors, watch=watch))
-        samples = open_source(source, robot=predictor.robot, realtime=realtime, counters=counters,
-                              idle_timeout_s=idle_timeout_s, ready=ready, topic_map=topics,
-                              dataset=dataset, clock=config, watch=watch)
-    except (SinkError, SourceError) as exc:
+        samples = open_source(options.source, options.source_options, robot=predictor.robot, counters=counters,
+                              ready=_ready_line(options, console), watch=watch)
+    except SourceError as exc:
         console.print(f"[red]error:[/] {exc}")
         for s in opened:
             s.close()
@@ -170,15 +136,62 @@ def run_predict(*, model: Path, source: str, sinks: list[str], realtime: bool = 
     gc.collect()
     gc.freeze()
     t0 = time.perf_counter()
+    log_name = None if options.source_options.realtime or not _is_log(options.source) else Path(options.source).name
     code = _serve_until_done(predictor, samples, opened + ([recorder] if recorder is not None else []), console,
-                             progress=None if realtime or not _is_log(source) else Path(source).name,
-                             watch=watch)
+                             progress=log_name, watch=watch)
     if code == 0 and counters.idle is not None:
         code = EXIT_IDLE
-    _print_summary(console, predictor, opened, counters, source, time.perf_counter() - t0)
+    _print_summary(console, predictor, opened, counters, options.source, time.perf_counter() - t0)
     if recorder is not None:
         console.print(f"terrainml predict: {recorder.summary()}", highlight=False)
     return code
+
+
+def _open_recorder(options: ServeOptions, predictor: Predictor, console: Console) -> Any:
+    """The ``--record-unknown`` recorder, None without one, False when it cannot be opened (said)."""
+    folder = options.record_unknown
+    if folder is None:
+        return None
+    try:
+        recorder = UnknownGroundRecorder(
+            folder, n_wheels=predictor.n, class_names=predictor.class_names, model=str(options.model),
+            distance=lambda: predictor.odometer_m, fmt=options.record_format, robot=predictor.robot)
+    except (OSError, ValueError) as exc:
+        what = "cannot create the folder" if isinstance(exc, OSError) else "--record-format"
+        console.print(f"[red]error:[/] --record-unknown {folder}: {what} ({exc})", highlight=False)
+        return False
+    if getattr(predictor.classifier, "novelty", None) is None:
+        console.print(f"[yellow]warning:[/] --record-unknown: model {options.model} has no novelty scorer (a CNN, "
+                      "or a folder without one) or is served --closed-set: it never serves unknown_terrain, so "
+                      "nothing will be recorded",
+                      highlight=False)
+    return recorder
+
+
+def _open_sinks(specs: Sequence[str], predictor: Predictor, watch: InputWatch,
+                console: Console) -> list[GuardedSink] | None:
+    """Every ``--sink``, guarded; None when one cannot be opened (said; those opened are closed)."""
+    opened: list[GuardedSink] = []
+    try:
+        for spec in specs:
+            opened.append(open_sink(spec, n_wheels=predictor.n, n_classes=len(predictor.class_names),
+                                    class_names=predictor.class_names, robot=predictor.robot,
+                                    sensors=predictor.sensors, watch=watch))
+    except SinkError as exc:
+        console.print(f"[red]error:[/] {exc}")
+        for s in opened:
+            s.close()
+        return None
+    return opened
+
+
+def _ready_line(options: ServeOptions, console: Console) -> Callable[[Any], None]:
+    """What the source calls once it listens: the start-up line (stderr)."""
+    def ready(addr: Any) -> None:
+        where = f"udp://{addr[0]}:{addr[1]}" if addr else options.source
+        console.print(f"terrainml predict: ready, reading {where}, serving to {', '.join(options.sinks)}",
+                      highlight=False)
+    return ready
 
 
 def _is_log(source: str) -> bool:

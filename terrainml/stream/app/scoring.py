@@ -27,7 +27,7 @@ from rich.console import Console
 from rich.table import Table
 
 from terrainml.robot import RobotSpec
-from terrainml.stream.app.runner import CLASSIFY_LAG_TICKS
+from terrainml.stream.app.options import CLASSIFY_LAG_TICKS
 from terrainml.stream.tick.config import ServingConfig
 from terrainml.stream.tick.message import DesiredSlip
 from terrainml.stream.tick.predictor import Predictor

@@ -13,7 +13,7 @@ from typing import Any, Sequence
 
 from terrainml.estimation.online import OnlineEstimator
 from terrainml.robot import RobotSpec
-from terrainml.schema import WHEEL_STATES
+from terrainml.schema import WHEEL_STATES, est_wheel_col, wheel_col
 
 __all__ = ["WheelRow", "warm_up"]
 
@@ -34,8 +34,7 @@ def warm_up(robot: RobotSpec, preset: str = "robust") -> None:
                               "cam_vx_mps": 0.0, "cam_vy_mps": 0.0, "cam_yaw_rate_radps": 0.0,
                               "cam_yaw_rad": 0.0}
     for i in range(1, robot.n_wheels + 1):
-        sample.update({f"wheel{i}_omega_radps": 0.0, f"wheel{i}_steer_rad": 0.0,
-                       f"wheel{i}_current_a": 0.0})
+        sample.update({wheel_col(kind, i): 0.0 for kind in ("omega", "steer", "current")})
     try:
         est = OnlineEstimator(robot, preset)
         est.step(sample)
@@ -57,9 +56,9 @@ class WheelRow:
     def __init__(self, n_wheels: int, raw_columns: Sequence[str] = ()):
         self.n = int(n_wheels)
         self.raw_columns = tuple(raw_columns)
-        self._slip_keys = [f"slip{i}" for i in range(1, self.n + 1)]
-        self._state_keys = [f"state{i}" for i in range(1, self.n + 1)]
-        self._vlong_keys = [f"v_long{i}_mps" for i in range(1, self.n + 1)]
+        self._slip_keys = [est_wheel_col("slip", i) for i in range(1, self.n + 1)]
+        self._state_keys = [est_wheel_col("state", i) for i in range(1, self.n + 1)]
+        self._vlong_keys = [est_wheel_col("v_long", i) for i in range(1, self.n + 1)]
 
     def complete(self, row: dict, clean: dict) -> None:
         """Copy into ``row`` the raw columns of the (sanitised) sample it lacks (NaN if absent)."""

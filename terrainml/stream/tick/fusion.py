@@ -62,10 +62,11 @@ each call costs a few microseconds.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["TerrainFilter", "CONFIRM_S", "SETTLE_M", "UNKNOWN_CONFIRM_S", "confirm_windows_for",
+__all__ = ["TerrainFilter", "FusionConfig", "CONFIRM_S", "SETTLE_M", "UNKNOWN_CONFIRM_S", "confirm_windows_for",
            "fusion_settings", "unknown_windows_for"]
 
 #: seconds of windows over which a change alarm is confirmed (tuning courses)
@@ -100,13 +101,35 @@ def unknown_windows_for(hop_s: float, window_s: float = 0.0, confirm_s: float = 
     return confirm_windows_for(hop_s, float(window_s) + confirm_s)
 
 
-def fusion_settings(hop_s: float, overrides: dict | None = None, window_s: float = 0.0) -> dict:
-    """The predictor's :class:`TerrainFilter` settings for its hop and window length
-    (``confirm_windows``, ``unknown_windows``, ``settle_m``), with the serving config's ``fusion``
-    overrides on top."""
-    return {"confirm_windows": confirm_windows_for(hop_s),
-            "unknown_windows": unknown_windows_for(hop_s, window_s), "settle_m": SETTLE_M,
-            **dict(overrides or {})}
+@dataclass(frozen=True)
+class FusionConfig:
+    """The serving config's :class:`TerrainFilter` settings (``ServingConfig.fusion``).
+
+    A field left None takes the filter's own default (``length_m``, ``alpha``, ``eps``, ``drift``,
+    ``threshold``) or the value the model's hop and window length give (``confirm_windows``:
+    :func:`confirm_windows_for` the hop, 3 at 0.1 s, 1 at 0.5 s; ``unknown_windows``:
+    :func:`unknown_windows_for` the hop and window length, 5 for 1 s windows at 0.5 s).
+    ``settle_m`` (m) is :data:`SETTLE_M` unless set. Units and meanings: :class:`TerrainFilter`.
+    """
+
+    length_m: float | None = None
+    alpha: float | None = None
+    eps: float | None = None
+    drift: float | None = None
+    threshold: float | None = None
+    confirm_windows: int | None = None
+    unknown_windows: int | None = None
+    settle_m: float = SETTLE_M
+
+
+def fusion_settings(hop_s: float, config: FusionConfig | None = None, window_s: float = 0.0) -> dict:
+    """The predictor's :class:`TerrainFilter` keyword settings for its hop (s) and window
+    length (s): those ``config`` sets, the hop's ``confirm_windows`` and ``unknown_windows``."""
+    cfg = config or FusionConfig()
+    settings = {f.name: getattr(cfg, f.name) for f in fields(cfg) if getattr(cfg, f.name) is not None}
+    settings.setdefault("confirm_windows", confirm_windows_for(hop_s))
+    settings.setdefault("unknown_windows", unknown_windows_for(hop_s, window_s))
+    return settings
 
 
 class TerrainFilter:

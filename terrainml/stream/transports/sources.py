@@ -49,6 +49,8 @@ from typing import IO, Any, Iterator
 
 from terrainml.io.damage import DamageSummary, damage_summary
 from terrainml.io.ingest import load_run
+from terrainml.schema import DEFAULT_RATE_HZ
+from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
 from terrainml.stream.transports.ros2.names import is_ros2_spec
 from terrainml.stream.transports.ros2.source import Ros2SourceError, iter_ros2_samples
 from terrainml.stream.tick.sample import InvalidSample, check_sample
@@ -206,7 +208,7 @@ def parse_sample(data: bytes | str, counters: SourceCounters | None = None, *,
 
 
 # --------------------------------------------------------------------------- log files
-def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = 100.0,
+def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = DEFAULT_RATE_HZ,
                      realtime: bool = False, topic_map: Any = None, dataset: Any = None,
                      counters: SourceCounters | None = None) -> Iterator[dict]:
     """Samples of a recorded log at the base rate (ingest + resampling of the io owner).
@@ -339,20 +341,43 @@ def iter_line_samples(stream: IO[Any] | None = None, *, counters: SourceCounters
             yield s
 
 
-def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
-                counters: SourceCounters | None = None, idle_timeout_s: float | None = None,
-                rate_hz: float = 100.0, ready: Any = None, topic_map: Any = None,
-                dataset: Any = None, clock: Any = None, watch: Any = None) -> Iterator[dict]:
+@dataclass(frozen=True)
+class SourceOptions:
+    """How ``--source`` is read, resolved once by the CLI (every default is ``terrainml predict``'s).
+
+    Attributes
+    ----------
+    realtime : a log source is paced at its own time stamps (default: as fast as possible).
+    idle_timeout_s : s, or None; a UDP or ROS 2 source ends after this long without input.
+    rate_hz : Hz, the base rate a log or live source is resampled to.
+    topic_map : how an MCAP/bag log or ROS 2 topics feed the canonical columns (a topic map name,
+        YAML path or dict; :mod:`terrainml.io.topicmap`); None: the default map.
+    dataset : how a CSV/Parquet log is read (a dataset spec; :mod:`terrainml.io.ingest.dataset_spec`).
+    max_clock_gap_s, reanchor_after : the clock policy's G (s) and K, which the ROS 2 source's
+        aligner applies as the predictor does (:mod:`terrainml.stream.tick.clock`).
+    """
+
+    realtime: bool = False
+    idle_timeout_s: float | None = None
+    rate_hz: float = DEFAULT_RATE_HZ
+    topic_map: Any = None
+    dataset: Any = None
+    max_clock_gap_s: float = MAX_GAP_S
+    reanchor_after: int = REANCHOR_AFTER
+
+
+def open_source(spec: str, options: SourceOptions = SourceOptions(), *, robot: Any = None,
+                counters: SourceCounters | None = None, ready: Any = None, watch: Any = None) -> Iterator[dict]:
     """Iterator of samples for a ``--source`` spec (see the module docstring).
 
-    ``topic_map`` / ``dataset``: how a log file is read (:func:`iter_log_samples`); refused
-    (SourceError) for UDP and stdin, whose samples already carry canonical names. ``clock``
-    (a :class:`~terrainml.stream.tick.config.ServingConfig`: its ``max_clock_gap_s`` and
-    ``reanchor_after``) and ``watch`` (:class:`~terrainml.stream.tick.inputs.InputWatch`, shared with
-    the ROS 2 sink's ``/diagnostics``) reach the ROS 2 source.
+    ``options.topic_map`` / ``options.dataset``: how a log file is read (:func:`iter_log_samples`);
+    refused (SourceError) for UDP and stdin, whose samples already carry canonical names.
+    ``watch`` (:class:`~terrainml.stream.tick.inputs.InputWatch`, shared with the ROS 2 sink's
+    ``/diagnostics``) reaches the ROS 2 source.
     """
     s = spec.strip()
-    if (topic_map is not None or dataset is not None) and (s == "-" or s == "udp" or s.startswith("udp://")):
+    opt = options
+    if (opt.topic_map is not None or opt.dataset is not None) and (s == "-" or s == "udp" or s.startswith("udp://")):
         raise SourceError(f"source {spec!r}: --topics and --format apply to a log file; UDP and stdin "
                           "samples carry canonical column names and SI units already")
     if s == "-":
@@ -369,14 +394,13 @@ def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
             except ValueError:
                 raise SourceError(f"source {spec!r}: expected udp://HOST:PORT") from None
         sock = bind_udp(host, port)
-        return iter_udp_samples(host, port, counters=counters, idle_timeout_s=idle_timeout_s,
+        return iter_udp_samples(host, port, counters=counters, idle_timeout_s=opt.idle_timeout_s,
                                 sock=sock, ready=ready)
     if is_ros2_spec(s):  # the topic map says which topics feed which columns, as for a log
         try:
-            clock_opts = {} if clock is None else {"max_gap_s": clock.max_clock_gap_s,
-                                                   "reanchor_after": clock.reanchor_after}
-            return iter_ros2_samples(s, robot, topic_map=topic_map, rate_hz=rate_hz, counters=counters,
-                                     idle_timeout_s=idle_timeout_s, ready=ready, watch=watch, **clock_opts)
+            return iter_ros2_samples(s, robot, topic_map=opt.topic_map, rate_hz=opt.rate_hz, counters=counters,
+                                     idle_timeout_s=opt.idle_timeout_s, ready=ready, watch=watch,
+                                     max_gap_s=opt.max_clock_gap_s, reanchor_after=opt.reanchor_after)
         except (Ros2SourceError, ValueError) as exc:
             raise SourceError(str(exc)) from None
     path = Path(s)
@@ -384,5 +408,5 @@ def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
         raise SourceError(f"source {spec!r}: no such file (expected RUN.mcap, udp://HOST:PORT or -)")
     if ready is not None:
         ready(None)
-    return iter_log_samples(path, robot, rate_hz=rate_hz, realtime=realtime, topic_map=topic_map,
-                            dataset=dataset, counters=counters)
+    return iter_log_samples(path, robot, rate_hz=opt.rate_hz, realtime=opt.realtime, topic_map=opt.topic_map,
+                            dataset=opt.dataset, counters=counters)
