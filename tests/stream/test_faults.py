@@ -216,7 +216,7 @@ def test_sink_down_is_logged_and_predictor_continues(robot, fake_predictor, capl
     class ListSink:
         name = "list"
 
-        def send(self, m):
+        def send(self, m, sample=None):
             received.append(m)
 
         def close(self):

@@ -32,34 +32,36 @@ log = logging.getLogger("terrainml.stream")
 EXIT_IDLE = 3
 
 
-def serve(predictor: Predictor, samples: Iterable[dict], sinks: Sequence[Any],
+def serve(predictor: Predictor, samples: Iterable[Any], sinks: Sequence[Any],
           on_message: Any = None, watch: InputWatch | None = None) -> int:
     """Feed every sample to the predictor and every message to every sink; return #messages.
 
-    A sample the predictor refuses (:class:`~terrainml.stream.tick.sample.InvalidSample`, already
-    counted in ``predictor.counters``) is skipped; serving goes on. ``watch``: a live source's
-    topics; once it knows the sensor groups the source maps, the predictor is told
+    Each sink is handed the message and the tick's :class:`~terrainml.stream.tick.sample.Sample`
+    (``sink.send(msg, sample)``: the ROS 2 sink's stamps and odometry, the recorder's rows). A
+    sample the predictor refuses (:class:`~terrainml.stream.tick.sample.InvalidSample`, counted in
+    ``predictor.counters``) is skipped; serving goes on. ``watch``: a live source's topics; once
+    it knows the sensor groups the source maps, the predictor is told
     (:meth:`Predictor.set_mapped_groups`) before the first tick.
     """
     n = 0
     told = False
-    for sample in samples:
+    for raw in samples:
         if not told and watch is not None and watch.mapped_groups is not None:
             predictor.set_mapped_groups(watch.mapped_groups)
             predictor.health.invalid_hint = watch.group_invalid
             told = True
         try:
-            msg = predictor.step(sample)
+            sample = predictor.accept(raw)
         except InvalidSample as exc:
             n_bad = predictor.counters.bad_time + predictor.counters.not_a_sample
             if n_bad <= 3 or n_bad % 1000 == 0:
                 log.warning("sample skipped (%d so far): %s", n_bad, exc)
             continue
+        msg = predictor.step(sample)
         if msg is None:
             continue
-        msg.extra["sample"] = sample  # what a sink needs besides the message (ROS 2 odometry)
         for s in sinks:
-            s.send(msg)
+            s.send(msg, sample)
         if on_message is not None:
             on_message(msg)
         n += 1

@@ -114,7 +114,6 @@ class DesiredSlip:
     sensors: list[str] = field(default_factory=list)
     novelty: float = -1.0
     slip_measured_note: str = ""
-    extra: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     # ------------------------------------------------------------------ json
     def to_dict(self) -> dict[str, Any]:
@@ -148,7 +147,7 @@ class DesiredSlip:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "DesiredSlip":
-        keys = [f for f in cls.__dataclass_fields__ if f != "extra"]
+        keys = list(cls.__dataclass_fields__)
         # the fields added after design §11's list (they have defaults) may be absent
         missing = [k for k in keys if k not in d and k not in ADDED_FIELDS + OPTIONAL_FIELDS]
         keys = [k for k in keys if k in d]
@@ -166,8 +165,7 @@ class DesiredSlip:
 
 #: fields present only when they say something (``slip_measured_note``: slip not observable)
 OPTIONAL_FIELDS: tuple[str, ...] = ("slip_measured_note",)
-FIELD_NAMES: tuple[str, ...] = tuple(f for f in DesiredSlip.__dataclass_fields__
-                                     if f != "extra" and f not in OPTIONAL_FIELDS)
+FIELD_NAMES: tuple[str, ...] = tuple(f for f in DesiredSlip.__dataclass_fields__ if f not in OPTIONAL_FIELDS)
 #: fields beyond design §11's list (which sensors served, why windows were rejected, how novel
 #: the ground is): a message without them still reads
 ADDED_FIELDS: tuple[str, ...] = ("fallback_detail", "sensors", "novelty")

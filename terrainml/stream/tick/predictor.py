@@ -55,7 +55,7 @@ from terrainml.stream.tick.message import DesiredSlip
 from terrainml.stream.tick.odometer import Odometer
 from terrainml.stream.tick.policy import PolicyDecision, ServingPolicy
 from terrainml.stream.tick.ring import RingBuffer
-from terrainml.stream.tick.sample import InvalidSample, check_sample
+from terrainml.stream.tick.sample import InvalidSample, Sample
 from terrainml.stream.tick.scheduler import ClassificationScheduler, SilenceWatch, WindowClassifierLike
 
 __all__ = ["InvalidSample", "Predictor"]
@@ -177,14 +177,16 @@ class Predictor:
         return self.odometer.distance_m
 
     # ------------------------------------------------------------------ tick
-    def step(self, sample: Mapping[str, Any]) -> DesiredSlip | None:
+    def step(self, sample: Sample | Mapping[str, Any]) -> DesiredSlip | None:
         """Process one base-rate sample (canonical column names + ``t_s``).
 
         Parameters
         ----------
-        sample : mapping of str keys to values, with ``t_s`` (s) a finite real number (``int``,
-            ``float`` or a numpy scalar; not a bool, not a string). Values of the wrong type or
-            non-finite only invalidate their sensor group (:mod:`terrainml.stream.tick.health`).
+        sample : a :class:`~terrainml.stream.tick.sample.Sample` (checked by :meth:`accept`), or a
+            mapping of str keys to values, with ``t_s`` (s) a finite real number (``int``,
+            ``float`` or a numpy scalar; not a bool, not a string), checked here. Values of the
+            wrong type or non-finite only invalidate their sensor group
+            (:mod:`terrainml.stream.tick.health`).
 
         Returns
         -------
@@ -205,11 +207,8 @@ class Predictor:
             served as fallback ticks.
         """
         t_start = time.perf_counter()
-        try:
-            t = check_sample(sample)
-        except InvalidSample as exc:
-            self.counters.count_invalid(exc.reason)
-            raise
+        checked = sample if type(sample) is Sample else self.accept(sample)
+        t = checked.t_s
         verdict = self.clock.check(t)
         if verdict == JUMP:
             return self._clock_jump_tick(t, t_start)
@@ -217,7 +216,7 @@ class Predictor:
             self._restart()
         elif verdict != ACCEPT:
             return None
-        clean, fresh = self.health.sanitise(sample)  # type: ignore[arg-type]
+        clean, fresh = self.health.sanitise(checked.columns)  # type: ignore[arg-type]
         healthy, silent = self.health.update(t, fresh)
         if self.switch.has_members:  # the best of the model and its members whose groups are fresh
             chosen = self.switch.choose(silent)
@@ -228,22 +227,22 @@ class Predictor:
 
         row = self._estimate(clean)
         est_ok = healthy and row is not None and (bool(row.get("estimator_ok", True)) or not self._estimator_flag)
-        slips, states, v_long = self.wheels.idle()
+        wheels = self.wheels.idle()
         if row is not None:
             self.wheels.complete(row, clean)  # columns the model's windows read, not the EKF's
             try:
-                finite, slips, states, v_long = self.wheels.read(row)
-                est_ok = finite and est_ok
+                wheels = self.wheels.read(row)
+                est_ok = wheels.finite and est_ok
             except (TypeError, ValueError) as exc:  # a row we cannot read: unhealthy tick
                 self.n_estimator_errors += 1
                 log.warning("estimator row unreadable at t=%.3f s: %s", t, exc)
-                slips, states, v_long = self.wheels.idle()
                 est_ok = False
             if not self._estimator_flag:
                 # the EKF's own flag needs a fresh IMU; a model without it reads the body channels
                 # of its windows as valid on the ticks that are healthy on its own groups
                 row["estimator_ok"] = est_ok
             self.ring.append(row)
+        states, v_long = wheels.state, wheels.v_long_mps
         self._last_states, self._last_v_long = states, v_long
         d_m = self.odometer.advance(t, row if est_ok else None)
         if d_m is not None:  # the fusion filter ages by distance
@@ -254,7 +253,16 @@ class Predictor:
         age = None if self.scheduler.class_t is None else t - self.scheduler.class_t
         rejected = self.silence.check(t, self.odometer.distance_m) if est_ok else None
         return self._message(t, self._decide(age, est_ok, states, v_long, t, rejected_by=rejected),
-                             slips, states, age, est_ok, t_start)
+                             wheels.slip, states, age, est_ok, t_start)
+
+    def accept(self, sample: Any) -> Sample:
+        """The typed :class:`Sample` of ``sample``; one that is not a sample is counted
+        (``bad_time`` or ``not_a_sample``) and raises :class:`InvalidSample` (see :meth:`step`)."""
+        try:
+            return Sample.check(sample)
+        except InvalidSample as exc:
+            self.counters.count_invalid(exc.reason)
+            raise
 
     def set_mapped_groups(self, groups: Sequence[str]) -> None:
         """The source feeds only these sensor groups (a live topic map's): the others are *not

@@ -38,6 +38,7 @@ from terrainml.classes import TERRAIN_CLASSES
 from terrainml.io.topics import WHEEL_STATE_CODES
 from terrainml.schema import WHEEL_STATES
 from terrainml.stream.tick.message import TOPIC, DesiredSlip, json_schema
+from terrainml.stream.tick.sample import NO_SAMPLE, Sample
 
 log = logging.getLogger("terrainml.stream")
 
@@ -161,7 +162,7 @@ class FoxgloveSink:
         log.info("%s: Foxglove live view ready (open connection -> Foxglove WebSocket -> ws://%s:%d)",
                  self.name, self.host, self.server.port)
 
-    def send(self, msg: DesiredSlip) -> None:
+    def send(self, msg: DesiredSlip, sample: Sample = NO_SAMPLE) -> None:
         if self.server is None:
             self._start()
         if not self.channel.has_sinks():  # nobody subscribed: skip the serialisation

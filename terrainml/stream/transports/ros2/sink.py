@@ -27,9 +27,9 @@ Options (URL query): each topic key above renames its topic (empty: not publishe
 ``odom_frame`` (default ``odom``), ``base_frame`` (``base_link``). Writers are reliable (the ROS
 default profile: best-effort and reliable subscribers both match), keep last :data:`SINK_DEPTH`.
 
-Odometry needs the tick's wheel speeds and steering: the serving loop hands the sample over in
-``msg.extra["sample"]``. A tick whose wheel group is invalid publishes no odometry (nothing is
-dead-reckoned from a stale encoder).
+Odometry needs the tick's wheel speeds and steering: the serving loop hands each message over
+with its :class:`~terrainml.stream.tick.sample.Sample` (``send(msg, sample)``). A tick whose
+wheel group is invalid publishes no odometry (nothing is dead-reckoned from a stale encoder).
 """
 
 from __future__ import annotations
@@ -52,6 +52,7 @@ from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import VALID_GROUPS, valid_column, wheel_col
 from terrainml.stream.tick.inputs import NO_INPUT_S, InputWatch
 from terrainml.stream.tick.message import DesiredSlip
+from terrainml.stream.tick.sample import NO_SAMPLE, Sample
 from terrainml.stream.transports.ros2.names import dds_topic_name, parse_url, qos_for
 from terrainml.stream.transports.ros2.source import STAMP_ORIGIN_KEY
 from terrainml.stream.transports.ros2.types import (
@@ -156,8 +157,8 @@ class Ros2Sink:
             self._timer.start()
 
     # ------------------------------------------------------------------ per tick
-    def send(self, msg: DesiredSlip) -> None:
-        sample = msg.extra.get("sample") or {}
+    def send(self, msg: DesiredSlip, tick_sample: Sample = NO_SAMPLE) -> None:
+        sample = tick_sample.columns
         origin = sample.get(STAMP_ORIGIN_KEY, 0)
         stamp_ns = int(origin if isinstance(origin, int) else 0) + int(round(msg.t_s * 1e9))
         header = Header(stamp=ros_time(stamp_ns), frame_id=self.base_frame)
@@ -344,7 +345,7 @@ class DiagnosticsState:
                       "classification_age_s": f"{msg.classification_age_s:.3f}",
                       "terrain": msg.terrain_name, "confidence": f"{msg.confidence:.3f}",
                       "sensors_used": ",".join(msg.sensors), "sensors_valid": ",".join(valid),
-                      "slip_measured": msg.extra.get("slip_unobservable") or "observed",
+                      "slip_measured": msg.slip_measured_note or "observed",
                       "odometry": self.odometry_note or "all wheels"}
             rates = self.rates.rates()
             values.update({f"rate_{g}_hz": f"{rates[g]:.1f}" for g in groups})
