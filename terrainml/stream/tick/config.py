@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
-from terrainml.stream.tick.fusion import FusionConfig
+from terrainml.stream.tick.fusion import STALE_M, FusionConfig
+from terrainml.stream.tick.health import SILENT_S
 from terrainml.stream.tick.policy import SERVE_P
 
 __all__ = ["ServingConfig"]
@@ -51,11 +52,11 @@ class ServingConfig:
     """
 
     preset: str | None = None
-    stale_m: float = 3.0
+    stale_m: float = STALE_M
     serve_p: float = SERVE_P
     max_age_s: float | None = None
     fusion: FusionConfig = FusionConfig()
-    silent_s: float = 0.2
+    silent_s: float = SILENT_S
     classify_lag_ticks: int = 0
     max_clock_gap_s: float = MAX_GAP_S
     reanchor_after: int = REANCHOR_AFTER

@@ -66,8 +66,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["TerrainFilter", "FusionConfig", "CONFIRM_S", "SETTLE_M", "UNKNOWN_CONFIRM_S", "confirm_windows_for",
-           "fusion_settings", "unknown_windows_for"]
+__all__ = ["TerrainFilter", "FusionConfig", "CONFIRM_S", "SETTLE_M", "STALE_M", "UNKNOWN_CONFIRM_S",
+           "confirm_windows_for", "fusion_settings", "unknown_windows_for"]
 
 #: seconds of windows over which a change alarm is confirmed (tuning courses)
 CONFIRM_S = 0.2
@@ -85,6 +85,8 @@ UNKNOWN_CONFIRM_S = 1.0
 #: the demo's model: served right 88.6% -> 93.4% of moving ticks (94.2% without novelty) while
 #: steadily flagged unknown ground (wet_mud, tilled_loam held out) is entered within 2.8 m.
 SETTLE_M = 2.5
+#: m travelled since the last classification beyond which the fused class is stale
+STALE_M = 3.0
 
 
 def confirm_windows_for(hop_s: float, confirm_s: float = CONFIRM_S) -> int:
@@ -170,7 +172,7 @@ class TerrainFilter:
 
     def __init__(self, n_classes: int, *, length_m: float = 20.0, alpha: float = 0.35,
                  eps: float = 0.02, drift: float = 1.5, threshold: float = 4.0,
-                 stale_m: float = 3.0, confirm_windows: int = 1, unknown_windows: int = 2,
+                 stale_m: float = STALE_M, confirm_windows: int = 1, unknown_windows: int = 2,
                  settle_m: float = 0.0):
         if int(n_classes) < 1:
             raise ValueError("TerrainFilter: n_classes must be >= 1")

@@ -51,6 +51,8 @@ log = logging.getLogger("terrainml.stream")
 _WHEEL_KEY = re.compile(r"wheel(\d+)_")
 #: silent episodes per group warned one by one (then every 100th)
 WARN_EPISODES = 5
+#: s a sensor group may go without a fresh sample before a tick is unhealthy
+SILENT_S = 0.2
 #: model sensor group (manifest ``sensors``) -> health group
 SENSOR_TO_GROUP = {"wheels": "wheels", "currents": "current", "imu": "imu", "cam": "cam"}
 
@@ -129,7 +131,7 @@ class HealthMonitor:
         always: the estimator needs them).
     """
 
-    def __init__(self, robot: RobotSpec, silent_s: float = 0.2, sensors: Sequence[str] | None = None):
+    def __init__(self, robot: RobotSpec, silent_s: float = SILENT_S, sensors: Sequence[str] | None = None):
         self.robot = robot
         self.silent_s = float(silent_s)
         n = robot.n_wheels

@@ -56,14 +56,14 @@ from typing import Any
 
 from terrainml.schema import WHEEL_STATES
 
-#: fallback reasons; their order is the CAN reason code (1, 2, ...) and never changes. Priority
-#: (the first that applies is reported): clock_jump, then the others in this order.
+#: fallback reasons; their order is the CAN reason code (1, 2, ...) and never changes. Which one a
+#: tick serves when several apply: :data:`terrainml.stream.tick.policy.REASON_PRIORITY`.
 FALLBACK_REASONS: tuple[str, ...] = (
     "estimator_unhealthy",   # a sensor group silent > 0.2 s, or the estimator state is not finite
     "classifier_error",      # the last classification attempt raised; no usable classification
     "no_classification",     # start-up: no window has been classified yet
     "stale_classification",  # more than stale_m (default 3 m) travelled since the last classification
-    "clock_jump",            # t_s off the stream's timeline, re-anchoring (stream/clock.py)
+    "clock_jump",            # t_s off the stream's timeline, re-anchoring (tick/clock.py)
     "uncertain_classification",  # the fused posterior's maximum is below serve_p (default 0.6)
     "windows_rejected",      # moved > warn_after_m (default 5 m) healthy, every window rejected
     "unknown_terrain",       # the latest windows are unlike the model's training windows

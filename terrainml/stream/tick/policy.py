@@ -15,7 +15,7 @@ turns the fused posterior into what a tick serves:
   braking, 0 when idle; so no known class is stalled and no wheel runs away. The message names no
   class (``terrain_class`` -1, ``terrain_name`` ``"none"``) and carries the reason.
 
-Reasons, by priority (:data:`FALLBACK_REASONS`): ``clock_jump`` (the tick's stamp is off the
+Reasons, by priority (:data:`REASON_PRIORITY`): ``clock_jump`` (the tick's stamp is off the
 timeline, the chain did not run) > ``estimator_unhealthy`` > ``classifier_error`` (the last
 attempt raised, no fused class) > ``unknown_terrain`` (the latest classified windows are unlike
 the model's training windows: the fusion filter's ``unknown``, :mod:`terrainml.stream.tick.fusion`;
@@ -49,7 +49,7 @@ import numpy as np
 from terrainml.lookup.policy import desired_slip_per_wheel, safe_cap_per_wheel
 from terrainml.lookup.table import CLASS_FREE_DETAIL
 
-__all__ = ["FALLBACK_REASONS", "NO_CLASS_ID", "NO_CLASS_NAME", "SERVE_P", "GenericSafeCap",
+__all__ = ["REASON_PRIORITY", "NO_CLASS_ID", "NO_CLASS_NAME", "SERVE_P", "GenericSafeCap",
            "PolicyDecision", "ServingPolicy", "safe_cap_for"]
 
 log = logging.getLogger("terrainml.stream")
@@ -63,10 +63,11 @@ HOLD_S = 1.0
 SOFT_REASONS = ("", "stale_classification", "uncertain_classification")
 #: the one whose entry is held :data:`HOLD_S` (:meth:`ServingPolicy._held`)
 STALE = "stale_classification"
-#: the fallback reasons, highest priority first
-FALLBACK_REASONS = ("clock_jump", "estimator_unhealthy", "classifier_error", "unknown_terrain",
-                    "windows_rejected", "no_classification", "stale_classification",
-                    "uncertain_classification")
+#: the fallback reasons (:data:`terrainml.stream.tick.message.FALLBACK_REASONS`, whose order is
+#: their CAN code), highest priority first: the first that applies is served
+REASON_PRIORITY = ("clock_jump", "estimator_unhealthy", "classifier_error", "unknown_terrain",
+                   "windows_rejected", "no_classification", "stale_classification",
+                   "uncertain_classification")
 
 
 @dataclass(frozen=True)
@@ -80,7 +81,7 @@ class PolicyDecision:
     confidence : fused posterior of the served class (0.0 on fallback).
     slip_desired : tuple of N floats, signed per-wheel desired slip.
     fallback : True when the safe cap is served.
-    reason : "" or one of :data:`FALLBACK_REASONS`.
+    reason : "" or one of :data:`REASON_PRIORITY`.
     detail : for ``windows_rejected``, the rule (and channels) that rejects the windows; for a
         class served without terrain parameters, :data:`~terrainml.lookup.table.CLASS_FREE_DETAIL`;
         else "".

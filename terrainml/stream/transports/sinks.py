@@ -7,7 +7,7 @@ Sink specs (``terrainml predict --sink``; repeat the option for several sinks)::
     can://INTERFACE/CHANNEL         python-can, e.g. can://virtual/vcan0, can://socketcan/can0
     mcap:OUT.mcap                   MCAP recording, topic /terrainml/desired_slip, JSON schema
     ros2://DOMAIN                   ROS 2 topics over DDS: desired slip, terrain, diagnostics,
-                                    slip-aware odometry (stream/ros2/sink.py, docs/ros2.md)
+                                    slip-aware odometry (transports/ros2/sink.py, docs/ros2.md)
     foxglove://HOST:PORT            live view, Foxglove WebSocket server (default 127.0.0.1:8765;
                                     port 0 picks a free one); stream/foxglove_sink.py
 

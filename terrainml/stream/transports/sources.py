@@ -10,7 +10,7 @@ Source specs (``terrainml predict --source``)::
     BAG_FOLDER/                                  a ROS 2 bag folder (.mcap or .db3 inside)
     udp://HOST:PORT                              one JSON object per datagram (default 127.0.0.1:9870)
     -                                            JSON lines on stdin
-    ros2://DOMAIN                                live ROS 2 topics over DDS (stream/ros2/source.py)
+    ros2://DOMAIN                                live ROS 2 topics over DDS (transports/ros2/source.py)
 
 Log files are read through the io owner's ingest (:func:`terrainml.io.ingest.load_run`), i.e. the
 very same topic decoding, frame mapping and resampling to the base rate as training used. A log
