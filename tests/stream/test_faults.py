@@ -201,7 +201,7 @@ def test_malformed_udp_datagrams_counted_and_skipped():
         tx.sendto(d, ("127.0.0.1", port))
     counters = SourceCounters()
     got = list(iter_udp_samples(counters=counters, idle_timeout_s=2.0, sock=rx))
-    assert [s["t_s"] for s in got] == [k * 0.01 for k in range(5)]
+    assert [s.t_s for s in got] == [k * 0.01 for k in range(5)]
     assert counters.malformed == len(bad)
     tx.close()
 

@@ -120,7 +120,7 @@ def test_hostile_lines_on_stdin_are_skipped_and_serving_continues(robot):
             lines.append(hostile[(k // 10) % len(hostile)])
     counters = SourceCounters()
     got = list(iter_line_samples(io.BytesIO(b"\n".join(lines) + b"\n"), counters=counters))
-    assert [s["t_s"] for s in got] == [s["t_s"] for s in good]
+    assert [s.t_s for s in got] == [s["t_s"] for s in good]
     assert counters.malformed == 10 and counters.received == len(lines)
     assert set(counters.malformed_by_reason) == {"too_deep", "number_out_of_range", "not_utf8",
                                                  "non_finite", "too_large", "bad_t_s", "not_an_object"}
@@ -141,7 +141,7 @@ def test_hostile_udp_datagrams_are_skipped():
     counters = SourceCounters()
     got = list(iter_udp_samples(counters=counters, idle_timeout_s=2.0, sock=rx))
     tx.close()
-    assert [s["t_s"] for s in got] == [0.0, 0.01, 0.02]
+    assert [s.t_s for s in got] == [0.0, 0.01, 0.02]
     assert counters.malformed == 5
     assert counters.malformed_by_reason == {"too_deep": 1, "number_out_of_range": 2, "not_utf8": 1,
                                             "too_large": 1}

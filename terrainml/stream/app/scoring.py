@@ -31,7 +31,7 @@ from terrainml.stream.app.options import CLASSIFY_LAG_TICKS
 from terrainml.stream.tick.config import ServingConfig
 from terrainml.stream.tick.message import DesiredSlip
 from terrainml.stream.tick.predictor import Predictor
-from terrainml.stream.tick.sample import InvalidSample
+from terrainml.stream.tick.sample import NO_SAMPLE, InvalidSample, Sample
 from terrainml.stream.transports.sources import open_source
 
 __all__ = ["MOVING_TICK_MPS", "NO_MESSAGE", "FALLBACK", "ServedTicks", "replay_served",
@@ -74,37 +74,30 @@ class ServedTicks:
     class_names: list[str]
 
 
-def _label_of(sample: Any) -> int:
+def _label_of(sample: Sample) -> int:
     """The sample's ``terrain`` class id, -1 for none, NaN or negative."""
-    lab = sample.get("terrain") if hasattr(sample, "get") else None
+    lab = sample.columns.get("terrain")
     try:
         return int(lab) if lab is not None and lab == lab and int(lab) >= 0 else -1
     except (TypeError, ValueError):
         return -1
 
 
-def _time_of(sample: Any) -> float:
-    """The sample's ``t_s``, s; NaN when it has none that is a number."""
-    try:
-        return float(sample["t_s"])
-    except (KeyError, TypeError, ValueError, OverflowError):
-        return float("nan")
-
-
 def replay_served(predictor: Predictor, samples: Iterable[Any]) -> ServedTicks:
     """Serve every sample through ``predictor`` (closed at the end); what it served on each.
 
     A sample the predictor refuses (:class:`InvalidSample`, counted in its counters) is a tick
-    without a message.
+    without a message, at time NaN and without a label.
     """
     t_s, label, served, odo, reasons, messages = [], [], [], [], [], []
     try:
-        for sample in samples:
+        for raw in samples:
             try:
-                msg = predictor.step(sample)
+                sample = predictor.accept(raw)
             except InvalidSample:
-                msg = None
-            t_s.append(_time_of(sample))
+                sample = NO_SAMPLE
+            msg = None if sample is NO_SAMPLE else predictor.step(sample)
+            t_s.append(sample.t_s)
             label.append(_label_of(sample))
             odo.append(predictor.odometer_m)
             messages.append(msg)

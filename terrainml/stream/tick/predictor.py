@@ -207,7 +207,7 @@ class Predictor:
             served as fallback ticks.
         """
         t_start = time.perf_counter()
-        checked = sample if type(sample) is Sample else self.accept(sample)
+        checked = self.accept(sample)
         t = checked.t_s
         verdict = self.clock.check(t)
         if verdict == JUMP:
@@ -256,8 +256,10 @@ class Predictor:
                              wheels.slip, states, age, est_ok, t_start)
 
     def accept(self, sample: Any) -> Sample:
-        """The typed :class:`Sample` of ``sample``; one that is not a sample is counted
+        """The typed :class:`Sample` of ``sample`` (a Sample as is); one that is not a sample is counted
         (``bad_time`` or ``not_a_sample``) and raises :class:`InvalidSample` (see :meth:`step`)."""
+        if type(sample) is Sample:   # checked where it was made (a JSON source)
+            return sample
         try:
             return Sample.check(sample)
         except InvalidSample as exc:

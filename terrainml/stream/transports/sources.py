@@ -1,8 +1,11 @@
 """Where base-rate samples come from: a log file, UDP JSON datagrams, stdin JSON lines (design §11).
 
-A *sample* is a dict with ``t_s`` and canonical run-table column names (design §5), e.g.
+A *sample* is a mapping of ``t_s`` and canonical run-table column names (design §5), e.g.
 ``{"t_s": 1.23, "wheel1_omega_radps": 6.1, ..., "imu_ax_mps2": 0.02, ...}``; missing groups,
-``null`` or non-finite values simply make that sensor group invalid for the tick.
+``null`` or non-finite values simply make that sensor group invalid for the tick. The JSON
+sources (UDP, stdin) check each one as they parse it and yield it typed
+(:class:`~terrainml.stream.tick.sample.Sample`); a log or ROS 2 source yields the mapping, which
+the predictor checks (:meth:`~terrainml.stream.tick.predictor.Predictor.accept`).
 
 Source specs (``terrainml predict --source``)::
 
@@ -53,7 +56,7 @@ from terrainml.schema import DEFAULT_RATE_HZ
 from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
 from terrainml.stream.transports.ros2.names import is_ros2_spec
 from terrainml.stream.transports.ros2.source import Ros2SourceError, iter_ros2_samples
-from terrainml.stream.tick.sample import InvalidSample, check_sample
+from terrainml.stream.tick.sample import InvalidSample, Sample, check_sample
 
 log = logging.getLogger("terrainml.stream")
 
@@ -282,8 +285,8 @@ def bind_udp(host: str, port: int) -> socket.socket:
 
 def iter_udp_samples(host: str = DEFAULT_UDP_SOURCE[0], port: int = DEFAULT_UDP_SOURCE[1], *,
                      counters: SourceCounters | None = None, idle_timeout_s: float | None = None,
-                     sock: socket.socket | None = None, ready: Any = None) -> Iterator[dict]:
-    """Samples from JSON datagrams on ``host:port`` until ``{"eos": true}`` or ``idle_timeout_s``."""
+                     sock: socket.socket | None = None, ready: Any = None) -> Iterator[Sample]:
+    """Typed samples from JSON datagrams on ``host:port`` until ``{"eos": true}`` or ``idle_timeout_s``."""
     counters = counters if counters is not None else SourceCounters()
     if sock is None:
         sock = bind_udp(host, port)
@@ -303,7 +306,7 @@ def iter_udp_samples(host: str = DEFAULT_UDP_SOURCE[0], port: int = DEFAULT_UDP_
             if s is _EOS:
                 return
             if s is not None:
-                yield s
+                yield _typed(s)
     finally:
         sock.close()
 
@@ -326,8 +329,8 @@ def _bounded_lines(stream: IO[Any], max_bytes: int) -> Iterator[Any]:
 
 
 def iter_line_samples(stream: IO[Any] | None = None, *, counters: SourceCounters | None = None,
-                      max_bytes: int = MAX_SAMPLE_BYTES) -> Iterator[dict]:
-    """Samples from JSON lines (default stdin, read as bytes); blank lines are ignored."""
+                      max_bytes: int = MAX_SAMPLE_BYTES) -> Iterator[Sample]:
+    """Typed samples from JSON lines (default stdin, read as bytes); blank lines are ignored."""
     counters = counters if counters is not None else SourceCounters()
     if stream is None:  # bytes: undecodable input is a malformed line, not a decoding error
         stream = getattr(sys.stdin, "buffer", sys.stdin)
@@ -338,7 +341,12 @@ def iter_line_samples(stream: IO[Any] | None = None, *, counters: SourceCounters
         if s is _EOS:
             return
         if s is not None:
-            yield s
+            yield _typed(s)
+
+
+def _typed(sample: dict) -> Sample:
+    """The typed sample of one :func:`parse_sample` has accepted (its ``t_s`` is checked)."""
+    return Sample(float(sample["t_s"]), sample)
 
 
 @dataclass(frozen=True)
@@ -367,7 +375,7 @@ class SourceOptions:
 
 
 def open_source(spec: str, options: SourceOptions = SourceOptions(), *, robot: Any = None,
-                counters: SourceCounters | None = None, ready: Any = None, watch: Any = None) -> Iterator[dict]:
+                counters: SourceCounters | None = None, ready: Any = None, watch: Any = None) -> Iterator[Any]:
     """Iterator of samples for a ``--source`` spec (see the module docstring).
 
     ``options.topic_map`` / ``options.dataset``: how a log file is read (:func:`iter_log_samples`);
