@@ -227,7 +227,7 @@ class Predictor:
 
         row = self._estimate(clean)
         est_ok = healthy and row is not None and (bool(row.get("estimator_ok", True)) or not self._estimator_flag)
-        wheels = self.wheels.idle()
+        wheels = None
         if row is not None:
             self.wheels.complete(row, clean)  # columns the model's windows read, not the EKF's
             try:
@@ -242,6 +242,8 @@ class Predictor:
                 # of its windows as valid on the ticks that are healthy on its own groups
                 row["estimator_ok"] = est_ok
             self.ring.append(row)
+        if wheels is None:   # no row, or one that cannot be read: every wheel idle
+            wheels = self.wheels.idle()
         states, v_long = wheels.state, wheels.v_long_mps
         self._last_states, self._last_v_long = states, v_long
         d_m = self.odometer.advance(t, row if est_ok else None)
