@@ -52,6 +52,7 @@ from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
 from terrainml.schema import est_wheel_col, wheel_col
 from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.message import UNKNOWN_TERRAIN
 from terrainml.stream.tick.predictor import Predictor
 
 __all__ = ["AccelLimitController", "CurrentLimitController", "LimiterController", "fixed_cap",
@@ -439,7 +440,7 @@ class ServedTargets:
             self._escalate()
         stale = self._stale_after_unhealthy(msg, dt)
         if not classed or self.hold_left_m > 0.0 or stale:
-            unknown = msg is not None and msg.fallback_reason == "unknown_terrain"
+            unknown = msg is not None and msg.fallback_reason == UNKNOWN_TERRAIN
             if unknown and self.refine_unknown and self.hold_left_m <= 0.0:
                 return _unknown_ground_targets(ctrl)
             return _safe_cap_targets(ctrl)

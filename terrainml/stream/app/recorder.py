@@ -53,15 +53,14 @@ from terrainml.atomic import write_text
 from terrainml.io.mcap_writer import write_run_mcap
 from terrainml.robot import RobotSpec
 from terrainml.schema import column_map, validate_run_table, write_run_parquet
+from terrainml.stream.tick.message import UNKNOWN_TERRAIN
 from terrainml.stream.tick.sample import NO_SAMPLE, Sample
 from terrainml.stream.transports.ros2.source import STAMP_ORIGIN_KEY
 
-__all__ = ["UnknownGroundRecorder", "UNKNOWN_REASON", "MAX_ROWS", "RECORD_FORMATS"]
+__all__ = ["UnknownGroundRecorder", "MAX_ROWS", "RECORD_FORMATS"]
 
 log = logging.getLogger("terrainml.stream")
 
-#: the fallback reason whose ticks are recorded
-UNKNOWN_REASON = "unknown_terrain"
 #: a stretch longer than this many ticks is written in parts (10 min at 100 Hz)
 MAX_ROWS = 60_000
 #: the formats a stretch can be written in (``--record-format``), the first the default
@@ -130,7 +129,7 @@ class UnknownGroundRecorder:
     def send(self, msg: Any, sample: Sample = NO_SAMPLE) -> None:
         """Take one served message and the sample it was served from (never raises)."""
         try:
-            if msg.fallback_reason == UNKNOWN_REASON:
+            if msg.fallback_reason == UNKNOWN_TERRAIN:
                 self._take(msg, sample.columns)
             elif self._rows is not None:
                 self._flush()
@@ -210,7 +209,7 @@ class UnknownGroundRecorder:
                 "robot": None if self.robot is None else self.robot.name,
                 "mean_novelty": float(np.mean(nov)) if nov else None,
                 "max_novelty": float(np.max(nov)) if nov else None,
-                "fallback_reason": UNKNOWN_REASON, "classes": self.class_names, "label": None}
+                "fallback_reason": UNKNOWN_TERRAIN, "classes": self.class_names, "label": None}
         if self.fmt == "mcap":  # a message's log time (ns) = this + round(t_s * 1e9)
             side["log_time_origin_ns"] = self._origin_ns
         return side

@@ -56,6 +56,8 @@ from typing import Any
 
 from terrainml.schema import WHEEL_STATES
 
+#: the fallback reason of ground unlike the model's training windows
+UNKNOWN_TERRAIN = "unknown_terrain"
 #: fallback reasons; their order is the CAN reason code (1, 2, ...) and never changes. Which one a
 #: tick serves when several apply: :data:`terrainml.stream.tick.policy.REASON_PRIORITY`.
 FALLBACK_REASONS: tuple[str, ...] = (
@@ -66,7 +68,7 @@ FALLBACK_REASONS: tuple[str, ...] = (
     "clock_jump",            # t_s off the stream's timeline, re-anchoring (tick/clock.py)
     "uncertain_classification",  # the fused posterior's maximum is below serve_p (default 0.6)
     "windows_rejected",      # moved > warn_after_m (default 5 m) healthy, every window rejected
-    "unknown_terrain",       # the latest windows are unlike the model's training windows
+    UNKNOWN_TERRAIN,         # the latest windows are unlike the model's training windows
 )
 
 #: value substituted for a non-finite number, per field

@@ -48,6 +48,7 @@ import numpy as np
 
 from terrainml.lookup.policy import desired_slip_per_wheel, safe_cap_per_wheel
 from terrainml.lookup.table import CLASS_FREE_DETAIL
+from terrainml.stream.tick.message import UNKNOWN_TERRAIN
 
 __all__ = ["REASON_PRIORITY", "NO_CLASS_ID", "NO_CLASS_NAME", "SERVE_P", "GenericSafeCap",
            "PolicyDecision", "ServingPolicy", "safe_cap_for"]
@@ -65,7 +66,7 @@ SOFT_REASONS = ("", "stale_classification", "uncertain_classification")
 STALE = "stale_classification"
 #: the fallback reasons (:data:`terrainml.stream.tick.message.FALLBACK_REASONS`, whose order is
 #: their CAN code), highest priority first: the first that applies is served
-REASON_PRIORITY = ("clock_jump", "estimator_unhealthy", "classifier_error", "unknown_terrain",
+REASON_PRIORITY = ("clock_jump", "estimator_unhealthy", "classifier_error", UNKNOWN_TERRAIN,
                    "windows_rejected", "no_classification", "stale_classification",
                    "uncertain_classification")
 
@@ -218,7 +219,7 @@ class ServingPolicy:
         if classifier_error and fused.posterior is None:
             return "classifier_error"
         if getattr(fused, "unknown", False):
-            return "unknown_terrain"
+            return UNKNOWN_TERRAIN
         if fused.posterior is None:
             return "windows_rejected" if rejected_by else "no_classification"
         if fused.stale or (self.max_age_s is not None and age_s is not None and age_s > self.max_age_s):
