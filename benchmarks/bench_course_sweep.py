@@ -9,7 +9,7 @@ k = 0, 1, ... up to the run count of the class with the fewest runs (runs sorted
 class), the k-th run of every class is held out; a wheels-and-currents ``hgb`` model is trained on
 all the other runs with the test's options (``--windows chunks``, grouped 2-fold CV, seed 0); the
 held-out runs make one course (30 s from the middle of each, IMU columns dropped) built by
-:func:`terrainml.experiments.borealtc.make_course`; :class:`terrainml.stream.predictor.Predictor`
+:func:`terrainml.experiments.borealtc.make_course`; :class:`terrainml.stream.tick.predictor.Predictor`
 serves it tick by tick and :func:`terrainml.experiments.borealtc.course_score` scores it (moving
 ticks, 3 s after each label change excluded) -- the same helpers the test uses.
 

@@ -34,7 +34,7 @@ from terrainml.pipeline.dataset import build_from_tables
 from terrainml.pipeline.options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
-from terrainml.stream.predictor import Predictor
+from terrainml.stream.tick.predictor import Predictor
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "datasets" / "borealtc"
 SHORT = {"ASPHALT": "ASP", "FLOORING": "FLO", "ICE": "ICE", "SANDY_LOAM": "SAN", "SNOW": "SNO"}

@@ -65,7 +65,7 @@ def _messages(path: Path) -> list[tuple[str, int, object]]:
     XCDR1 the DDS writer sends, deserialised by the IDL class of its type."""
     from mcap.reader import make_reader
 
-    from terrainml.stream.ros2 import types as T
+    from terrainml.stream.transports.ros2 import types as T
 
     out = []
     with open(path, "rb") as fh:
@@ -125,8 +125,8 @@ def _ros2_run(model: str, log: Path, tmp: Path, domain: int) -> dict:
     from cyclonedds.topic import Topic
     from cyclonedds.util import duration
 
-    from terrainml.stream.ros2.names import dds_topic_name, qos_for
-    from terrainml.stream.ros2.types import Float64MultiArray
+    from terrainml.stream.transports.ros2.names import dds_topic_name, qos_for
+    from terrainml.stream.transports.ros2.types import Float64MultiArray
 
     msgs = _messages(log)
     dp = DomainParticipant(domain)
@@ -189,8 +189,8 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
-from terrainml.stream.ros2.names import qos_for
-from terrainml.stream.ros2.types import Float64MultiArray
+from terrainml.stream.transports.ros2.names import qos_for
+from terrainml.stream.transports.ros2.types import Float64MultiArray
 dp = DomainParticipant(int(sys.argv[1]))
 r = DataReader(dp, Topic(dp, "rt/bench/ping", Float64MultiArray), qos=qos_for("reliable"))
 w = DataWriter(dp, Topic(dp, "rt/bench/pong", Float64MultiArray), qos=qos_for("reliable"))
@@ -216,8 +216,8 @@ def _echo_run(domain: int, n: int) -> np.ndarray:
     from cyclonedds.topic import Topic
     from cyclonedds.util import duration
 
-    from terrainml.stream.ros2.names import qos_for
-    from terrainml.stream.ros2.types import Float64MultiArray
+    from terrainml.stream.transports.ros2.names import qos_for
+    from terrainml.stream.transports.ros2.types import Float64MultiArray
 
     proc = subprocess.Popen([sys.executable, "-c", ECHO, str(domain)], stderr=subprocess.PIPE, text=True,
                             env=os.environ.copy())
@@ -262,7 +262,7 @@ def _aligner_ms_per_tick(log: Path) -> float:
     from terrainml.io import cdr
     from terrainml.io.topicmap import load_topic_map
     from terrainml.robot import load_robot
-    from terrainml.stream.ros2.align import LiveAligner
+    from terrainml.stream.transports.ros2.align import LiveAligner
 
     tmap = load_topic_map(None)
     by = tmap.by_topic()
@@ -278,7 +278,7 @@ def _aligner_ms_per_tick(log: Path) -> float:
 
 def _udp_run(model: str, log: Path, tmp: Path) -> dict:
     from terrainml.io.ingest import load_run
-    from terrainml.stream.sources import iter_table_samples
+    from terrainml.stream.transports.sources import iter_table_samples
 
     samples = list(iter_table_samples(load_run(log).table))
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -379,7 +379,7 @@ def run(quick: bool = False) -> str:
         "",
         f"Goal p99 <= 2 ms over loopback DDS: **{goal}** ({p['ros'][1]:.2f} ms). On top of the ROS 2 "
         "figure comes one base period (10 ms) of alignment: a tick is decided once every topic has a "
-        "message after it, as ingest decides it (`terrainml/stream/ros2/align.py`).",
+        "message after it, as ingest decides it (`terrainml/stream/transports/ros2/align.py`).",
     ])
 
 

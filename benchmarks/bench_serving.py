@@ -34,9 +34,10 @@ import numpy as np
 
 from terrainml.features.windows import Windows, cut_windows
 from terrainml.models.novelty import proba_and_features
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.ring import is_label
-from terrainml.stream.sources import iter_table_samples
+from terrainml.stream.app.scoring import MOVING_TICK_MPS
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.tick.ring import is_label
+from terrainml.stream.transports.sources import iter_table_samples
 
 #: held out: declared on 2026-12-02 before the 48-seed training courses and the 3-window confirmation
 #: were measured on them, never tuned on (9101-9104, 9401-9404 and 9601-9604 were used and retired)
@@ -50,7 +51,6 @@ SEEDS_ENV = "TERRAINML_SERVING_SEEDS"
 #: with 48, 81% (benchmarks/straddle_study.py, docs/stream.md "Transitions")
 TRAIN_COURSE_SEEDS: tuple[int, ...] = tuple(range(9801, 9849))
 SPEED_MPS = 0.8
-MOVING_MPS = 0.05
 
 
 def _with_courses(ds, scenarios, seeds, duration_s: float):
@@ -109,7 +109,7 @@ def serve_course(model_dir, table, **predictor_kw) -> dict:
         tick_ms.append(m.processing_ms)
     pred.close()
     served, fb = np.array(served), np.array(fb)
-    moving = speed >= MOVING_MPS
+    moving = speed >= MOVING_TICK_MPS
     right = (served == truth) & ~fb
     trans = np.flatnonzero(np.diff(truth) != 0) + 1
     dist = []
@@ -270,7 +270,7 @@ def run(quick: bool = False, spec_name: str = "short", seeds=None) -> str:
                  f"Model: SVM on recipe `sim_default` ({runs} runs per class, parquet){courses}, "
                  f"window spec `{spec_name}`: {n_win} windows, grouped 3-fold CV balanced accuracy "
                  f"{bacc:.3f} ({t_model:.0f} s). Held-out seeds {list(seeds)}, {duration:.0f} s courses at "
-                 f"{SPEED_MPS} m/s; moving = true speed >= {MOVING_MPS} m/s; fallback counted wrong.", "",
+                 f"{SPEED_MPS} m/s; moving = true speed >= {MOVING_TICK_MPS} m/s; fallback counted wrong.", "",
                  "| course | accuracy, all moving ticks (>= 0.90) | median distance to the right class "
                  "after a transition, m (<= 1.0) | transitions never served right | fallback after 2 m "
                  "(<= 5%) | switches / true transitions (<= 1.2) | tick p50 / p99 ms, updates inline "

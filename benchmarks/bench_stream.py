@@ -50,7 +50,7 @@ def _train_classifier(robot):
     from terrainml.features.sets import FeatureSet
     from terrainml.features.windows import Windows, WindowSpec, cut_windows
     from terrainml.models.svm import SVMClassifier
-    from terrainml.stream.classify import WindowClassifier
+    from terrainml.stream.tick.classify import WindowClassifier
 
     wins = []
     spec = WindowSpec()
@@ -73,7 +73,7 @@ def _table(robot):
 
 def _samples(robot, n_ticks: int):
     """Generator of n_ticks samples: 60 s segments with fresh seeds, times made continuous."""
-    from terrainml.stream.sources import iter_table_samples
+    from terrainml.stream.transports.sources import iter_table_samples
 
     k, seg = 0, 0
     while k < n_ticks:
@@ -383,8 +383,8 @@ def _cid(name: str) -> int:
 def run(quick: bool = False) -> str:
     from terrainml.estimation.run import estimate_run
     from terrainml.robot import load_robot
-    from terrainml.stream.config import ServingConfig
-    from terrainml.stream.predictor import Predictor
+    from terrainml.stream.tick.config import ServingConfig
+    from terrainml.stream.tick.predictor import Predictor
 
     robot = load_robot()
     table = _table(robot)

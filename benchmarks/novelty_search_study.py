@@ -29,7 +29,7 @@ from sklearn.neighbors import NearestNeighbors
 from benchmarks.bench_serving import EVAL_SEEDS, _course, _model, _ring_snapshots
 from terrainml.features.windows import Windows, cut_windows
 from terrainml.models.novelty import NoveltyScorer, _BoundedSearch, proba_and_features
-from terrainml.stream.ring import is_label
+from terrainml.stream.tick.ring import is_label
 
 
 def course_features(model_dir, seed: int = EVAL_SEEDS[0], n: int = 2000) -> tuple[NoveltyScorer, np.ndarray]:

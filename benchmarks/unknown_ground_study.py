@@ -12,7 +12,7 @@ Protocol, fixed before it was run (nothing here is tuned on its figures):
   FLOORING, ICE and SANDY_LOAM run except the last one of each class;
 * the course: 30 s from the middle of each run, IMU kept, alternating a held-out known run (the
   four in turn) and a SNOW run, for every SNOW run: known, SNOW_00, known, SNOW_01, ...;
-  :class:`~terrainml.stream.predictor.Predictor` serves it tick by tick as ``terrainml predict``;
+  :class:`~terrainml.stream.tick.predictor.Predictor` serves it tick by tick as ``terrainml predict``;
 * per SNOW segment: the wheel distance (mean rim speed integrated) from the segment's start to
   its first ``unknown_terrain`` tick, and the share of its moving ticks served ``unknown_terrain``;
   per known segment: the shares of its moving ticks served ``unknown_terrain`` and the labelled
@@ -40,13 +40,13 @@ from terrainml.pipeline.dataset import build_from_tables
 from terrainml.pipeline.options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.fusion import SETTLE_M
-from terrainml.stream.predictor import Predictor
+from terrainml.models.novelty import MOVING_MPS
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.fusion import SETTLE_M, FusionConfig
+from terrainml.stream.tick.predictor import Predictor
 
 UNKNOWN = "SNOW"
 SEGMENT_S = 30.0
-MOVING_MPS = 0.2
 MODEL = "svm+hgb"
 #: the filter's settle_m served: the shipped one first (its table), then 0 (before 2026-12-05)
 SETTLES = (SETTLE_M, 0.0)
@@ -128,7 +128,7 @@ def measure() -> dict:
 
 def _serve(model: Path, course: pd.DataFrame, settle_m: float) -> np.ndarray:
     """The messages (as dicts) served tick by tick on ``course`` with the filter's ``settle_m``."""
-    p = Predictor.from_model_dir(model, config=ServingConfig(fusion={"settle_m": settle_m}))
+    p = Predictor.from_model_dir(model, config=ServingConfig(fusion=FusionConfig(settle_m=settle_m)))
     cols = list(course.columns)
     _log(f"serving {len(course)} ticks, settle_m {settle_m:g}")
     try:
@@ -181,7 +181,7 @@ def markdown(m: dict) -> str:
         f"no moving tick: rim speed at or under {MOVING_MPS} m/s).",
         f"- Known held-out segments ({int(w.sum())} moving ticks): `unknown_terrain` on "
         f"**{100 * false_unknown:.1f}%**, the labelled class on {100 * right_known:.1f}%.",
-        f"- The filter's settle_m {SETTLES[0]:g} m (stream/fusion.SETTLE_M) serves these figures.", *other, "",
+        f"- The filter's settle_m {SETTLES[0]:g} m (stream/tick/fusion.SETTLE_M) serves these figures.", *other, "",
         markdown_table(["SNOW run", "moving ticks", "unknown_terrain %", "m to first unknown",
                         "served on moving ticks (fallback reason)"], rows), "",
         "Known held-out runs (each served several times, after a SNOW segment; moving ticks pooled):", "",

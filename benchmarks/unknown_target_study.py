@@ -3,7 +3,7 @@
 A higher false-alarm target flags more of unknown ground and more of known ground. Known ground
 pays where the flags run together: at a change between known terrains, flagged until every
 wheel has crossed and the drive has settled (0.8-3.7 m). The filter's ``settle_m``
-(:data:`terrainml.stream.fusion.SETTLE_M`) makes flags that begin on known ground enter unknown
+(:data:`terrainml.stream.tick.fusion.SETTLE_M`) makes flags that begin on known ground enter unknown
 only once they outlast that distance; unknown ground entered from known ground pays it as delay.
 
 This study serves held-out *tuning* courses (the ``mixed`` scenario of ``make demo``'s course,
@@ -35,16 +35,16 @@ import numpy as np
 from terrainml.models.novelty import fit_model_novelty
 from terrainml.pipeline.dataset import read_windows
 from terrainml.sim.generate import simulate, write_run
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.fusion import SETTLE_M
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.runner import CLASSIFY_LAG_TICKS
-from terrainml.stream.sample import InvalidSample
-from terrainml.stream.sources import open_source
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.fusion import SETTLE_M, FusionConfig
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.app.options import CLASSIFY_LAG_TICKS
+from terrainml.stream.app.scoring import MOVING_TICK_MPS
+from terrainml.stream.tick.sample import InvalidSample
+from terrainml.stream.transports.sources import open_source
 
 DEMO = Path("runs/demo")
 OPEN_SET = Path("runs/open_set_models")
-MOVING_MPS = 0.05  # as the demo's figure (stream/runner.replay_summary)
 
 
 def thresholds(targets: list[float]) -> dict[str, float]:
@@ -70,7 +70,7 @@ def serve(model: Path, course: Path, settle_m: float, threshold: float | None = 
     of classes the model lacks (n, unknown), and the metres onto each such stretch before its
     first ``unknown_terrain`` tick (inf: never)."""
     p = Predictor.from_model_dir(model, config=ServingConfig(classify_lag_ticks=CLASSIFY_LAG_TICKS,
-                                                             fusion={"settle_m": settle_m}))
+                                                             fusion=FusionConfig(settle_m=settle_m)))
     if threshold is not None:  # flags compare the scorer's threshold (the message's ratio keeps the saved one)
         p.classifier.novelty.threshold = threshold
     known = set(p.policy.class_ids)
@@ -87,7 +87,7 @@ def serve(model: Path, course: Path, settle_m: float, threshold: float | None = 
             lab = sample.get("terrain")
             lab = -1 if lab is None or lab != lab else int(lab)
             dt = 0.0 if t_prev is None else msg.t_s - t_prev
-            moving = dt > 0 and (p.odometer_m - odo_prev) / dt >= MOVING_MPS
+            moving = dt > 0 and (p.odometer_m - odo_prev) / dt >= MOVING_TICK_MPS
             odo_prev, t_prev = p.odometer_m, msg.t_s
             unknown = msg.fallback_reason == "unknown_terrain"
             new = lab >= 0 and lab not in known

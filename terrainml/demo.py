@@ -36,7 +36,7 @@ from terrainml.pipeline.train import train
 from terrainml.robot import RobotSpec, reference_robot
 from terrainml.schema import wheel_col, write_run_parquet
 from terrainml.sim.generate import generate_dataset, simulate, write_run
-from terrainml.stream.runner import replay_summary
+from terrainml.stream.app.scoring import replay_summary
 
 
 def handmade_run_table(robot: RobotSpec, seed: int = 0, seconds: float = 20.0,

@@ -288,3 +288,9 @@ def read_run_parquet(path: str | Path, *, validate: bool = True) -> pd.DataFrame
         df = validate_run_table(df, source=str(path))
     df.attrs["terrainml"] = meta
     return df
+
+
+def est_wheel_col(kind: str, i: int) -> str:
+    """An estimator (EST) row's per-wheel column: ``est_wheel_col("v_long", 2) -> "v_long2_mps"``
+    (kind: slip, state, v_long)."""
+    return {"slip": f"slip{i}", "state": f"state{i}", "v_long": f"v_long{i}_mps"}[kind]

@@ -15,8 +15,8 @@ from typer.testing import CliRunner
 
 import terrainml.io.mcap_writer as mcap_writer
 from terrainml.cli import app
-from terrainml.stream.message import DesiredSlip
-from terrainml.stream.sinks import GuardedSink, McapSink
+from terrainml.stream.tick.message import DesiredSlip
+from terrainml.stream.transports.sinks import GuardedSink, McapSink
 
 from cli_refusal import assert_refused
 from disk_full import file_size_limit, full_disk_open
@@ -117,7 +117,7 @@ def _msg(k: int) -> DesiredSlip:
 
 
 def test_mcap_sink_counts_every_lost_tick_and_leaves_no_recording(tmp_path, monkeypatch):
-    import terrainml.stream.sinks as sinks
+    import terrainml.stream.transports.sinks as sinks
 
     out = tmp_path / "slip.mcap"
     monkeypatch.setattr(sinks, "open", full_disk_open(100_000), raising=False)

@@ -50,8 +50,10 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.lookup import terramechanics as tm
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.predictor import Predictor
+from terrainml.schema import est_wheel_col, wheel_col
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.message import UNKNOWN_TERRAIN
+from terrainml.stream.tick.predictor import Predictor
 
 __all__ = ["AccelLimitController", "CurrentLimitController", "LimiterController", "fixed_cap",
            "mission_limiter_config", "no_control", "oracle", "oracle_cap", "terrain_aware"]
@@ -119,9 +121,9 @@ class _Measured:
     """Wheel speeds, set-points and currents of one sample as (N,) arrays."""
 
     def __init__(self, n: int) -> None:
-        self.om = [f"wheel{i}_omega_radps" for i in range(1, n + 1)]
-        self.cmd = [f"wheel{i}_cmd_omega_radps" for i in range(1, n + 1)]
-        self.cur = [f"wheel{i}_current_a" for i in range(1, n + 1)]
+        self.om = [wheel_col("omega", i) for i in range(1, n + 1)]
+        self.cmd = [wheel_col("cmd_omega", i) for i in range(1, n + 1)]
+        self.cur = [wheel_col("current", i) for i in range(1, n + 1)]
 
     @staticmethod
     def _arr(sample: dict, keys: list[str]) -> np.ndarray:
@@ -149,7 +151,7 @@ class LimiterController:
     limiter : :class:`SlipLimiterConfig` (default :func:`mission_limiter_config`).
     refiner : :class:`CapRefinerConfig`.
     table : desired-slip table (default ``DesiredSlipTable.build(robot)``).
-    predictor : a :class:`~terrainml.stream.predictor.Predictor` stepping the estimator (the
+    predictor : a :class:`~terrainml.stream.tick.predictor.Predictor` stepping the estimator (the
         served policy); otherwise an :class:`OnlineEstimator` gives the wheel-centre speeds.
     preset : EKF preset of the online estimator.
     """
@@ -172,7 +174,7 @@ class LimiterController:
                                                                              has_imu_yaw=False)
         self.msg: Any = None        # the predictor's message of this tick
         self._io = _Measured(n)
-        self._vkeys = [f"v_long{i}_mps" for i in range(1, n + 1)]
+        self._vkeys = [est_wheel_col("v_long", i) for i in range(1, n + 1)]
         self._t_prev: float | None = None
         self._v = np.zeros(n)
         self.n_ticks = 0
@@ -438,7 +440,7 @@ class ServedTargets:
             self._escalate()
         stale = self._stale_after_unhealthy(msg, dt)
         if not classed or self.hold_left_m > 0.0 or stale:
-            unknown = msg is not None and msg.fallback_reason == "unknown_terrain"
+            unknown = msg is not None and msg.fallback_reason == UNKNOWN_TERRAIN
             if unknown and self.refine_unknown and self.hold_left_m <= 0.0:
                 return _unknown_ground_targets(ctrl)
             return _safe_cap_targets(ctrl)

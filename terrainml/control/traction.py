@@ -29,7 +29,7 @@ Policies
 ``fixed``          slip PID towards a fixed target: ``sgn(v_long) 0.1`` in traction and steady,
                    ``sgn(v_long) (-0.1)`` in braking (the "0.1 everywhere" baseline)
 ``terrain-aware``  slip PID towards the served desired slip: with ``model`` the online predictor
-                   (:class:`terrainml.stream.predictor.Predictor`: EKF, windows, classifier,
+                   (:class:`terrainml.stream.tick.predictor.Predictor`: EKF, windows, classifier,
                    lookup policy and fallback); without a model the class given by ``true_class``
                    / ``class_lookup`` with the lookup table (an oracle classifier)
 
@@ -80,11 +80,13 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.lookup.wheel_targets import desired_slip_per_wheel
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.policy import safe_cap_for
-from terrainml.stream.predictor import Predictor
+from terrainml.schema import est_wheel_col, wheel_col
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.policy import safe_cap_for
+from terrainml.stream.tick.predictor import Predictor
 
-__all__ = ["FIXED_TARGET", "LAWS", "ON_FALLBACK", "POLICIES", "STEADY_TARGETS", "FixedTargetTable",
+__all__ = ["FIXED_TARGET", "LAWS", "ON_FALLBACK", "POLICIES", "STEADY_TARGETS", "ControlSettings",
+           "FixedTargetTable",
            "SlipController", "limiter_config", "tuned_config"]
 
 POLICIES = ("none", "fixed", "terrain-aware")
@@ -146,6 +148,52 @@ class FixedTargetTable:
         return -self.value if state == "braking" else self.value
 
 
+@dataclass(frozen=True)
+class ControlSettings:
+    """How :class:`SlipController` controls, whatever tells it the terrain.
+
+    Attributes
+    ----------
+    law : one of :data:`LAWS` or None (default: ``"pid"`` when ``pid`` is given, else
+        ``"limiter"``; module docstring).
+    pid : SlipPIDConfig of the PID law (default :func:`tuned_config`).
+    limiter : SlipLimiterConfig of the limiter law (default :func:`limiter_config`).
+    preset : EKF preset.
+    steady_target : ``"peak"`` (default: the class's traction target also in steady and idle
+        states) or ``"served"`` (the served targets of design §10: s_S when steady, 0 when idle;
+        the limiter has no "0" cap and keeps the traction target for idle wheels).
+    on_fallback : with a model, what to do while the predictor serves its fallback:
+        ``"serve"`` (default: limit the slip to the served safe cap, design §10) or
+        ``"release"`` (no correction, the wheels follow the low-level command).
+
+    Raises ValueError on a law, steady target or fallback mode it does not know.
+    """
+
+    law: str | None = None
+    pid: SlipPIDConfig | None = None
+    limiter: SlipLimiterConfig | None = None
+    preset: str = "robust"
+    steady_target: str = "peak"
+    on_fallback: str = "serve"
+
+    def __post_init__(self) -> None:
+        if self.steady_target not in STEADY_TARGETS:
+            raise ValueError(f"steady_target must be one of {', '.join(STEADY_TARGETS)}, "
+                             f"got {self.steady_target!r}")
+        if self.on_fallback not in ON_FALLBACK:
+            raise ValueError(f"on_fallback must be one of {', '.join(ON_FALLBACK)}, "
+                             f"got {self.on_fallback!r}")
+        if self.law is not None and self.law not in LAWS:
+            raise ValueError(f"law must be one of {', '.join(LAWS)}, got {self.law!r}")
+
+    @property
+    def law_in_use(self) -> str:
+        """The law controlled with: ``law``, else ``"pid"`` when ``pid`` is given, else ``"limiter"``."""
+        if self.law is not None:
+            return self.law
+        return "pid" if self.pid is not None else "limiter"
+
+
 class SlipController:
     """Per-wheel slip control from measured samples (callable: ``ctrl(sample) -> out``).
 
@@ -153,22 +201,12 @@ class SlipController:
     ----------
     robot : RobotSpec.
     policy : one of :data:`POLICIES`.
+    settings : :class:`ControlSettings` (law, its gains, EKF preset, steady target, fallback mode).
     model : model folder for the terrain-aware policy served by the online predictor.
     true_class : class id for the oracle terrain-aware policy (no model).
     class_lookup : callable ``t_s -> class id`` (oracle on mixed terrain), overrides
         ``true_class``.
-    law : one of :data:`LAWS` or None (default: ``"pid"`` when ``pid`` is given, else
-        ``"limiter"``; module docstring).
-    pid : SlipPIDConfig of the PID law (default :func:`tuned_config`).
-    limiter : SlipLimiterConfig of the limiter law (default :func:`limiter_config`).
-    preset : EKF preset.
     table : desired-slip table for the oracle policy (default ``DesiredSlipTable.build(robot)``).
-    on_fallback : with a model, what to do while the predictor serves its fallback:
-        ``"serve"`` (default: limit the slip to the served safe cap, design §10) or
-        ``"release"`` (no correction, the wheels follow the low-level command; the former D36).
-    steady_target : ``"peak"`` (default: the class's traction target also in steady and idle
-        states) or ``"served"`` (the served targets of design §10: s_S when steady, 0 when idle;
-        the limiter has no "0" cap and keeps the traction target for idle wheels).
 
     Attributes
     ----------
@@ -179,22 +217,13 @@ class SlipController:
         limiter law records its traction cap and its shear slip).
     """
 
-    def __init__(self, robot: RobotSpec, policy: str, *, model: str | Path | None = None,
-                 true_class: int | None = None, class_lookup: Callable[[float], int] | None = None,
-                 law: str | None = None, pid: SlipPIDConfig | None = None,
-                 limiter: SlipLimiterConfig | None = None, preset: str = "robust",
-                 table: Any = None, steady_target: str = "peak", on_fallback: str = "serve"):
+    def __init__(self, robot: RobotSpec, policy: str, settings: ControlSettings = ControlSettings(), *,
+                 model: str | Path | None = None, true_class: int | None = None,
+                 class_lookup: Callable[[float], int] | None = None, table: Any = None):
         if policy not in POLICIES:
             raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
-        if steady_target not in STEADY_TARGETS:
-            raise ValueError(f"steady_target must be one of {', '.join(STEADY_TARGETS)}, "
-                             f"got {steady_target!r}")
-        if on_fallback not in ON_FALLBACK:
-            raise ValueError(f"on_fallback must be one of {', '.join(ON_FALLBACK)}, "
-                             f"got {on_fallback!r}")
-        law = ("pid" if pid is not None else "limiter") if law is None else law
-        if law not in LAWS:
-            raise ValueError(f"law must be one of {', '.join(LAWS)}, got {law!r}")
+        law, pid, limiter, preset = settings.law_in_use, settings.pid, settings.limiter, settings.preset
+        steady_target, on_fallback = settings.steady_target, settings.on_fallback
         self.steady_target = steady_target
         self.on_fallback = on_fallback
         self.robot = robot
@@ -222,8 +251,8 @@ class SlipController:
             self.table = FixedTargetTable()
         elif policy == "terrain-aware" and self.predictor is None:
             self.table = table if table is not None else DesiredSlipTable.build(robot)
-        self._cmd_keys = [f"wheel{i}_cmd_omega_radps" for i in range(1, n + 1)]
-        self._omega_keys = [f"wheel{i}_omega_radps" for i in range(1, n + 1)]
+        self._cmd_keys = [wheel_col("cmd_omega", i) for i in range(1, n + 1)]
+        self._omega_keys = [wheel_col("omega", i) for i in range(1, n + 1)]
         self._t_prev: float | None = None
         self._v_last = np.zeros(n)      # last finite wheel-centre speeds (the limiter's input)
         self._out = np.zeros(n)         # last correction (served again on a dropped sample)
@@ -335,14 +364,14 @@ class SlipController:
             ok = msg.estimator_ok
         else:
             row = self.estimator.step(s)  # type: ignore[union-attr]
-            states = [row[f"state{i}"] for i in range(1, n + 1)]
-            v_long = np.array([row[f"v_long{i}_mps"] for i in range(1, n + 1)], dtype=float)
+            states = [row[est_wheel_col("state", i)] for i in range(1, n + 1)]
+            v_long = np.array([row[est_wheel_col("v_long", i)] for i in range(1, n + 1)], dtype=float)
             cid = self.true_class
             if self.class_lookup is not None:
                 cid = int(self.class_lookup(t))
             s_des = np.asarray(desired_slip_per_wheel(cid or 0, states, v_long, self.table))
             s_des = self._steady_at_peak(s_des, states, v_long, cid or 0, self.table)
-            s_meas = np.array([row[f"slip{i}"] for i in range(1, n + 1)], dtype=float)
+            s_meas = np.array([row[est_wheel_col("slip", i)] for i in range(1, n + 1)], dtype=float)
             if self.limiter is not None:
                 pair = self._target_pair(self.table, cid or 0, states)
             x = self.estimator.ekf.x  # type: ignore[union-attr]

@@ -33,7 +33,7 @@ import numpy as np
 from terrainml.classes import class_id
 from terrainml.control.pid import SlipPIDConfig
 from terrainml.control.slip_limiter import SlipLimiterConfig
-from terrainml.control.traction import POLICIES, SlipController
+from terrainml.control.traction import POLICIES, ControlSettings, SlipController
 from terrainml.lookup import terramechanics as tm
 from terrainml.robot import RobotSpec, reference_robot
 from terrainml.schema import wheel_col
@@ -175,8 +175,9 @@ def simulate_closed_loop(terrain: str | int, policy: str, *, control: ClosedLoop
     else:
         scn = step_stop_and_go(cid, speed_mps, duration_s)
     sim = Simulator(scn, rb, ss_sim)
-    ctrl = SlipController(rb, policy, model=control.model, true_class=cid, law=control.law, pid=control.pid,
-                          limiter=control.limiter, steady_target=control.steady_target)
+    ctrl = SlipController(rb, policy, ControlSettings(law=control.law, pid=control.pid, limiter=control.limiter,
+                                                      steady_target=control.steady_target),
+                          model=control.model, true_class=cid)
     hook = None if policy == "none" else closed_loop_hook(sim, ctrl)
     res = sim.run(controller=hook, progress=progress)
     dist = max(float(res.distance_m), 1e-9)

@@ -7,8 +7,8 @@ both paths:
   non-overlapping, thesis §8.1) over a whole EST table;
 * online (``online=True``): windows END at the last row and hop ``spec.online_hop_s`` (0.5 s)
   backwards, so a ring buffer holding exactly one window length of rows gives exactly one
-  window, the latest. Serving does exactly that: its ring buffer (:mod:`terrainml.stream.ring`)
-  holds one window length of EST rows, and :class:`terrainml.stream.classify.WindowClassifier`
+  window, the latest. Serving does exactly that: its ring buffer (:mod:`terrainml.stream.tick.ring`)
+  holds one window length of EST rows, and :class:`terrainml.stream.tick.classify.WindowClassifier`
   cuts the ring's columns every online hop.
 
 Every per-row conversion is elementwise and every per-window reduction runs on the same rows

@@ -277,7 +277,7 @@ class DesiredSlipTable:
         The serving policy looks targets up by class id, so the table's class ``cid`` must be
         the model's class ``cid``, matched by name; a table with more classes is fine (the
         reference table serves a model trained on some of its classes). Serving runs this check
-        when it opens a model (:func:`terrainml.stream.classify.load_serving_model`).
+        when it opens a model (:func:`terrainml.stream.tick.classify.load_serving_model`).
 
         Parameters
         ----------

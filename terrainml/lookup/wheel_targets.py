@@ -11,7 +11,7 @@ negative slip and backward braking for positive slip, exactly as thesis Table 8.
 :func:`desired_slip_per_wheel` applies it to a class's targets, :func:`safe_cap_per_wheel` to
 the class-free **safe cap** of design §10 (:meth:`DesiredSlipTable.safe_cap`: the largest
 traction target in traction and steady, the most negative braking target in braking). Which of
-the two a tick serves, and why, is the serving decision: :mod:`terrainml.stream.policy` holds
+the two a tick serves, and why, is the serving decision: :mod:`terrainml.stream.tick.policy` holds
 every fallback rule and its priority.
 
 These functions are cheap (a few microseconds): they run on every 10 ms tick.

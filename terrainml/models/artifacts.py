@@ -29,7 +29,7 @@ Sensor members: a folder may hold, under ``members/NAME/``, complete model folde
 of its own trained on subsets of its sensor groups (without IMU, without currents); the
 manifest lists them under ``sensor_members`` (:func:`attach_members`) with their sensors, window
 spec and manifest hash, and hashes their files like any other. Serving switches to the best
-member whose groups are healthy (:mod:`terrainml.stream.predictor`).
+member whose groups are healthy (:mod:`terrainml.stream.tick.predictor`).
 
 The hashes prove integrity, not origin. With ``trusted_keys``, :func:`load_artifact` first checks
 the ed25519 signature ``manifest.sig`` (:mod:`terrainml.models.signing`; not listed in the

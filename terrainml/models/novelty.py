@@ -81,7 +81,7 @@ MAX_THRESHOLD_FOLDS = 50
 #: at most this many reference windows per class are kept (evenly spaced, deterministic)
 MAX_REFERENCE_PER_CLASS = 2000
 NOVELTY_FILE = "novelty.safetensors"
-#: a window is moving when its mean wheel rim speed exceeds this (m/s), as in the course scores
+#: m/s: a window's mean wheel rim speed above which it can tell ground apart (not scoring.MOVING_TICK_MPS)
 MOVING_MPS = 0.2
 _SPEED_CHANNELS = (("speed_left_mps", "speed_right_mps"), ("vx",))
 _CLIP = 20.0  # standardised features beyond +-20 sd are clipped (heavy-tailed features)

@@ -7,7 +7,7 @@ the model's groups (:func:`member_subsets`: without the IMU, without the current
 a complete model folder of its own in ``members/NAME/``, made by the very training function
 that made the folder's model (the caller's ``fit``, on data built for that subset), and listed in
 the folder's manifest (:func:`terrainml.models.artifacts.attach_members`). The predictor serves
-the best member whose groups are healthy (:mod:`terrainml.stream.predictor`).
+the best member whose groups are healthy (:mod:`terrainml.stream.tick.predictor`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Served-path validation: held-out runs replayed through the online predictor.
 
 Window scores say how often a window is named right; a robot is served by
-:class:`~terrainml.stream.predictor.Predictor`, which cuts its own windows online, fuses them,
+:class:`~terrainml.stream.tick.predictor.Predictor`, which cuts its own windows online, fuses them,
 ages them by distance and falls back when it has no fresh, confident class. A model whose
 windows are good but which the online rules never let classify is useless on the robot, and no
 window score shows it. So before ``train`` saves a model, the model of every outer fold (fitted
@@ -13,8 +13,9 @@ and a course of the fold's held-out runs is replayed through it tick by tick.
 interleaved so the course changes terrain between pieces. :func:`replay_course` scores it:
 
 * ``right_share``: share of moving labelled ticks served the labelled class (a fallback tick is
-  never right); moving = the predictor's odometer advancing at >= :data:`MOVING_MPS`, as in
-  :func:`terrainml.stream.runner.replay_summary`; ``right_share_settled`` leaves out
+  never right); moving = the predictor's odometer advancing at >=
+  :data:`~terrainml.stream.app.scoring.MOVING_TICK_MPS`, as in
+  :func:`terrainml.stream.app.scoring.replay_summary`; ``right_share_settled`` leaves out
   ``settle_s`` after each label change;
 * ``fallback_share``: share of moving labelled ticks served a fallback;
 * ``classified_share``: share of moving labelled ticks served a class (1 - fallback share);
@@ -34,9 +35,10 @@ from typing import Any, Sequence
 import numpy as np
 import pandas as pd
 
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.runner import CLASSIFY_LAG_TICKS, MOVING_MPS
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.app.options import CLASSIFY_LAG_TICKS
+from terrainml.stream.app.scoring import replay_served, score_served
 
 __all__ = ["make_course", "replay_course", "replay_refusal", "pooled_replay", "REPLAY_SEGMENT_S",
            "MIN_CLASSIFIED_SHARE", "SETTLE_S", "ReplayRefused"]
@@ -121,10 +123,11 @@ def make_course(tables: Sequence[pd.DataFrame], run_ids: Sequence[str] | None = 
 
 def replay_course(model_dir: str | Path, course: pd.DataFrame, settle_s: float = SETTLE_S,
                   config: ServingConfig | None = None) -> dict[str, Any]:
-    """Serve ``course`` tick by tick through ``Predictor.from_model_dir(model_dir)`` and score it.
+    """Serve ``course`` tick by tick through ``Predictor.from_model_dir(model_dir)`` and score it
+    (:func:`terrainml.stream.app.scoring.score_served`).
 
     ``config``: serving settings (default: those of ``terrainml predict``, classification
-    :data:`~terrainml.stream.runner.CLASSIFY_LAG_TICKS` ticks behind).
+    :data:`~terrainml.stream.app.options.CLASSIFY_LAG_TICKS` ticks behind).
 
     Returns
     -------
@@ -135,60 +138,9 @@ def replay_course(model_dir: str | Path, course: pd.DataFrame, settle_s: float =
     """
     p = Predictor.from_model_dir(model_dir, config=config or ServingConfig(classify_lag_ticks=CLASSIFY_LAG_TICKS))
     cols = list(course.columns)
-    lab_all = pd.to_numeric(course["terrain"], errors="coerce").fillna(-1).to_numpy().astype(int) \
-        if "terrain" in cols else np.full(len(course), -1)
-    t = course["t_s"].to_numpy(dtype=float)
-    served = np.full(len(course), -2, dtype=np.int64)  # -2: no message, -1: fallback
-    odo = np.zeros(len(course))
-    reasons: list[str] = [""] * len(course)
-    try:
-        for i, row in enumerate(course.itertuples(index=False)):
-            try:
-                msg = p.step(dict(zip(cols, row)))
-            except ValueError:  # an invalid sample is counted by the predictor
-                msg = None
-            odo[i] = p.odometer_m
-            if msg is not None:
-                served[i] = -1 if msg.fallback else int(msg.terrain_class)
-                reasons[i] = msg.fallback_reason
-    finally:
-        p.close()
-    st = p.stats()
-    return _score(t, lab_all, served, odo, reasons, settle_s, st)
-
-
-def _score(t, lab, served, odo, reasons, settle_s: float, st: dict) -> dict[str, Any]:
-    dt = np.diff(t, prepend=t[0])
-    speed = np.divide(np.diff(odo, prepend=odo[0]), dt, out=np.zeros_like(dt), where=dt > 0)
-    moving = (speed >= MOVING_MPS) & (lab >= 0) & (served != -2)
-    right = served == lab
-    change = np.flatnonzero((lab[1:] != lab[:-1]) & (lab[1:] >= 0)) + 1
-    settled = np.ones(len(t), bool)
-    for tc in t[change]:
-        settled &= ~((t >= tc) & (t < tc + settle_s))
-    dists, never = [], 0
-    bounds = list(change) + [len(t)]
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        hit = np.flatnonzero(right[a:b])
-        if len(hit):
-            dists.append(float(odo[a + hit[0]] - odo[a]))
-        else:
-            never += 1
-    n_mov = int(moving.sum())
-    def share(m):
-        return (float(m.sum() / n_mov) if n_mov else float("nan"))
-    fb = moving & (served == -1)
-    mov_set = moving & settled
-    dist = float(st.get("distance_m", odo[-1] if len(odo) else 0.0))
-    return {"ticks": int(len(t)), "moving_ticks": n_mov, "right_share": share(moving & right),
-            "right_share_settled": float((mov_set & right).sum() / mov_set.sum()) if mov_set.any() else float("nan"),
-            "fallback_share": share(fb), "classified_share": share(moving & (served >= 0)),
-            "classifications": int(st.get("classifications", 0)), "distance_m": dist,
-            "classifications_per_m": float(st.get("classifications", 0) / dist) if dist > 0 else float("nan"),
-            "changes": int(len(change)), "median_change_m": float(np.median(dists)) if dists else float("nan"),
-            "changes_never_right": int(never),
-            "fallback_reasons": {r: int(sum(1 for i in np.flatnonzero(fb) if reasons[i] == r))
-                                 for r in sorted({reasons[i] for i in np.flatnonzero(fb)})}}
+    ticks = replay_served(p, (dict(zip(cols, row)) for row in course.itertuples(index=False)))
+    return score_served(ticks.t_s, ticks.label, ticks.served, ticks.odometer_m, ticks.reasons, settle_s,
+                        ticks.stats)
 
 
 def pooled_replay(folds: Sequence[dict]) -> dict[str, Any]:

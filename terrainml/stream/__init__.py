@@ -1,9 +1,8 @@
-"""Online serving (design §11): the predictor, its message, sources and sinks.
+"""Online serving, ``terrainml predict``, in three rooms.
 
-``Predictor.step(sample) -> DesiredSlip`` runs the offline estimation, window and feature code
-tick by tick; ``terrainml predict`` connects it to a source and sinks.
+* :mod:`terrainml.stream.tick` -- one tick: a sample in, a :class:`~terrainml.stream.tick.message.DesiredSlip` out
+  (clock gate, estimator, ring, classifier, fusion, policy, health);
+* :mod:`terrainml.stream.transports` -- where samples come from and messages go (log, UDP, ROS 2,
+  MCAP, CAN, Foxglove);
+* :mod:`terrainml.stream.app` -- the application joining them (runner, recorder, replay scores).
 """
-
-from terrainml.stream.message import DesiredSlip, json_schema
-
-__all__ = ["DesiredSlip", "json_schema"]

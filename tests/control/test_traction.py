@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from terrainml.control.traction import FixedTargetTable, SlipController, tuned_config
+from terrainml.control.traction import ControlSettings, FixedTargetTable, SlipController, tuned_config
 from terrainml.estimation.slip import slip_ratio
 from terrainml.testing import kinematic_run, trapezoid_speed
 from terrainml.robot import load_robot
@@ -44,7 +44,7 @@ def test_fixed_limiter_pulls_an_overslipping_wheel_to_the_target(robot):
     """True slip 0.3 at cruise against the fixed 0.1 target (the wheels of a kinematic run do
     not respond to the command, so the PI trim is off): the limiter's feed-forward makes the
     commanded wheel speed the one of slip 0.1 at the true wheel speed over ground."""
-    ctrl = SlipController(robot, "fixed", pid=tuned_config(robot, kp=0.0, ki=0.0))
+    ctrl = SlipController(robot, "fixed", ControlSettings(pid=tuned_config(robot, kp=0.0, ki=0.0)))
     _, outs = _drive(robot, ctrl, true_slip=0.3)
     omega_cmd = CRUISE_MPS / 0.7 / robot.wheel_radius_m + outs[-100:].mean(axis=0)
     s_cmd = slip_ratio(omega_cmd * robot.wheel_radius_m, CRUISE_MPS)
@@ -67,7 +67,7 @@ def test_fixed_table_signs():
 
 
 def test_feedforward_without_setpoints_is_a_clear_error(robot):
-    ctrl = SlipController(robot, "fixed", pid=tuned_config(robot))
+    ctrl = SlipController(robot, "fixed", ControlSettings(pid=tuned_config(robot)))
     table = kinematic_run(robot, duration_s=1.0, seed=1)
     rec = table[[c for c in table.columns if not c.startswith("gt_")]].iloc[0].to_dict()
     with pytest.raises(ValueError, match="wheel1_cmd_omega_radps"):
@@ -83,10 +83,10 @@ def test_default_law_is_the_slip_limiter_and_a_pid_config_selects_the_pid(robot)
     """Issue 20: the limiter is the default; the thesis PID stays reachable explicitly."""
     assert SlipController(robot, "fixed").law == "limiter"
     assert SlipController(robot, "fixed").pid is None
-    assert SlipController(robot, "fixed", pid=tuned_config(robot)).law == "pid"
-    assert SlipController(robot, "fixed", law="pid").config == tuned_config(robot)
+    assert SlipController(robot, "fixed", ControlSettings(pid=tuned_config(robot))).law == "pid"
+    assert SlipController(robot, "fixed", ControlSettings(law="pid")).config == tuned_config(robot)
     with pytest.raises(ValueError, match="law"):
-        SlipController(robot, "fixed", law="bang-bang")
+        SlipController(robot, "fixed", ControlSettings(law="bang-bang"))
 
 
 def _stalled_sample(robot, t_s: float, omega_radps: float) -> dict:
@@ -107,7 +107,7 @@ def test_limiter_law_holds_a_wheel_spinning_at_a_stall_where_the_pid_lets_go(rob
     the limiter pulls every wheel down, and keeps holding for as long as the stall lasts."""
     outs = {}
     for law in ("limiter", "pid"):
-        ctrl = SlipController(robot, "terrain-aware", true_class=7, law=law)
+        ctrl = SlipController(robot, "terrain-aware", ControlSettings(law=law), true_class=7)
         outs[law] = np.array([ctrl(_stalled_sample(robot, 0.01 * k, 3.0)) for k in range(300)])
     assert np.all(outs["pid"] == 0.0)
     assert np.all(outs["limiter"][-100:] < -2.0)         # most of the 3 rad/s taken back

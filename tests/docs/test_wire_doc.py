@@ -13,8 +13,8 @@ import pytest
 
 # The code's own tables, imported in this one place (these modules move with the stream's rooms).
 from terrainml.io.topics import WHEEL_STATE_CODES
-from terrainml.stream.message import FIELD_NAMES, OPTIONAL_FIELDS, DesiredSlip
-from terrainml.stream.sinks import (CAN_BASE_ID, REASON_CODES, SLIP_NA, UNKNOWN_REASON_CODE,
+from terrainml.stream.tick.message import FIELD_NAMES, OPTIONAL_FIELDS, DesiredSlip
+from terrainml.stream.transports.sinks import (CAN_BASE_ID, REASON_CODES, SLIP_NA, UNKNOWN_REASON_CODE,
                                     encode_can_frames)
 
 WIRE = Path(__file__).resolve().parents[2] / "docs" / "wire.md"

@@ -74,8 +74,8 @@ def test_safe_cap_of_the_reference_table_is_wet_mud():
 
 
 def test_the_served_fallback_is_the_safe_cap_not_a_class():
-    """Serving (stream/policy.py) serves the cap on fallback, naming no class (issue 19)."""
-    from terrainml.stream.policy import ServingPolicy
+    """Serving (stream/tick/policy.py) serves the cap on fallback, naming no class (issue 19)."""
+    from terrainml.stream.tick.policy import ServingPolicy
 
     table = DesiredSlipTable.build(load_robot("agrimaro"))
     policy = ServingPolicy(table, table.class_ids, table.class_names)

@@ -8,7 +8,8 @@ import pytest
 from typer.testing import CliRunner
 
 from logs_synth import write_logs
-from terrainml.pipeline.replay import _score, make_course, pooled_replay, replay_refusal
+from terrainml.pipeline.replay import make_course, pooled_replay, replay_refusal
+from terrainml.stream.app.scoring import score_served
 
 
 def test_replay_score_of_a_hand_worked_course():
@@ -21,7 +22,7 @@ def test_replay_score_of_a_hand_worked_course():
     served = np.r_[np.zeros(100), -np.ones(50), np.ones(50)].astype(int)
     reasons = [""] * 100 + ["stale_classification"] * 50 + [""] * 50
     st = {"classifications": 40, "distance_m": float(odo[-1])}
-    s = _score(t, lab, served, odo, reasons, 0.3, st)
+    s = score_served(t, lab, served, odo, reasons, 0.3, st)
     assert s["moving_ticks"] == 199  # the first tick has no speed yet
     assert s["right_share"] == pytest.approx(149 / 199)
     assert s["fallback_share"] == pytest.approx(50 / 199)
@@ -68,7 +69,7 @@ def test_course_interleaves_classes_and_keeps_time_continuous():
 def test_cli_train_auto_selects_replays_and_saves_a_calibrated_model(tmp_path):
     from terrainml.cli import app
     from terrainml.models.calibration import CalibratedModel
-    from terrainml.stream.classify import load_serving_model
+    from terrainml.stream.tick.classify import load_serving_model
 
     logs = write_logs(tmp_path / "logs", runs_per_class=3, seed=5)
     out = tmp_path / "m"

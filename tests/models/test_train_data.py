@@ -94,7 +94,7 @@ def test_a_class_with_one_run_trains_saves_and_serves_and_the_report_names_the_r
     import terrainml.pipeline.select as select_mod
     from terrainml.pipeline.replay import make_course, replay_course
     from terrainml.schema import read_run_parquet
-    from terrainml.stream.classify import load_serving_model
+    from terrainml.stream.tick.classify import load_serving_model
 
     def no_selection(*a, **k):
         raise AssertionError("the named model and windows went through the selection")
@@ -125,7 +125,7 @@ def test_class_names_no_catalogue_knows_train_and_serve_the_class_free_safe_cap_
     from terrainml.lookup.table import CLASS_FREE_DETAIL, ClassFreeTargets, DesiredSlipTable
     from terrainml.robot import load_robot
     from terrainml.schema import read_run_parquet
-    from terrainml.stream.predictor import Predictor
+    from terrainml.stream.tick.predictor import Predictor
 
     logs = _logs(tmp_path / "logs", {0: 2, 2: 2, 6: 2}, names=OWN_NAMES)
     out = tmp_path / "m"

@@ -18,8 +18,8 @@ from terrainml.pipeline.evaluate import ClassMismatchError, evaluate
 from terrainml.pipeline.options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
-from terrainml.stream.classify import ModelLoadError, load_serving_model
-from terrainml.stream.predictor import Predictor
+from terrainml.stream.tick.classify import ModelLoadError, load_serving_model
+from terrainml.stream.tick.predictor import Predictor
 
 pytestmark = pytest.mark.acceptance  # BorealTC builds and serves: `make test-all`
 

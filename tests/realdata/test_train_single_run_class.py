@@ -38,7 +38,7 @@ def _cut(dest: Path, runs_per_class: int | None) -> Path:
 
 
 def _check_saved_and_served(out: Path) -> dict:
-    from terrainml.stream.classify import load_serving_model
+    from terrainml.stream.tick.classify import load_serving_model
 
     rep = json.loads((out / "report.json").read_text())
     assert [e["class"] for e in rep["excluded_classes"]] == [SINGLE]

@@ -16,8 +16,8 @@ def robot():
 
 @pytest.fixture
 def fake_predictor(robot):
-    from terrainml.stream.config import ServingConfig
-    from terrainml.stream.predictor import Predictor
+    from terrainml.stream.tick.config import ServingConfig
+    from terrainml.stream.tick.predictor import Predictor
 
     def make(classifier=None, estimator=None, window_spec=None, **config):
         return Predictor(robot, FakeTable(), classifier or FakeClassifier(),

@@ -16,7 +16,7 @@ from stream_fakes import SLIP_OF
 
 from terrainml.testing import kinematic_run, trapezoid_speed
 from terrainml.robot import load_robot
-from terrainml.stream.sources import iter_table_samples
+from terrainml.stream.transports.sources import iter_table_samples
 
 CMD = [sys.executable, "-m", "terrainml.cli", "predict"]
 
@@ -112,14 +112,15 @@ def test_stdin_in_stdout_out_json_lines_only(model_dir):
 
 @pytest.mark.acceptance
 def test_unusable_model_or_sink_exits_2_with_a_clear_message(tmp_path, model_dir, capsys):
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.options import ServeOptions
+    from terrainml.stream.app.runner import run_predict
 
     # in-process for speed: the exit code and the message naming the culprit
-    assert run_predict(model=tmp_path / "nope", source="-", sinks=["stdout"]) == 2
+    assert run_predict(ServeOptions(model=tmp_path / "nope", source="-", sinks=("stdout",))) == 2
     assert "nope" in capsys.readouterr().err
-    assert run_predict(model=model_dir, source="-", sinks=["tcp://x"]) == 2
+    assert run_predict(ServeOptions(model=model_dir, source="-", sinks=("tcp://x",))) == 2
     assert "tcp://x" in capsys.readouterr().err
-    assert run_predict(model=model_dir, source=str(tmp_path / "missing.mcap"), sinks=["stdout"]) == 2
+    assert run_predict(ServeOptions(model=model_dir, source=str(tmp_path / "missing.mcap"), sinks=("stdout",))) == 2
     assert "missing.mcap" in capsys.readouterr().err
     # and once through the real entry point: exit code 2, no traceback
     r = subprocess.run(CMD + ["--model", str(tmp_path / "nope"), "--source", "-"],
@@ -134,9 +135,10 @@ def test_tampered_model_is_refused(tmp_path, model_dir, capsys):
     shutil.copytree(model_dir, bad)
     f = bad / "desired_slip_table.json"
     f.write_text(f.read_text().replace("0", "1", 1))
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.options import ServeOptions
+    from terrainml.stream.app.runner import run_predict
 
-    assert run_predict(model=bad, source="-", sinks=["stdout"]) == 2
+    assert run_predict(ServeOptions(model=bad, source="-", sinks=("stdout",))) == 2
     assert "desired_slip_table.json" in capsys.readouterr().err
 
 
@@ -185,7 +187,8 @@ def test_predict_says_what_a_damaged_log_lost(tmp_path, model_dir, capsys):
     """Issue 21: the damage counts of a log's ingest reach predict, before serving and in the summary."""
     from terrainml.io.ingest import load_run
     from terrainml.io.mcap_writer import RosMcapWriter
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.options import ServeOptions
+    from terrainml.stream.app.runner import run_predict
 
     good, bad = tmp_path / "good.mcap", tmp_path / "bad.mcap"
     with RosMcapWriter(good, 3, chunk_size=8 * 1024) as w:   # small chunks: one can be lost
@@ -197,8 +200,8 @@ def test_predict_says_what_a_damaged_log_lost(tmp_path, model_dir, capsys):
     corrupt_middle_chunk(good, bad)
     lost = sum(d["corrupt"] for d in load_run(bad).report.topics.values())
     assert lost > 0
-    assert run_predict(model=model_dir, source=str(bad), sinks=["stdout"]) == 0
+    assert run_predict(ServeOptions(model=model_dir, source=str(bad), sinks=("stdout",))) == 0
     err = capsys.readouterr().err
     assert err.count("damaged:") == 2 and f"{lost} corrupt message" in err
-    assert run_predict(model=model_dir, source=str(good), sinks=["stdout"]) == 0
+    assert run_predict(ServeOptions(model=model_dir, source=str(good), sinks=("stdout",))) == 0
     assert "damaged:" not in capsys.readouterr().err

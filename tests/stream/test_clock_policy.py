@@ -1,4 +1,4 @@
-"""The clock policy (issue 21, "One bad timestamp wedges or silences it"): stream/clock.py.
+"""The clock policy (issue 21, "One bad timestamp wedges or silences it"): stream/tick/clock.py.
 
 A wild stamp costs one ``clock_jump`` tick; an absurd first stamp, a forward jump and a backward
 step re-anchor after K consistent samples; the stream never wedges, every tick is served with
@@ -15,11 +15,11 @@ import math
 import pytest
 from stream_fakes import FakeClassifier, FakeTable, make_samples
 
-from terrainml.stream.clock import ACCEPT, DUPLICATE, JUMP, LATE, REANCHOR, ClockGate
-from terrainml.stream.message import DesiredSlip
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.sinks import REASON_CODES, decode_can_frames, encode_can_frames
+from terrainml.stream.tick.clock import ACCEPT, DUPLICATE, JUMP, LATE, REANCHOR, ClockGate
+from terrainml.stream.tick.message import DesiredSlip
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.transports.sinks import REASON_CODES, decode_can_frames, encode_can_frames
 
 K = 5  # the default reanchor_after
 

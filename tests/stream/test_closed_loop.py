@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from terrainml.cli import app
 from terrainml.control.pid import SlipPIDConfig
-from terrainml.control.traction import SlipController
+from terrainml.control.traction import ControlSettings, SlipController
 from terrainml.testing import kinematic_run
 from terrainml.experiments.closed_loop import ClosedLoopControl, closed_loop_hook, run_closed_loop
 from terrainml.robot import load_robot
@@ -102,7 +102,7 @@ def test_predictor_fallback_follows_the_safe_cap(model_dir):
         table = kinematic_run(robot, duration_s=1.5, seed=4, slip=slip)
         recs = table[[c for c in table.columns if not c.startswith("gt_")]].to_dict("records")
         for mode in ("release", "serve"):
-            ctrl = SlipController(robot, "terrain-aware", model=model_dir, on_fallback=mode)
+            ctrl = SlipController(robot, "terrain-aware", ControlSettings(on_fallback=mode), model=model_dir)
             got = []
             for rec in recs:
                 for i in (1, 2, 3):

@@ -57,9 +57,9 @@ def sim_model_dir(tmp_path_factory):
 def test_mixed_terrain_course_served_class_matches_truth(sim_model_dir):
     from terrainml.sim.generate import simulate
     from terrainml.sim.output import run_table
-    from terrainml.stream.config import ServingConfig
-    from terrainml.stream.predictor import Predictor
-    from terrainml.stream.sources import iter_table_samples
+    from terrainml.stream.tick.config import ServingConfig
+    from terrainml.stream.tick.predictor import Predictor
+    from terrainml.stream.transports.sources import iter_table_samples
 
     res = simulate(None, "mixed", duration_s=110.0, seed=77, terrains=COURSE, speed_mps=1.0)
     table = run_table(res, "course")

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from stream_fakes import FakeClassifier, FakeEstimator, make_samples
 
-from terrainml.stream.runner import serve
-from terrainml.stream.sample import InvalidSample
-from terrainml.stream.sinks import GuardedSink
-from terrainml.stream.sources import SourceCounters, iter_udp_samples
+from terrainml.stream.app.runner import serve
+from terrainml.stream.tick.sample import InvalidSample
+from terrainml.stream.transports.sinks import GuardedSink
+from terrainml.stream.transports.sources import SourceCounters, iter_udp_samples
 
 
 def _strict_json(msg):
@@ -201,7 +201,7 @@ def test_malformed_udp_datagrams_counted_and_skipped():
         tx.sendto(d, ("127.0.0.1", port))
     counters = SourceCounters()
     got = list(iter_udp_samples(counters=counters, idle_timeout_s=2.0, sock=rx))
-    assert [s["t_s"] for s in got] == [k * 0.01 for k in range(5)]
+    assert [s.t_s for s in got] == [k * 0.01 for k in range(5)]
     assert counters.malformed == len(bad)
     tx.close()
 
@@ -209,14 +209,14 @@ def test_malformed_udp_datagrams_counted_and_skipped():
 def test_sink_down_is_logged_and_predictor_continues(robot, fake_predictor, caplog):
     import can
 
-    from terrainml.stream.sinks import CanSink
+    from terrainml.stream.transports.sinks import CanSink
 
     received = []
 
     class ListSink:
         name = "list"
 
-        def send(self, m):
+        def send(self, m, sample=None):
             received.append(m)
 
         def close(self):
@@ -283,7 +283,7 @@ def test_odometer_ignores_an_unobserved_lateral_speed():
     """Husky (fixed wheels) served without IMU: 10 s at 0.5 m/s is 5 m of travel (hand value),
     not the drifting v_y's kilometres; with the IMU monitored v_y counts again."""
     from terrainml.robot import load_robot
-    from terrainml.stream.predictor import Predictor
+    from terrainml.stream.tick.predictor import Predictor
     from stream_fakes import FakeTable
 
     husky = load_robot("husky")
@@ -309,7 +309,7 @@ def test_recovers_from_an_all_null_gap_of_any_length(robot, gap_s, rate_hz):
     classified again once a full window of them is in."""
     from stream_fakes import FakeTable
 
-    from terrainml.stream.predictor import Predictor
+    from terrainml.stream.tick.predictor import Predictor
 
     pred = Predictor(robot, FakeTable(), FakeClassifier())  # the real OnlineEstimator
     good = make_samples(robot, 5.0)
@@ -365,7 +365,8 @@ def test_predict_on_a_log_without_imu_names_the_missing_topic(tmp_path, model_di
     ticks with nothing on stderr naming /imu."""
     from terrainml.io import topics
     from terrainml.io.mcap_writer import RosMcapWriter
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.options import ServeOptions
+    from terrainml.stream.app.runner import run_predict
 
     path = tmp_path / "noimu.mcap"
     with RosMcapWriter(path, 3) as w:
@@ -373,7 +374,7 @@ def test_predict_on_a_log_without_imu_names_the_missing_topic(tmp_path, model_di
             t = k / 100
             w.write_wheel_joints(t, [1.0 / 0.165] * 3, [0.0] * 3)
             w.write_motor_current(t, [1.0] * 3)
-    assert run_predict(model=model_dir, source=str(path), sinks=["stdout"]) == 0
+    assert run_predict(ServeOptions(model=model_dir, source=str(path), sinks=("stdout",))) == 0
     err = capsys.readouterr().err
     assert topics.IMU in err and "not in the log" in err
     assert "sensor group 'imu' silent" in err and "never seen" in err

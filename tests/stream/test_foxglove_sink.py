@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import socket
 import struct
 import subprocess
@@ -26,9 +27,9 @@ from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
 
 from terrainml.classes import TERRAIN_CLASSES
-from terrainml.stream.foxglove_sink import FoxgloveSink
-from terrainml.stream.message import DesiredSlip
-from terrainml.stream.sinks import GuardedSink, SinkError, open_sink
+from terrainml.stream.transports.foxglove_sink import FoxgloveSink, live_message, live_schema
+from terrainml.stream.tick.message import DesiredSlip
+from terrainml.stream.transports.sinks import GuardedSink, SinkError, open_sink
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -109,7 +110,8 @@ def test_client_receives_the_stream_with_a_valid_schema():
                   "class_probabilities_by_name"]:
             assert f in props and f in schema["required"]
         wheel = props["wheels"]["items"]["properties"]
-        assert wheel["slip_desired"]["type"] == wheel["slip_measured"]["type"] == "number"
+        assert wheel["slip_desired"]["type"] == "number"
+        assert wheel["slip_measured"]["type"] == ["number", "null"]   # null: slip not observable
         assert wheel["state"]["enum"] == ["idle", "steady", "traction", "braking"]
         assert wheel["state_code"]["type"] == "integer"
         assert props["wheels"]["maxItems"] == 3
@@ -177,6 +179,14 @@ def test_second_sink_on_the_same_port_is_counted_never_raised(caplog):
     finally:
         first.close()
         second.close()
+
+
+def test_a_message_without_measured_slip_fits_the_live_schema():
+    """Slip not observable: ``slip_measured`` is null per wheel, and the schema allows it."""
+    msg = _msg(slip_measured=[math.nan] * 3, slip_measured_note="no body-velocity reference")
+    live = live_message(msg, NAMES)
+    assert [w["slip_measured"] for w in live["wheels"]] == [None, None, None]
+    jsonschema.validate(live, live_schema(3, NAMES), cls=jsonschema.Draft202012Validator)
 
 
 @pytest.mark.parametrize("spec", ["foxglove://127.0.0.1:notaport", "foxglove://127.0.0.1:70000"])

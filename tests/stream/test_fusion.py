@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from terrainml.features.windows import WindowSpec
-from terrainml.stream.fusion import TerrainFilter, confirm_windows_for
+from terrainml.stream.tick.fusion import FusionConfig, TerrainFilter, confirm_windows_for
 
 K = 4
 
@@ -159,6 +159,6 @@ def test_the_predictor_confirms_over_a_fifth_of_a_second(fake_predictor):
     short, steady = WindowSpec(online_hop_s=0.1), WindowSpec(online_hop_s=0.5)
     assert fake_predictor(window_spec=short).filter.confirm_windows == 3
     assert fake_predictor(window_spec=steady).filter.confirm_windows == 1
-    assert fake_predictor(window_spec=short, fusion={"confirm_windows": 1}).filter.confirm_windows == 1
+    assert fake_predictor(window_spec=short, fusion=FusionConfig(confirm_windows=1)).filter.confirm_windows == 1
     with pytest.raises(ValueError, match="hop_s"):
         confirm_windows_for(0.0)

@@ -21,12 +21,12 @@ from hypothesis import strategies as st
 from stream_fakes import FakeClassifier, FakeEstimator, FakeTable, make_samples
 
 from terrainml.estimation.online import OnlineEstimator
-from terrainml.stream.message import DesiredSlip
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.runner import serve
-from terrainml.stream.sample import InvalidSample
-from terrainml.stream.sources import (MALFORMED_REASONS, MAX_DEPTH, MAX_SAMPLE_BYTES, SourceCounters,
+from terrainml.stream.tick.message import DesiredSlip
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.app.runner import serve
+from terrainml.stream.tick.sample import InvalidSample
+from terrainml.stream.transports.sources import (MALFORMED_REASONS, MAX_DEPTH, MAX_SAMPLE_BYTES, SourceCounters,
                                       _EOS, iter_line_samples, iter_udp_samples, parse_sample)
 
 # modest example counts (seconds, not minutes), no example database in the working tree
@@ -120,7 +120,7 @@ def test_hostile_lines_on_stdin_are_skipped_and_serving_continues(robot):
             lines.append(hostile[(k // 10) % len(hostile)])
     counters = SourceCounters()
     got = list(iter_line_samples(io.BytesIO(b"\n".join(lines) + b"\n"), counters=counters))
-    assert [s["t_s"] for s in got] == [s["t_s"] for s in good]
+    assert [s.t_s for s in got] == [s["t_s"] for s in good]
     assert counters.malformed == 10 and counters.received == len(lines)
     assert set(counters.malformed_by_reason) == {"too_deep", "number_out_of_range", "not_utf8",
                                                  "non_finite", "too_large", "bad_t_s", "not_an_object"}
@@ -141,7 +141,7 @@ def test_hostile_udp_datagrams_are_skipped():
     counters = SourceCounters()
     got = list(iter_udp_samples(counters=counters, idle_timeout_s=2.0, sock=rx))
     tx.close()
-    assert [s["t_s"] for s in got] == [0.0, 0.01, 0.02]
+    assert [s.t_s for s in got] == [0.0, 0.01, 0.02]
     assert counters.malformed == 5
     assert counters.malformed_by_reason == {"too_deep": 1, "number_out_of_range": 2, "not_utf8": 1,
                                             "too_large": 1}
@@ -347,7 +347,7 @@ def test_a_finite_value_beyond_physics_invalidates_its_group(robot, column, valu
     """Issue 31, case 9a: a finite ±1e308 current passed the sample check; each channel has a
     physical limit (1000 A, 1000 rad/s, 1000 m/s^2, 100 m/s, 1e4 rad) past which its group is
     invalid, counted per column; a value inside the limit passes."""
-    from terrainml.stream.health import HealthMonitor, InputCounters
+    from terrainml.stream.tick.health import HealthMonitor, InputCounters
 
     mon = HealthMonitor(robot)
     mon.counters = InputCounters()
@@ -368,8 +368,8 @@ def test_huge_current_never_reaches_the_features(model_dir):
 
     from terrainml.testing import kinematic_run, trapezoid_speed
     from terrainml.robot import load_robot
-    from terrainml.stream.predictor import Predictor
-    from terrainml.stream.sources import iter_table_samples
+    from terrainml.stream.tick.predictor import Predictor
+    from terrainml.stream.transports.sources import iter_table_samples
 
     robot = load_robot()
     table = kinematic_run(robot, duration_s=8.0, slip=0.12, terrain=2, seed=3, imu_acc_noise=0.005,
@@ -412,7 +412,7 @@ def test_serving_robot_that_differs_from_the_training_robot_is_warned(model_dir,
     import logging
 
     from terrainml.robot import RobotSpec, load_robot
-    from terrainml.stream.classify import load_serving_model
+    from terrainml.stream.tick.classify import load_serving_model
 
     trained = load_robot()
     d = trained.to_dict()

@@ -16,9 +16,9 @@ from terrainml.io.topicmap import load_topic_map
 from terrainml.robot import load_robot
 from terrainml.sim.generate import simulate
 from terrainml.sim.output import write_mcap
-from terrainml.stream.inputs import MIN_TIMEOUT_S, InputWatch
-from terrainml.stream.message import DesiredSlip
-from terrainml.stream.ros2.align import LiveAligner
+from terrainml.stream.tick.inputs import MIN_TIMEOUT_S, InputWatch
+from terrainml.stream.tick.message import DesiredSlip
+from terrainml.stream.transports.ros2.align import LiveAligner
 
 
 @pytest.fixture(scope="module")
@@ -215,7 +215,7 @@ def _msg(t_s, reason="", ok=True, sensors=("wheels", "imu")):
 
 
 def test_diagnostics_say_error_no_input_on_total_silence_and_name_each_silent_topic():
-    from terrainml.stream.ros2.sink import ERROR, OK, DiagnosticsState
+    from terrainml.stream.transports.ros2.sink import ERROR, OK, DiagnosticsState
 
     clock = Clock()
     w = InputWatch(clock)
@@ -252,9 +252,9 @@ def _predictor(robot, members=()):
     from stream_fakes import FakeClassifier, FakeEstimator, FakeTable
 
     from terrainml.features.windows import WindowSpec
-    from terrainml.stream.classify import ServingMember
-    from terrainml.stream.config import ServingConfig
-    from terrainml.stream.predictor import Predictor
+    from terrainml.stream.tick.classify import ServingMember
+    from terrainml.stream.tick.config import ServingConfig
+    from terrainml.stream.tick.predictor import Predictor
 
     mem = [ServingMember(name, FakeClassifier(), WindowSpec(), sensors) for name, sensors in members]
     return Predictor(robot, FakeTable(), FakeClassifier(), FakeEstimator(robot), sensors=["wheels", "currents", "imu"],
@@ -288,7 +288,7 @@ def test_slip_without_a_body_velocity_reference_is_absent_with_a_reason():
     msg = pred.step(make_samples(robot, 0.01)[0])
     d = msg.to_dict()
     assert d["slip_measured"] is None and "not observable" in d["slip_measured_note"]
-    from terrainml.stream.sinks import decode_can_frames, encode_can_frames
+    from terrainml.stream.transports.sinks import decode_can_frames, encode_can_frames
 
     assert all(math.isnan(v) for v in decode_can_frames(encode_can_frames(msg))["slip_measured"])
     assert DesiredSlip.from_json(msg.to_json()).slip_measured_note == d["slip_measured_note"]
@@ -309,7 +309,7 @@ def test_no_flapping_after_a_recovery():
     second (a fresh class is served at once); an unhealthy estimator applies on its own tick."""
     from stream_fakes import FakeTable
 
-    from terrainml.stream.policy import ServingPolicy
+    from terrainml.stream.tick.policy import ServingPolicy
 
     pol = ServingPolicy(FakeTable(), [0, 1], ["A", "B"])
     fused = _Fused()
@@ -337,8 +337,8 @@ def test_odometry_comes_from_the_valid_wheels(monkeypatch):
     speed is unknown; with neither nothing is published."""
     from test_ros2_interop import LOOPBACK
 
-    from terrainml.stream.ros2.sink import UNKNOWN_VAR, Ros2Sink
-    from terrainml.stream.ros2.types import Header
+    from terrainml.stream.transports.ros2.sink import UNKNOWN_VAR, Ros2Sink
+    from terrainml.stream.transports.ros2.types import Header
 
     monkeypatch.setenv("CYCLONEDDS_URI", LOOPBACK)
     robot = load_robot("husky")
@@ -372,7 +372,7 @@ def test_odometry_comes_from_the_valid_wheels(monkeypatch):
 
 
 def test_the_built_in_map_that_fits_the_graph_is_named():
-    from terrainml.stream.ros2.source import fitting_maps
+    from terrainml.stream.transports.ros2.source import fitting_maps
 
     husky = {"/joint_states": "sensor_msgs/msg/JointState", "/imu/data": "sensor_msgs/msg/Imu",
              "/rosout": "rcl_interfaces/msg/Log"}
@@ -384,7 +384,7 @@ def test_the_built_in_map_that_fits_the_graph_is_named():
 def test_a_return_after_total_silence_starts_a_new_timeline_at_once(sand_msgs, monkeypatch):
     """Every topic stops at 3 s; 5 s of wall time later they return (stamps 5 s on), the camera
     delivered 1.5 s ahead of the others: one new timeline, nothing dropped off it."""
-    import terrainml.stream.ros2.align as align
+    import terrainml.stream.transports.ros2.align as align
 
     wall = [1000.0]
     monkeypatch.setattr(align.time, "monotonic", lambda: wall[0])

@@ -23,11 +23,12 @@ def test_mcap_log_replayed_tick_by_tick_into_an_mcap_recording(sim_log, model_di
     from mcap.reader import make_reader
 
     from terrainml.io.ingest import load_run
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.options import ServeOptions
+    from terrainml.stream.app.runner import run_predict
 
     n_ticks = len(load_run(sim_log, robot=load_robot()).table)
     out = tmp_path / "served.mcap"
-    code = run_predict(model=model_dir, source=str(sim_log), sinks=[f"mcap:{out}", "stdout"])
+    code = run_predict(ServeOptions(model=model_dir, source=str(sim_log), sinks=(f"mcap:{out}", "stdout",)))
     assert code == 0
     stdout = capsys.readouterr().out.splitlines()
     assert len(stdout) == n_ticks
@@ -39,10 +40,10 @@ def test_mcap_log_replayed_tick_by_tick_into_an_mcap_recording(sim_log, model_di
 
 
 def test_realtime_paces_a_log_at_its_time_stamps(sim_log):
-    from terrainml.stream.sources import open_source
+    from terrainml.stream.transports.sources import SourceOptions, open_source
 
     n = 0
-    for s in open_source(str(sim_log), robot=load_robot(), realtime=True):
+    for s in open_source(str(sim_log), SourceOptions(realtime=True), robot=load_robot()):
         if n == 0:
             t0 = time.perf_counter()  # the clock starts with the first sample (after ingest)
         n += 1
@@ -55,7 +56,7 @@ def test_realtime_paces_a_log_at_its_time_stamps(sim_log):
 
 def test_replay_summary_segments_cover_every_tick(sim_log, model_dir):
     from terrainml.io.ingest import load_run
-    from terrainml.stream.runner import replay_summary
+    from terrainml.stream.app.scoring import replay_summary
 
     segs = replay_summary(model_dir, sim_log)
     assert sum(s["ticks"] for s in segs) == len(load_run(sim_log, robot=load_robot()).table)
@@ -92,10 +93,10 @@ def _side_csv(tmp_path):
 
 def test_csv_source_with_a_dataset_spec_gets_si_units_and_sides(tmp_path):
     """--format SPEC: m/s side speeds become rad/s = v / R on both wheels of a side, mA become A."""
-    from terrainml.stream.sources import open_source
+    from terrainml.stream.transports.sources import SourceOptions, open_source
 
     csv, spec = _side_csv(tmp_path)
-    samples = list(open_source(str(csv), robot=load_robot("husky"), dataset=str(spec)))
+    samples = list(open_source(str(csv), SourceOptions(dataset=str(spec)), robot=load_robot("husky")))
     assert len(samples) == 200
     s = samples[50]
     assert s["t_s"] == pytest.approx(0.5)                       # 500 ms
@@ -103,7 +104,7 @@ def test_csv_source_with_a_dataset_spec_gets_si_units_and_sides(tmp_path):
         assert s[f"wheel{i}_omega_radps"] == pytest.approx(v / R_HUSKY)  # 0.33 / 0.1651 = 1.9988 rad/s
     assert s["wheel1_current_a"] == pytest.approx(1.5) and s["wheel4_current_a"] == pytest.approx(2.5)
     # without the spec the file's columns mean nothing to the canonical table: refused, named
-    from terrainml.stream.sources import SourceError
+    from terrainml.stream.transports.sources import SourceError
 
     with pytest.raises(SourceError, match="drive_01.csv"):
         next(iter(open_source(str(csv), robot=load_robot("husky"))))
@@ -116,7 +117,7 @@ def test_topic_map_reads_a_log_with_other_topic_names(tmp_path):
     from terrainml.io import topics
     from terrainml.io.mcap_writer import RosMcapWriter
     from terrainml.io.topicmap import load_topic_map
-    from terrainml.stream.sources import SourceError, open_source
+    from terrainml.stream.transports.sources import SourceError, SourceOptions, open_source
 
     names = {topics.IMU: "/robot/imu", topics.WHEEL_JOINTS: "/robot/joints",
              topics.MOTOR_CURRENT: "/robot/currents"}
@@ -134,7 +135,7 @@ def test_topic_map_reads_a_log_with_other_topic_names(tmp_path):
     tmap.write_text(yaml.safe_dump(doc, sort_keys=False))
     with pytest.raises(SourceError):  # the default map finds none of the required topics
         next(iter(open_source(str(log), robot=load_robot())))
-    samples = list(open_source(str(log), robot=load_robot(), topic_map=str(tmap)))
+    samples = list(open_source(str(log), SourceOptions(topic_map=str(tmap)), robot=load_robot()))
     s = samples[100]
     assert s["t_s"] == pytest.approx(1.0)
     assert [s[f"wheel{i}_omega_radps"] for i in (1, 2, 3)] == pytest.approx([2.0, 3.0, 4.0])  # i + t
@@ -143,11 +144,11 @@ def test_topic_map_reads_a_log_with_other_topic_names(tmp_path):
 
 
 def test_topics_and_format_are_refused_for_udp_and_stdin():
-    from terrainml.stream.sources import SourceError, open_source
+    from terrainml.stream.transports.sources import SourceError, SourceOptions, open_source
 
     for src in ("-", "udp://127.0.0.1:0"):
         with pytest.raises(SourceError, match="apply to a log file"):
-            open_source(src, topic_map="default")
+            open_source(src, SourceOptions(topic_map="default"))
 
 
 def test_predict_on_a_full_disk_counts_every_lost_tick_of_the_mcap_sink(sim_log, model_dir, tmp_path,
@@ -155,16 +156,17 @@ def test_predict_on_a_full_disk_counts_every_lost_tick_of_the_mcap_sink(sim_log,
     """Issue 31 case 3: the recording's disk is full (ENOSPC from its file object): serving goes
     on (exit 0, every tick on stdout), the summary counts each lost tick, not one error, and no
     recording is left at the sink's path as if complete."""
-    import terrainml.stream.sinks as sinks
+    import terrainml.stream.transports.sinks as sinks
     from terrainml.io.ingest import load_run
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.options import ServeOptions
+    from terrainml.stream.app.runner import run_predict
 
     from disk_full import full_disk_open
 
     n_ticks = len(load_run(sim_log, robot=load_robot()).table)
     out = tmp_path / "served.mcap"
     monkeypatch.setattr(sinks, "open", full_disk_open(2_000), raising=False)
-    code = run_predict(model=model_dir, source=str(sim_log), sinks=[f"mcap:{out}", "stdout"])
+    code = run_predict(ServeOptions(model=model_dir, source=str(sim_log), sinks=(f"mcap:{out}", "stdout",)))
     assert code == 0
     captured = capsys.readouterr()
     assert len(captured.out.splitlines()) == n_ticks

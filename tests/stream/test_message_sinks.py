@@ -9,8 +9,8 @@ import socket
 
 import pytest
 
-from terrainml.stream.message import FIELD_NAMES, DesiredSlip, json_schema
-from terrainml.stream.sinks import (decode_can_frames, encode_can_frames, open_sink, SinkError)
+from terrainml.stream.tick.message import FIELD_NAMES, DesiredSlip, json_schema
+from terrainml.stream.transports.sinks import (decode_can_frames, encode_can_frames, open_sink, SinkError)
 
 DESIGN_11_FIELDS = ["t_s", "seq", "slip_desired", "slip_measured", "wheel_state", "terrain_class",
                     "terrain_name", "confidence", "class_probabilities", "classification_age_s",

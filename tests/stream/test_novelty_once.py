@@ -26,7 +26,7 @@ from terrainml.models.novelty import NoveltyError, fit_model_novelty, model_feat
 from terrainml.models.svm import SVMClassifier
 from terrainml.models.trees import BoostedTrees
 from terrainml.robot import load_robot
-from terrainml.stream.classify import WindowClassifier
+from terrainml.stream.tick.classify import WindowClassifier
 from terrainml.testing import kinematic_run, trapezoid_speed
 
 ROBOT = load_robot()

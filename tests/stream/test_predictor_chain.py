@@ -9,8 +9,8 @@ import pytest
 from stream_fakes import FakeClassifier, FakeTable
 
 from terrainml.testing import kinematic_run
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.sources import iter_table_samples
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.transports.sources import iter_table_samples
 
 
 @pytest.fixture(scope="module")

@@ -21,7 +21,7 @@ from test_ros2_interop import ENV, PEER, PREDICT, _domain, _Proc, _publish
 
 from terrainml.sim.generate import simulate
 from terrainml.sim.output import write_mcap
-from terrainml.stream.runner import EXIT_IDLE
+from terrainml.stream.app.runner import EXIT_IDLE
 
 
 def _log(tmp_path_factory, seconds: float, name: str):

@@ -3,7 +3,7 @@
 The peer (``ros2_peer.py``, its own process, its own cyclonedds IDL classes, the log read by
 ``mcap_ros2``; no terrainml code) replays a simulated MCAP onto DDS; a second peer process records
 what terrainml publishes. Served decisions must equal ``predict --source LOG`` on the same log, tick
-for tick; every fault case of ``terrainml/stream/ros2/source.py`` gives its documented behaviour.
+for tick; every fault case of ``terrainml/stream/transports/ros2/source.py`` gives its documented behaviour.
 
 Everything stays on the loopback interface (CYCLONEDDS_URI: ``lo``, multicast off, unicast
 discovery on 127.0.0.1), each test on a domain id of its own, every process bounded in time.
@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 
 from terrainml.sim.generate import simulate
 from terrainml.sim.output import write_mcap
-from terrainml.stream.runner import EXIT_IDLE
+from terrainml.stream.app.runner import EXIT_IDLE
 
 pytestmark = pytest.mark.acceptance  # real-time DDS with a peer process: `make test-all`
 

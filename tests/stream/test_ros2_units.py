@@ -16,12 +16,13 @@ from terrainml.io.topicmap import load_topic_map
 from terrainml.robot import load_robot
 from terrainml.sim.generate import simulate
 from terrainml.sim.output import write_mcap
-from terrainml.stream.ros2.align import LiveAligner
-from terrainml.stream.ros2.names import (Ros2NameError, dds_topic_name, dds_type_name, parse_url, ros_topic_name,
-                                         ros_type_name)
-from terrainml.stream.ros2.sink import _cov6, ros_time
-from terrainml.stream.ros2.types import Imu, JointState
-from terrainml.stream.sources import iter_table_samples
+from terrainml.stream.transports.ros2.align import LiveAligner
+from terrainml.stream.transports.ros2.names import (
+    Ros2NameError, dds_topic_name, dds_type_name, parse_url, ros_topic_name, ros_type_name,
+)
+from terrainml.stream.transports.ros2.sink import _cov6, ros_time
+from terrainml.stream.transports.ros2.types import Imu, JointState
+from terrainml.stream.transports.sources import iter_table_samples
 
 
 def test_names_follow_the_ros2_design_article():
@@ -184,7 +185,7 @@ def test_float64_multiarray_decodes_alike_on_both_paths_and_maps_by_index(tmp_pa
     an ``array`` map entry puts wheel i at index + i - 1 (a value the message lacks: NaN)."""
     from terrainml.io.ingest.signals import SourceFacts, signals_for
     from terrainml.io.topicmap import TopicMapError
-    from terrainml.stream.ros2.types import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
+    from terrainml.stream.transports.ros2.types import Float64MultiArray, MultiArrayDimension, MultiArrayLayout
 
     msgs = [Float64MultiArray(MultiArrayLayout([MultiArrayDimension("wheels", 3, 3)], 0), [1.0, -2.5, 3.0]),
             Float64MultiArray(data=[4.0, 5.0])]

@@ -23,9 +23,9 @@ from terrainml.models.artifacts import (ArtifactError, TrainingProvenance, attac
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.members import member_subsets, train_members
 from terrainml.robot import load_robot
-from terrainml.stream.classify import ModelLoadError, load_serving_model
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.sources import iter_table_samples
+from terrainml.stream.tick.classify import ModelLoadError, load_serving_model
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.transports.sources import iter_table_samples
 
 HUSKY = load_robot("husky")
 NAMES = ["ASPHALT", "SNOW"]  # BorealTC names: the borealtc catalogue gives their table

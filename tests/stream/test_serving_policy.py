@@ -1,4 +1,4 @@
-"""The serving decision (stream/policy.py): which class a tick serves, the safe cap otherwise,
+"""The serving decision (stream/tick/policy.py): which class a tick serves, the safe cap otherwise,
 and the fallback reasons by priority (design §10-11), against hand-worked targets."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import pytest
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import load_robot
-from terrainml.stream.policy import FALLBACK_REASONS, NO_CLASS_ID, ServingPolicy
+from terrainml.stream.tick.policy import NO_CLASS_ID, REASON_PRIORITY, ServingPolicy
 
 
 class HandTable:
@@ -82,7 +82,7 @@ def test_at_serve_p_a_class_is_served_below_it_the_safe_cap():
     ({}, Fused(), "no_classification"),
     ({}, Fused(one_hot(3, 0.3), stale=True), "stale_classification"),
     ({}, Fused(one_hot(3, 0.3)), "uncertain_classification"),
-], ids=list(FALLBACK_REASONS))
+], ids=list(REASON_PRIORITY))
 def test_fallback_reasons_by_priority(facts, fused, reason):
     d = decide(fused, **facts)
     assert d.fallback and d.reason == reason and d.class_id == NO_CLASS_ID
@@ -137,3 +137,9 @@ def test_a_failing_table_serves_zero_slip_and_never_raises():
     policy.table = Broken()  # a table that fails after start-up
     d = decide(Fused(one_hot(4)), policy)
     assert d.fallback and d.reason == "classifier_error" and d.slip_desired == (0.0, 0.0, 0.0)
+
+
+def test_the_priority_orders_every_reason_the_message_names_once():
+    from terrainml.stream.tick.message import FALLBACK_REASONS
+
+    assert sorted(REASON_PRIORITY) == sorted(FALLBACK_REASONS)

@@ -11,8 +11,8 @@ from stream_fakes import FakeClassifier, FakeEstimator, make_samples
 from terrainml.features.windows import WindowSpec, cut_windows, window_spec
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import load_robot
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.ring import RingBuffer, is_label
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.tick.ring import RingBuffer, is_label
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +69,7 @@ def test_serving_chain_row_by_row_matches_the_offline_chain_within_1e9():
     from terrainml.estimation.run import estimate_run
     from terrainml.features.sets import FeatureSet
     from terrainml.schema import validate_run_table
-    from terrainml.stream.classify import WindowClassifier
+    from terrainml.stream.tick.classify import WindowClassifier
 
     robot = load_robot("agrimaro")
     table = validate_run_table(make_run_table(2, "chain", seed=5, duration_s=10.0))

@@ -23,9 +23,9 @@ from terrainml.features.windows import SIDE_CHANNEL_NAMES, Windows, window_spec
 from terrainml.models.artifacts import TrainingProvenance, save_artifact
 from terrainml.models.trees import BoostedTrees
 from terrainml.robot import load_robot
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.sources import iter_table_samples
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.transports.sources import iter_table_samples
 
 HUSKY = load_robot("husky")
 NAMES = ["ASPHALT", "SNOW"]

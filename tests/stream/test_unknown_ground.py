@@ -40,13 +40,13 @@ from terrainml.pipeline.dataset import build_dataset
 from terrainml.pipeline.labels import label_run
 from terrainml.robot import load_robot
 from terrainml.schema import read_run_parquet
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.fusion import SETTLE_M, TerrainFilter
-from terrainml.stream.predictor import Predictor
-from terrainml.stream.recorder import RECORD_FORMATS, UnknownGroundRecorder
-from terrainml.stream.ros2.source import STAMP_ORIGIN_KEY
-from terrainml.stream.runner import serve
-from terrainml.stream.sources import iter_table_samples
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.fusion import SETTLE_M, FusionConfig, TerrainFilter
+from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.app.recorder import RECORD_FORMATS, UnknownGroundRecorder
+from terrainml.stream.transports.ros2.source import STAMP_ORIGIN_KEY
+from terrainml.stream.app.runner import serve
+from terrainml.stream.transports.sources import iter_table_samples
 from terrainml.testing import kinematic_run, trapezoid_speed
 
 ROBOT = load_robot()
@@ -54,7 +54,7 @@ KNOWN = (0, 2)
 FAR_SLIP = 0.45                          # no trained class slips like this
 ON_S, OFF_S, END_S = 20.0, 40.0, 62.0    # the drive: known, unknown from ON_S, known from OFF_S
 #: 1 s windows, as the served default (`short`): unknown is entered after U = 5 flagged windows
-#: (stream/fusion.unknown_windows_for: window length + 1 s at a 0.5 s hop)
+#: (stream/tick/fusion.unknown_windows_for: window length + 1 s at a 0.5 s hop)
 SPEC = WindowSpec(window_s=1.0)
 
 
@@ -213,7 +213,7 @@ def test_unknown_ground_from_the_start_is_served_unknown_within_u_windows(folder
     table = table.drop(columns=[c for c in table.columns if c.startswith("gt_") or c in ("terrain", "run_id")])
     first = {}
     for settle_m in (SETTLE_M, 0.0):
-        p = Predictor.from_model_dir(folders["with"], config=ServingConfig(fusion={"settle_m": settle_m}))
+        p = Predictor.from_model_dir(folders["with"], config=ServingConfig(fusion=FusionConfig(settle_m=settle_m)))
         out, odo = zip(*((p.step(s), p.odometer_m) for s in iter_table_samples(table)))
         p.close()
         classified = next(i for i, m in enumerate(out) if m.novelty >= 0)
@@ -346,7 +346,7 @@ def test_record_unknown_writes_exactly_the_unknown_stretch_as_a_run_that_dataset
 
 @pytest.mark.parametrize("fmt", ["parquet", "mcap"])
 def test_a_failed_write_is_counted_and_serving_goes_on(folders, drive, tmp_path, monkeypatch, fmt):
-    import terrainml.stream.recorder as recorder
+    import terrainml.stream.app.recorder as recorder
 
     def full_disk(*a, **k):
         raise OSError(28, "No space left on device")
@@ -380,28 +380,30 @@ def test_a_failed_write_is_counted_and_serving_goes_on(folders, drive, tmp_path,
 
 
 def test_a_record_folder_that_cannot_be_created_is_refused_before_serving(folders, tmp_path, capsys):
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.options import ServeOptions
+    from terrainml.stream.app.runner import run_predict
 
     blocker = tmp_path / "a_file"
     blocker.write_text("not a folder")
-    code = run_predict(model=folders["with"], source=str(tmp_path / "never_read.parquet"), sinks=["stdout"],
-                       record_unknown=blocker / "unknown")
+    code = run_predict(ServeOptions(model=folders["with"], source=str(tmp_path / "never_read.parquet"),
+                                    sinks=("stdout",), record_unknown=blocker / "unknown"))
     err = capsys.readouterr().err
     assert code == 2 and "--record-unknown" in err and "a_file" in err
 
 
 def test_recording_with_a_model_without_novelty_warns_that_nothing_will_be_recorded(folders, tmp_path, capsys):
-    from terrainml.stream.runner import run_predict
+    from terrainml.stream.app.options import ServeOptions
+    from terrainml.stream.app.runner import run_predict
 
     for name, warned in (("without", True), ("with", False)):
-        run_predict(model=folders[name], source=str(tmp_path / "never_read.parquet"), sinks=["stdout"],
-                    record_unknown=tmp_path / name)
+        run_predict(ServeOptions(model=folders[name], source=str(tmp_path / "never_read.parquet"),
+                                 sinks=("stdout",), record_unknown=tmp_path / name))
         err = capsys.readouterr().err
         assert ("has no novelty scorer" in err) is warned, err
 
 
 def test_a_second_recording_into_the_same_folder_never_overwrites_the_first(folders, drive, tmp_path, monkeypatch):
-    import terrainml.stream.recorder as recorder
+    import terrainml.stream.app.recorder as recorder
 
     epoch = recorder.time.gmtime(0)
     monkeypatch.setattr(recorder.time, "gmtime", lambda *a: epoch)  # both recordings start in the same second

@@ -1,8 +1,11 @@
 """Where base-rate samples come from: a log file, UDP JSON datagrams, stdin JSON lines (design §11).
 
-A *sample* is a dict with ``t_s`` and canonical run-table column names (design §5), e.g.
+A *sample* is a mapping of ``t_s`` and canonical run-table column names (design §5), e.g.
 ``{"t_s": 1.23, "wheel1_omega_radps": 6.1, ..., "imu_ax_mps2": 0.02, ...}``; missing groups,
-``null`` or non-finite values simply make that sensor group invalid for the tick.
+``null`` or non-finite values simply make that sensor group invalid for the tick. The JSON
+sources (UDP, stdin) check each one as they parse it and yield it typed
+(:class:`~terrainml.stream.tick.sample.Sample`); a log or ROS 2 source yields the mapping, which
+the predictor checks (:meth:`~terrainml.stream.tick.predictor.Predictor.accept`).
 
 Source specs (``terrainml predict --source``)::
 
@@ -10,7 +13,7 @@ Source specs (``terrainml predict --source``)::
     BAG_FOLDER/                                  a ROS 2 bag folder (.mcap or .db3 inside)
     udp://HOST:PORT                              one JSON object per datagram (default 127.0.0.1:9870)
     -                                            JSON lines on stdin
-    ros2://DOMAIN                                live ROS 2 topics over DDS (stream/ros2/source.py)
+    ros2://DOMAIN                                live ROS 2 topics over DDS (transports/ros2/source.py)
 
 Log files are read through the io owner's ingest (:func:`terrainml.io.ingest.load_run`), i.e. the
 very same topic decoding, frame mapping and resampling to the base rate as training used. A log
@@ -24,14 +27,14 @@ A datagram or line ``{"eos": true}`` ends the stream.
 
 Parsing cannot be crashed (:func:`parse_sample`): every datagram or line is one UTF-8 JSON
 object of at most :data:`MAX_SAMPLE_BYTES`, nested at most :data:`MAX_DEPTH` deep, whose numbers
-all fit a finite float and whose ``t_s`` passes :func:`terrainml.stream.sample.check_sample`.
+all fit a finite float and whose ``t_s`` passes :func:`terrainml.stream.tick.sample.check_sample`.
 Anything else is counted in :class:`SourceCounters` under one of :data:`MALFORMED_REASONS` and
 skipped; nothing raises out of the source. The size cap is checked before parsing, nesting is
 checked before ``json.loads`` (which also never sees more than the cap), and the number hooks of
 ``json.loads`` refuse an integer or float beyond float range and the non-JSON ``NaN`` /
 ``Infinity`` tokens (send ``null`` for a missing value). A ``RecursionError`` is caught as a
 last resort. Values of the wrong type inside a well-formed sample (a string where a number
-belongs) are not malformed: they invalidate their sensor group (:mod:`terrainml.stream.health`).
+belongs) are not malformed: they invalidate their sensor group (:mod:`terrainml.stream.tick.health`).
 """
 
 from __future__ import annotations
@@ -49,9 +52,11 @@ from typing import IO, Any, Iterator
 
 from terrainml.io.damage import DamageSummary, damage_summary
 from terrainml.io.ingest import load_run
-from terrainml.stream.ros2.names import is_ros2_spec
-from terrainml.stream.ros2.source import Ros2SourceError, iter_ros2_samples
-from terrainml.stream.sample import InvalidSample, check_sample
+from terrainml.schema import DEFAULT_RATE_HZ
+from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
+from terrainml.stream.transports.ros2.names import is_ros2_spec
+from terrainml.stream.transports.ros2.source import Ros2SourceError, iter_ros2_samples
+from terrainml.stream.tick.sample import InvalidSample, Sample, check_sample
 
 log = logging.getLogger("terrainml.stream")
 
@@ -206,7 +211,7 @@ def parse_sample(data: bytes | str, counters: SourceCounters | None = None, *,
 
 
 # --------------------------------------------------------------------------- log files
-def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = 100.0,
+def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = DEFAULT_RATE_HZ,
                      realtime: bool = False, topic_map: Any = None, dataset: Any = None,
                      counters: SourceCounters | None = None) -> Iterator[dict]:
     """Samples of a recorded log at the base rate (ingest + resampling of the io owner).
@@ -280,8 +285,8 @@ def bind_udp(host: str, port: int) -> socket.socket:
 
 def iter_udp_samples(host: str = DEFAULT_UDP_SOURCE[0], port: int = DEFAULT_UDP_SOURCE[1], *,
                      counters: SourceCounters | None = None, idle_timeout_s: float | None = None,
-                     sock: socket.socket | None = None, ready: Any = None) -> Iterator[dict]:
-    """Samples from JSON datagrams on ``host:port`` until ``{"eos": true}`` or ``idle_timeout_s``."""
+                     sock: socket.socket | None = None, ready: Any = None) -> Iterator[Sample]:
+    """Typed samples from JSON datagrams on ``host:port`` until ``{"eos": true}`` or ``idle_timeout_s``."""
     counters = counters if counters is not None else SourceCounters()
     if sock is None:
         sock = bind_udp(host, port)
@@ -301,7 +306,7 @@ def iter_udp_samples(host: str = DEFAULT_UDP_SOURCE[0], port: int = DEFAULT_UDP_
             if s is _EOS:
                 return
             if s is not None:
-                yield s
+                yield _typed(s)
     finally:
         sock.close()
 
@@ -324,8 +329,8 @@ def _bounded_lines(stream: IO[Any], max_bytes: int) -> Iterator[Any]:
 
 
 def iter_line_samples(stream: IO[Any] | None = None, *, counters: SourceCounters | None = None,
-                      max_bytes: int = MAX_SAMPLE_BYTES) -> Iterator[dict]:
-    """Samples from JSON lines (default stdin, read as bytes); blank lines are ignored."""
+                      max_bytes: int = MAX_SAMPLE_BYTES) -> Iterator[Sample]:
+    """Typed samples from JSON lines (default stdin, read as bytes); blank lines are ignored."""
     counters = counters if counters is not None else SourceCounters()
     if stream is None:  # bytes: undecodable input is a malformed line, not a decoding error
         stream = getattr(sys.stdin, "buffer", sys.stdin)
@@ -336,23 +341,51 @@ def iter_line_samples(stream: IO[Any] | None = None, *, counters: SourceCounters
         if s is _EOS:
             return
         if s is not None:
-            yield s
+            yield _typed(s)
 
 
-def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
-                counters: SourceCounters | None = None, idle_timeout_s: float | None = None,
-                rate_hz: float = 100.0, ready: Any = None, topic_map: Any = None,
-                dataset: Any = None, clock: Any = None, watch: Any = None) -> Iterator[dict]:
+def _typed(sample: dict) -> Sample:
+    """The typed sample of one :func:`parse_sample` has accepted (its ``t_s`` is checked)."""
+    return Sample(float(sample["t_s"]), sample)
+
+
+@dataclass(frozen=True)
+class SourceOptions:
+    """How ``--source`` is read, resolved once by the CLI (every default is ``terrainml predict``'s).
+
+    Attributes
+    ----------
+    realtime : a log source is paced at its own time stamps (default: as fast as possible).
+    idle_timeout_s : s, or None; a UDP or ROS 2 source ends after this long without input.
+    rate_hz : Hz, the base rate a log or live source is resampled to.
+    topic_map : how an MCAP/bag log or ROS 2 topics feed the canonical columns (a topic map name,
+        YAML path or dict; :mod:`terrainml.io.topicmap`); None: the default map.
+    dataset : how a CSV/Parquet log is read (a dataset spec; :mod:`terrainml.io.ingest.dataset_spec`).
+    max_clock_gap_s, reanchor_after : the clock policy's G (s) and K, which the ROS 2 source's
+        aligner applies as the predictor does (:mod:`terrainml.stream.tick.clock`).
+    """
+
+    realtime: bool = False
+    idle_timeout_s: float | None = None
+    rate_hz: float = DEFAULT_RATE_HZ
+    topic_map: Any = None
+    dataset: Any = None
+    max_clock_gap_s: float = MAX_GAP_S
+    reanchor_after: int = REANCHOR_AFTER
+
+
+def open_source(spec: str, options: SourceOptions = SourceOptions(), *, robot: Any = None,
+                counters: SourceCounters | None = None, ready: Any = None, watch: Any = None) -> Iterator[Any]:
     """Iterator of samples for a ``--source`` spec (see the module docstring).
 
-    ``topic_map`` / ``dataset``: how a log file is read (:func:`iter_log_samples`); refused
-    (SourceError) for UDP and stdin, whose samples already carry canonical names. ``clock``
-    (a :class:`~terrainml.stream.config.ServingConfig`: its ``max_clock_gap_s`` and
-    ``reanchor_after``) and ``watch`` (:class:`~terrainml.stream.inputs.InputWatch`, shared with
-    the ROS 2 sink's ``/diagnostics``) reach the ROS 2 source.
+    ``options.topic_map`` / ``options.dataset``: how a log file is read (:func:`iter_log_samples`);
+    refused (SourceError) for UDP and stdin, whose samples already carry canonical names.
+    ``watch`` (:class:`~terrainml.stream.tick.inputs.InputWatch`, shared with the ROS 2 sink's
+    ``/diagnostics``) reaches the ROS 2 source.
     """
     s = spec.strip()
-    if (topic_map is not None or dataset is not None) and (s == "-" or s == "udp" or s.startswith("udp://")):
+    opt = options
+    if (opt.topic_map is not None or opt.dataset is not None) and (s == "-" or s == "udp" or s.startswith("udp://")):
         raise SourceError(f"source {spec!r}: --topics and --format apply to a log file; UDP and stdin "
                           "samples carry canonical column names and SI units already")
     if s == "-":
@@ -369,14 +402,13 @@ def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
             except ValueError:
                 raise SourceError(f"source {spec!r}: expected udp://HOST:PORT") from None
         sock = bind_udp(host, port)
-        return iter_udp_samples(host, port, counters=counters, idle_timeout_s=idle_timeout_s,
+        return iter_udp_samples(host, port, counters=counters, idle_timeout_s=opt.idle_timeout_s,
                                 sock=sock, ready=ready)
     if is_ros2_spec(s):  # the topic map says which topics feed which columns, as for a log
         try:
-            clock_opts = {} if clock is None else {"max_gap_s": clock.max_clock_gap_s,
-                                                   "reanchor_after": clock.reanchor_after}
-            return iter_ros2_samples(s, robot, topic_map=topic_map, rate_hz=rate_hz, counters=counters,
-                                     idle_timeout_s=idle_timeout_s, ready=ready, watch=watch, **clock_opts)
+            return iter_ros2_samples(s, robot, topic_map=opt.topic_map, rate_hz=opt.rate_hz, counters=counters,
+                                     idle_timeout_s=opt.idle_timeout_s, ready=ready, watch=watch,
+                                     max_gap_s=opt.max_clock_gap_s, reanchor_after=opt.reanchor_after)
         except (Ros2SourceError, ValueError) as exc:
             raise SourceError(str(exc)) from None
     path = Path(s)
@@ -384,5 +416,5 @@ def open_source(spec: str, *, robot: Any = None, realtime: bool = False,
         raise SourceError(f"source {spec!r}: no such file (expected RUN.mcap, udp://HOST:PORT or -)")
     if ready is not None:
         ready(None)
-    return iter_log_samples(path, robot, rate_hz=rate_hz, realtime=realtime, topic_map=topic_map,
-                            dataset=dataset, counters=counters)
+    return iter_log_samples(path, robot, rate_hz=opt.rate_hz, realtime=opt.realtime, topic_map=opt.topic_map,
+                            dataset=opt.dataset, counters=counters)

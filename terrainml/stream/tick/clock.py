@@ -28,7 +28,7 @@ stream therefore never wedges: every stamp is a tick, a counted drop of bounded 
 served ``clock_jump`` tick on the way to re-anchoring.
 
 Each jump episode and each re-anchoring is logged as a warning when it happens (the first 10,
-then every 100th), and counted in :class:`~terrainml.stream.health.InputCounters`
+then every 100th), and counted in :class:`~terrainml.stream.tick.health.InputCounters`
 (``clock_jump``, ``reanchors``, ``duplicate``, ``out_of_order``).
 """
 
@@ -37,7 +37,7 @@ from __future__ import annotations
 import logging
 import math
 
-from terrainml.stream.health import InputCounters
+from terrainml.stream.tick.health import InputCounters
 
 log = logging.getLogger("terrainml.stream")
 

@@ -1,21 +1,22 @@
 """The estimation stage of a tick: the EKF warmed up before serving, its row read per wheel.
 
 :func:`warm_up` loads the EKF's compiled kernels before the first tick; :class:`WheelRow` reads
-an estimator (EST) row into what a message serves per wheel (slip, dynamic state, longitudinal
-speed) and completes the row with the raw columns the model's windows read.
+an estimator (EST) row into the typed :class:`WheelEstimate` a message serves per wheel (slip,
+dynamic state, longitudinal speed) and completes the row with the raw columns the model's
+windows read.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from typing import Any, Sequence
+from typing import Any, Mapping, NamedTuple, Sequence
 
 from terrainml.estimation.online import OnlineEstimator
 from terrainml.robot import RobotSpec
-from terrainml.schema import WHEEL_STATES
+from terrainml.schema import WHEEL_STATES, est_wheel_col, wheel_col
 
-__all__ = ["WheelRow", "warm_up"]
+__all__ = ["WheelEstimate", "WheelRow", "warm_up"]
 
 log = logging.getLogger("terrainml.stream")
 
@@ -34,8 +35,7 @@ def warm_up(robot: RobotSpec, preset: str = "robust") -> None:
                               "cam_vx_mps": 0.0, "cam_vy_mps": 0.0, "cam_yaw_rate_radps": 0.0,
                               "cam_yaw_rad": 0.0}
     for i in range(1, robot.n_wheels + 1):
-        sample.update({f"wheel{i}_omega_radps": 0.0, f"wheel{i}_steer_rad": 0.0,
-                       f"wheel{i}_current_a": 0.0})
+        sample.update({wheel_col(kind, i): 0.0 for kind in ("omega", "steer", "current")})
     try:
         est = OnlineEstimator(robot, preset)
         est.step(sample)
@@ -57,9 +57,9 @@ class WheelRow:
     def __init__(self, n_wheels: int, raw_columns: Sequence[str] = ()):
         self.n = int(n_wheels)
         self.raw_columns = tuple(raw_columns)
-        self._slip_keys = [f"slip{i}" for i in range(1, self.n + 1)]
-        self._state_keys = [f"state{i}" for i in range(1, self.n + 1)]
-        self._vlong_keys = [f"v_long{i}_mps" for i in range(1, self.n + 1)]
+        self._slip_keys = [est_wheel_col("slip", i) for i in range(1, self.n + 1)]
+        self._state_keys = [est_wheel_col("state", i) for i in range(1, self.n + 1)]
+        self._vlong_keys = [est_wheel_col("v_long", i) for i in range(1, self.n + 1)]
 
     def complete(self, row: dict, clean: dict) -> None:
         """Copy into ``row`` the raw columns of the (sanitised) sample it lacks (NaN if absent)."""
@@ -67,12 +67,12 @@ class WheelRow:
             if k not in row:
                 row[k] = clean.get(k, math.nan)
 
-    def idle(self) -> tuple[list[float], list[str], list[float]]:
+    def idle(self) -> "WheelEstimate":
         """Slip 0, state ``idle``, v_long 0 m/s on every wheel (a tick without a usable row)."""
-        return [0.0] * self.n, ["idle"] * self.n, [0.0] * self.n
+        return WheelEstimate(False, [0.0] * self.n, ["idle"] * self.n, [0.0] * self.n)
 
-    def read(self, row: dict) -> tuple[bool, list[float], list[str], list[float]]:
-        """(finite, slips, states, v_long) of a row; ``finite`` False if an EKF state is not finite.
+    def read(self, row: Mapping[str, Any]) -> "WheelEstimate":
+        """The per-wheel estimate of an EST row; ``finite`` False if an EKF state is not finite.
 
         Non-finite slip becomes 0 (e.g. no camera: slip unavailable); a wheel with a non-finite
         v_long is served as idle at 0 m/s; an unknown state as idle. Raises TypeError or
@@ -83,7 +83,7 @@ class WheelRow:
             v = row.get(k, 0.0)
             if v is None or not math.isfinite(float(v)):
                 ok = False
-        slips, states, v_long = self.idle()
+        slips, states, v_long = [0.0] * self.n, ["idle"] * self.n, [0.0] * self.n
         for i in range(self.n):
             s = row.get(self._slip_keys[i])
             slips[i] = float(s) if s is not None and math.isfinite(float(s)) else 0.0
@@ -94,4 +94,21 @@ class WheelRow:
                 st, v = "idle", 0.0
             states[i] = st if st in WHEEL_STATES else "idle"
             v_long[i] = v
-        return ok, slips, states, v_long
+        return WheelEstimate(ok, slips, states, v_long)
+
+
+class WheelEstimate(NamedTuple):
+    """What a tick serves per wheel from its estimator (EST) row (N wheels).
+
+    Attributes
+    ----------
+    finite : the EKF's body states (``ekf_vx_mps``, ``ekf_vy_mps``, ``ekf_yaw_rate_radps``) are finite.
+    slip : (N,) measured slip (EST ``slip{i}``), 0 where not finite.
+    state : (N,) dynamic state (EST ``state{i}``), one of ``schema.WHEEL_STATES``.
+    v_long_mps : (N,) longitudinal wheel-centre speed, m/s (EST ``v_long{i}_mps``).
+    """
+
+    finite: bool
+    slip: list[float]
+    state: list[str]
+    v_long_mps: list[float]

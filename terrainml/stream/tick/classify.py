@@ -7,13 +7,13 @@ set with :class:`terrainml.features.sets.FeatureSet` and calls the model's ``pre
 A window the steady rules reject yields ``None`` (the predictor keeps the previous
 classification, which ages towards the stale fallback) and leaves the rules it failed, and the
 channels that were invalid, in ``last_rejection`` (a :class:`Rejection`): serving counts them per
-rule and names them when the robot moves without a classification (:mod:`terrainml.stream.scheduler`).
+rule and names them when the robot moves without a classification (:mod:`terrainml.stream.tick.scheduler`).
 With the model's novelty scorer (:class:`~terrainml.models.novelty.NoveltyScorer`,
 saved with the model by ``train``), each classified window is also scored in the model's own
 feature space (:func:`~terrainml.models.novelty.model_features`, the features the scorer was
 fitted on; :func:`~terrainml.models.novelty.proba_and_features` computes them once for the
 probabilities and the score): ``last_novelty`` holds its score over the threshold and whether
-it is over it, which the fusion filter turns into unknown ground (:mod:`terrainml.stream.fusion`).
+it is over it, which the fusion filter turns into unknown ground (:mod:`terrainml.stream.tick.fusion`).
 
 :func:`load_serving_model` opens a verified model folder (``runs/NAME``) through
 :mod:`terrainml.models.artifacts` (hashes checked on load) and returns what the predictor needs.
@@ -76,7 +76,7 @@ class ServingModel:
     #: sensor groups the model needs (None: every group the robot has; design §9)
     sensors: list[str] | None = None
     #: sensor members, best first (their grouped CV balanced accuracy): served when a group
-    #: of the model is missing or unhealthy (:mod:`terrainml.stream.predictor`)
+    #: of the model is missing or unhealthy (:mod:`terrainml.stream.tick.predictor`)
     members: list[ServingMember] = field(default_factory=list)
 
 

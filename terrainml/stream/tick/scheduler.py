@@ -1,16 +1,16 @@
 """When the online predictor classifies, on which thread, and what a result does (design §11).
 
 :class:`ClassificationScheduler` runs at most one classification per online hop of the window
-spec, on the latest full window of the ring buffer (:mod:`terrainml.stream.ring`), and only
+spec, on the latest full window of the ring buffer (:mod:`terrainml.stream.tick.ring`), and only
 after the robot has moved (standing still the window holds nothing new about the ground).
 Inline (``lag_ticks`` 0) the tick classifies; otherwise the tick only snapshots the ring and a
 background thread classifies, its result applied exactly ``lag_ticks`` ticks later (the tick
 waits for it if needed: deterministic). A result feeds the fusion filter
-(:class:`~terrainml.stream.fusion.TerrainFilter`); a window the steady rules reject (``None``)
+(:class:`~terrainml.stream.tick.fusion.TerrainFilter`); a window the steady rules reject (``None``)
 keeps the previous classification and counts the rules it failed (:attr:`ClassificationScheduler.rejections`;
 :meth:`ClassificationScheduler.silence` names the rule once the robot has moved a set distance
 without a classification); any exception is caught, counted and served as
-``classifier_error`` (:mod:`terrainml.stream.policy`) until a later classification succeeds.
+``classifier_error`` (:mod:`terrainml.stream.tick.policy`) until a later classification succeeds.
 A classifier with a novelty scorer leaves the window's ``last_novelty`` (score over threshold,
 flagged), which goes to the filter with the probabilities (unknown ground).
 
@@ -30,8 +30,8 @@ from typing import Any, Protocol, Sequence
 import numpy as np
 import pandas as pd
 
-from terrainml.stream.fusion import TerrainFilter
-from terrainml.stream.ring import RingBuffer, is_label
+from terrainml.stream.tick.fusion import TerrainFilter
+from terrainml.stream.tick.ring import RingBuffer, is_label
 
 __all__ = ["MIN_MOVE_M", "ClassificationScheduler", "SilenceWatch", "WindowClassifierLike"]
 

@@ -3,10 +3,10 @@
 A model folder may carry sensor members (:func:`terrainml.models.artifacts.attach_members`):
 the same training on a subset of the model's sensor groups (without IMU, without currents).
 :class:`MemberSwitch` holds the model and its members, best first, and on every tick picks
-the first whose health groups (:mod:`terrainml.stream.health`) are all fresh: the model while
+the first whose health groups (:mod:`terrainml.stream.tick.health`) are all fresh: the model while
 every group it needs is healthy, else the best member that does without the silent ones. It
 keeps the one it has when none is healthy (the tick is then unhealthy anyway). The predictor
-(:mod:`terrainml.stream.predictor`) classifies with the chosen one's classifier and window
+(:mod:`terrainml.stream.tick.predictor`) classifies with the chosen one's classifier and window
 spec, checks health on its groups only, and the message names its sensor groups.
 
 All of them share one estimator, one ring buffer (as long as the longest window) and one fusion
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any, Sequence
 
 from terrainml.features.windows import WindowSpec
-from terrainml.stream.health import SENSOR_TO_GROUP
+from terrainml.stream.tick.health import SENSOR_TO_GROUP
 
 log = logging.getLogger("terrainml.stream")
 
@@ -37,7 +37,7 @@ class Candidate:
     name : ``model`` for the folder's model, else the member's name (``no_imu``, ...).
     classifier : its window classifier. window_spec : its windows.
     sensors : its sensor groups (``wheels``, ``currents``, ``imu``, ``cam``).
-    groups : the health groups those need (:data:`~terrainml.stream.health.SENSOR_TO_GROUP`,
+    groups : the health groups those need (:data:`~terrainml.stream.tick.health.SENSOR_TO_GROUP`,
         with the wheels, and the steering of a steered robot, always).
     """
 

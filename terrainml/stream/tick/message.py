@@ -39,7 +39,7 @@ slip_measured_note   str             only when slip is not observable (a live so
 The last three are additions to design §11's field list (say which sensors served and
 why the windows are rejected: how unlike the training windows the ground is); a
 message without them (an older log) still reads. CAN carries ``unknown_terrain`` as reason code
-8 but not ``novelty`` (its frames have no byte free; :mod:`terrainml.stream.sinks`).
+8 but not ``novelty`` (its frames have no byte free; :mod:`terrainml.stream.transports.sinks`).
 
 JSON never contains NaN or infinity. :meth:`DesiredSlip.to_dict` replaces any non-finite
 number by its documented safe value (:data:`SAFE_VALUES`): slips 0.0, confidence 0.0,
@@ -56,17 +56,19 @@ from typing import Any
 
 from terrainml.schema import WHEEL_STATES
 
-#: fallback reasons; their order is the CAN reason code (1, 2, ...) and never changes. Priority
-#: (the first that applies is reported): clock_jump, then the others in this order.
+#: the fallback reason of ground unlike the model's training windows
+UNKNOWN_TERRAIN = "unknown_terrain"
+#: fallback reasons; their order is the CAN reason code (1, 2, ...) and never changes. Which one a
+#: tick serves when several apply: :data:`terrainml.stream.tick.policy.REASON_PRIORITY`.
 FALLBACK_REASONS: tuple[str, ...] = (
     "estimator_unhealthy",   # a sensor group silent > 0.2 s, or the estimator state is not finite
     "classifier_error",      # the last classification attempt raised; no usable classification
     "no_classification",     # start-up: no window has been classified yet
     "stale_classification",  # more than stale_m (default 3 m) travelled since the last classification
-    "clock_jump",            # t_s off the stream's timeline, re-anchoring (stream/clock.py)
+    "clock_jump",            # t_s off the stream's timeline, re-anchoring (tick/clock.py)
     "uncertain_classification",  # the fused posterior's maximum is below serve_p (default 0.6)
     "windows_rejected",      # moved > warn_after_m (default 5 m) healthy, every window rejected
-    "unknown_terrain",       # the latest windows are unlike the model's training windows
+    UNKNOWN_TERRAIN,         # the latest windows are unlike the model's training windows
 )
 
 #: value substituted for a non-finite number, per field
@@ -114,7 +116,6 @@ class DesiredSlip:
     sensors: list[str] = field(default_factory=list)
     novelty: float = -1.0
     slip_measured_note: str = ""
-    extra: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     # ------------------------------------------------------------------ json
     def to_dict(self) -> dict[str, Any]:
@@ -148,7 +149,7 @@ class DesiredSlip:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "DesiredSlip":
-        keys = [f for f in cls.__dataclass_fields__ if f != "extra"]
+        keys = list(cls.__dataclass_fields__)
         # the fields added after design §11's list (they have defaults) may be absent
         missing = [k for k in keys if k not in d and k not in ADDED_FIELDS + OPTIONAL_FIELDS]
         keys = [k for k in keys if k in d]
@@ -166,9 +167,9 @@ class DesiredSlip:
 
 #: fields present only when they say something (``slip_measured_note``: slip not observable)
 OPTIONAL_FIELDS: tuple[str, ...] = ("slip_measured_note",)
-FIELD_NAMES: tuple[str, ...] = tuple(f for f in DesiredSlip.__dataclass_fields__
-                                     if f != "extra" and f not in OPTIONAL_FIELDS)
-#: fields added to design §11's list (issues #28, #30): a message written before them still reads
+FIELD_NAMES: tuple[str, ...] = tuple(f for f in DesiredSlip.__dataclass_fields__ if f not in OPTIONAL_FIELDS)
+#: fields beyond design §11's list (which sensors served, why windows were rejected, how novel
+#: the ground is): a message without them still reads
 ADDED_FIELDS: tuple[str, ...] = ("fallback_detail", "sensors", "novelty")
 
 

@@ -1,11 +1,14 @@
 """What a sample is, and the one error raised for anything that is not one (design §11).
 
-A *sample* is a mapping of ``str`` keys to values with a ``t_s`` (s) that is a real number
-(``int``, ``float`` or a numpy scalar, not ``bool``) with a finite float value; any other key is a
-canonical run-table column or an extra (values of the wrong type or non-finite only invalidate
-their sensor group, :mod:`terrainml.stream.health`). :func:`check_sample` is the single
-definition: :meth:`terrainml.stream.predictor.Predictor.step` raises its :class:`InvalidSample`,
-and the JSON parser of :mod:`terrainml.stream.sources` counts it as a malformed line.
+A source yields a sample as it reads it: a mapping of ``str`` keys to values with a ``t_s`` (s)
+that is a real number (``int``, ``float`` or a numpy scalar, not ``bool``) with a finite float
+value; any other key is a canonical run-table column (:mod:`terrainml.schema`) or an extra
+(values of the wrong type or non-finite only invalidate their sensor group,
+:mod:`terrainml.stream.tick.health`). :func:`check_sample` is the single definition:
+:meth:`Sample.check` turns a mapping that passes it into the typed :class:`Sample` a tick and the
+sinks take, :meth:`terrainml.stream.tick.predictor.Predictor.step` raises its
+:class:`InvalidSample`, and the JSON parser of :mod:`terrainml.stream.transports.sources` counts it
+as a malformed line.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from __future__ import annotations
 import math
 import numbers
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 #: reasons an :class:`InvalidSample` carries (``InvalidSample.reason``)
@@ -60,3 +64,28 @@ def check_sample(sample: Any) -> float:
     if not math.isfinite(t_s):
         raise InvalidSample("t_s_not_finite", f"t_s is {t_s}")
     return t_s
+
+
+@dataclass(frozen=True, slots=True)
+class Sample:
+    """One checked base-rate sample: what a tick serves from, and what sinks are handed with
+    its message.
+
+    Attributes
+    ----------
+    t_s : s, finite.
+    columns : the sample as the source gave it, by canonical column name (``t_s`` included;
+        extras such as a ROS 2 source's stamp origin too). Read only.
+    """
+
+    t_s: float
+    columns: Mapping[str, Any]
+
+    @classmethod
+    def check(cls, sample: Any) -> "Sample":
+        """The typed sample of a mapping that passes :func:`check_sample` (else :class:`InvalidSample`)."""
+        return cls(check_sample(sample), sample)
+
+
+#: the sample of a tick that has none to hand over (a sink called without one)
+NO_SAMPLE = Sample(float("nan"), {})

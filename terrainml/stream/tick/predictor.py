@@ -1,4 +1,4 @@
-"""The online predictor: one :class:`~terrainml.stream.message.DesiredSlip` per base-rate tick.
+"""The online predictor: one :class:`~terrainml.stream.tick.message.DesiredSlip` per base-rate tick.
 
 :class:`Predictor` is the tick loop of serving (design §11)::
 
@@ -7,20 +7,20 @@
 
 Each stage is its own module; the predictor only hands a tick's facts from one to the next:
 
-* :func:`terrainml.stream.sample.check_sample` rejects anything that is not a sample with
-  :class:`~terrainml.stream.sample.InvalidSample` (the one exception :meth:`Predictor.step`
-  raises); the clock policy (:mod:`terrainml.stream.clock`) decides which stamps are ticks.
+* :func:`terrainml.stream.tick.sample.check_sample` rejects anything that is not a sample with
+  :class:`~terrainml.stream.tick.sample.InvalidSample` (the one exception :meth:`Predictor.step`
+  raises); the clock policy (:mod:`terrainml.stream.tick.clock`) decides which stamps are ticks.
 * Estimation is :class:`terrainml.estimation.online.OnlineEstimator` (the same step code the
   offline ``estimate_run`` loops over); its rows go to the column ring buffer
-  (:mod:`terrainml.stream.ring`), one window of the model's window spec long.
-* Classification (:mod:`terrainml.stream.scheduler`) runs at most once per online hop of the
+  (:mod:`terrainml.stream.tick.ring`), one window of the model's window spec long.
+* Classification (:mod:`terrainml.stream.tick.scheduler`) runs at most once per online hop of the
   window spec, on the latest window, with the offline window and feature code
-  (:mod:`terrainml.stream.classify`), inline or in a background thread; its probabilities are
-  fused over distance (:mod:`terrainml.stream.fusion`, aged by :mod:`terrainml.stream.odometer`).
+  (:mod:`terrainml.stream.tick.classify`), inline or in a background thread; its probabilities are
+  fused over distance (:mod:`terrainml.stream.tick.fusion`, aged by :mod:`terrainml.stream.tick.odometer`).
 * What a tick serves, and every fallback rule with its priority, is
-  :class:`terrainml.stream.policy.ServingPolicy`.
+  :class:`terrainml.stream.tick.policy.ServingPolicy`.
 * Nothing non-finite reaches the output: non-finite inputs invalidate their sensor group
-  (:mod:`terrainml.stream.health`), non-finite estimator outputs make ``estimator_ok`` false and
+  (:mod:`terrainml.stream.tick.health`), non-finite estimator outputs make ``estimator_ok`` false and
   are replaced (slip 0, state ``idle``), and the message layer checks again.
 * Samples with a duplicate or late ``t_s`` are dropped and counted: :meth:`Predictor.step`
   returns ``None`` for them (the only departure from "one output per input"). A ``t_s`` off the
@@ -44,19 +44,19 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.features.windows import WindowSpec
 from terrainml.lookup.wheel_targets import TargetTable
 from terrainml.robot import RobotSpec
-from terrainml.stream.classify import ServingMember, load_serving_model, one_window_spec
-from terrainml.stream.clock import ACCEPT, JUMP, REANCHOR, ClockGate
-from terrainml.stream.config import ServingConfig
-from terrainml.stream.estimate import WheelRow, warm_up
-from terrainml.stream.fusion import TerrainFilter, fusion_settings
-from terrainml.stream.health import HealthMonitor, InputCounters
-from terrainml.stream.members import Candidate, MemberSwitch, candidate, check_members
-from terrainml.stream.message import DesiredSlip
-from terrainml.stream.odometer import Odometer
-from terrainml.stream.policy import PolicyDecision, ServingPolicy
-from terrainml.stream.ring import RingBuffer
-from terrainml.stream.sample import InvalidSample, check_sample
-from terrainml.stream.scheduler import ClassificationScheduler, SilenceWatch, WindowClassifierLike
+from terrainml.stream.tick.classify import ServingMember, load_serving_model, one_window_spec
+from terrainml.stream.tick.clock import ACCEPT, JUMP, REANCHOR, ClockGate
+from terrainml.stream.tick.config import ServingConfig
+from terrainml.stream.tick.estimate import WheelRow, warm_up
+from terrainml.stream.tick.fusion import TerrainFilter, fusion_settings
+from terrainml.stream.tick.health import HealthMonitor, InputCounters
+from terrainml.stream.tick.member_vote import Candidate, MemberSwitch, candidate, check_members
+from terrainml.stream.tick.message import DesiredSlip
+from terrainml.stream.tick.odometer import Odometer
+from terrainml.stream.tick.policy import PolicyDecision, ServingPolicy
+from terrainml.stream.tick.ring import RingBuffer
+from terrainml.stream.tick.sample import InvalidSample, Sample
+from terrainml.stream.tick.scheduler import ClassificationScheduler, SilenceWatch, WindowClassifierLike
 
 __all__ = ["InvalidSample", "Predictor"]
 
@@ -75,7 +75,7 @@ class Predictor:
     table : desired-slip table with ``target(class_id, state) -> float``
         (:class:`terrainml.lookup.table.DesiredSlipTable`).
     classifier : object with ``class_ids`` and ``classify(window_df) -> probs | None``
-        (:class:`terrainml.stream.classify.WindowClassifier`), or None (always fallback). Its
+        (:class:`terrainml.stream.tick.classify.WindowClassifier`), or None (always fallback). Its
         ``class_names`` (names by class id), when it has them, name the served classes; else the
         eight of design §6.1.
     estimator : object with ``step(sample) -> dict`` (an EST row); default
@@ -86,11 +86,11 @@ class Predictor:
         rate. None: the classifier's ``window_spec``, else ``WindowSpec()`` (2.0 s, hop 0.5 s,
         100 Hz). A classifier that cuts another spec is refused (ValueError).
     sensors : sensor groups the model needs (health is checked on these; None: all the robot's).
-    config : :class:`~terrainml.stream.config.ServingConfig` (fallback rules, fusion, clock
+    config : :class:`~terrainml.stream.tick.config.ServingConfig` (fallback rules, fusion, clock
         policy, classification thread, EKF preset); default ``ServingConfig()``.
-    members : the model's sensor members (:class:`~terrainml.stream.classify.ServingMember`, best
+    members : the model's sensor members (:class:`~terrainml.stream.tick.classify.ServingMember`, best
         first): when a group the model needs is silent, the best member whose groups are all
-        fresh classifies (:mod:`terrainml.stream.members`); the message's ``sensors`` says which.
+        fresh classifies (:mod:`terrainml.stream.tick.member_vote`); the message's ``sensors`` says which.
     """
 
     def __init__(self, robot: RobotSpec, table: TargetTable,
@@ -177,26 +177,28 @@ class Predictor:
         return self.odometer.distance_m
 
     # ------------------------------------------------------------------ tick
-    def step(self, sample: Mapping[str, Any]) -> DesiredSlip | None:
+    def step(self, sample: Sample | Mapping[str, Any]) -> DesiredSlip | None:
         """Process one base-rate sample (canonical column names + ``t_s``).
 
         Parameters
         ----------
-        sample : mapping of str keys to values, with ``t_s`` (s) a finite real number (``int``,
-            ``float`` or a numpy scalar; not a bool, not a string). Values of the wrong type or
-            non-finite only invalidate their sensor group (:mod:`terrainml.stream.health`).
+        sample : a :class:`~terrainml.stream.tick.sample.Sample` (checked by :meth:`accept`), or a
+            mapping of str keys to values, with ``t_s`` (s) a finite real number (``int``,
+            ``float`` or a numpy scalar; not a bool, not a string), checked here. Values of the
+            wrong type or non-finite only invalidate their sensor group
+            (:mod:`terrainml.stream.tick.health`).
 
         Returns
         -------
         DesiredSlip, one per tick, every number finite; or None when the sample is dropped: a
-        duplicate or late ``t_s`` (clock policy, :mod:`terrainml.stream.clock`; counted in
+        duplicate or late ``t_s`` (clock policy, :mod:`terrainml.stream.tick.clock`; counted in
         ``self.counters``). A ``t_s`` off the timeline is served as a fallback tick with
         ``fallback_reason="clock_jump"``; the K-th consistent one re-anchors the stream.
 
         Raises
         ------
         InvalidSample
-            A ``ValueError`` (:mod:`terrainml.stream.sample`), when ``sample`` is not a sample:
+            A ``ValueError`` (:mod:`terrainml.stream.tick.sample`), when ``sample`` is not a sample:
             not a mapping (None, a string, a list, ...), a key that is not a str, no ``t_s``, or a
             ``t_s`` that is not a real number (a string, a bool, None) or not finite (NaN, inf,
             an int beyond float range). It is counted first (``bad_time`` for the ``t_s`` cases,
@@ -205,11 +207,8 @@ class Predictor:
             served as fallback ticks.
         """
         t_start = time.perf_counter()
-        try:
-            t = check_sample(sample)
-        except InvalidSample as exc:
-            self.counters.count_invalid(exc.reason)
-            raise
+        checked = self.accept(sample)
+        t = checked.t_s
         verdict = self.clock.check(t)
         if verdict == JUMP:
             return self._clock_jump_tick(t, t_start)
@@ -217,7 +216,7 @@ class Predictor:
             self._restart()
         elif verdict != ACCEPT:
             return None
-        clean, fresh = self.health.sanitise(sample)  # type: ignore[arg-type]
+        clean, fresh = self.health.sanitise(checked.columns)  # type: ignore[arg-type]
         healthy, silent = self.health.update(t, fresh)
         if self.switch.has_members:  # the best of the model and its members whose groups are fresh
             chosen = self.switch.choose(silent)
@@ -228,22 +227,24 @@ class Predictor:
 
         row = self._estimate(clean)
         est_ok = healthy and row is not None and (bool(row.get("estimator_ok", True)) or not self._estimator_flag)
-        slips, states, v_long = self.wheels.idle()
+        wheels = None
         if row is not None:
             self.wheels.complete(row, clean)  # columns the model's windows read, not the EKF's
             try:
-                finite, slips, states, v_long = self.wheels.read(row)
-                est_ok = finite and est_ok
+                wheels = self.wheels.read(row)
+                est_ok = wheels.finite and est_ok
             except (TypeError, ValueError) as exc:  # a row we cannot read: unhealthy tick
                 self.n_estimator_errors += 1
                 log.warning("estimator row unreadable at t=%.3f s: %s", t, exc)
-                slips, states, v_long = self.wheels.idle()
                 est_ok = False
             if not self._estimator_flag:
                 # the EKF's own flag needs a fresh IMU; a model without it reads the body channels
                 # of its windows as valid on the ticks that are healthy on its own groups
                 row["estimator_ok"] = est_ok
             self.ring.append(row)
+        if wheels is None:   # no row, or one that cannot be read: every wheel idle
+            wheels = self.wheels.idle()
+        states, v_long = wheels.state, wheels.v_long_mps
         self._last_states, self._last_v_long = states, v_long
         d_m = self.odometer.advance(t, row if est_ok else None)
         if d_m is not None:  # the fusion filter ages by distance
@@ -254,7 +255,18 @@ class Predictor:
         age = None if self.scheduler.class_t is None else t - self.scheduler.class_t
         rejected = self.silence.check(t, self.odometer.distance_m) if est_ok else None
         return self._message(t, self._decide(age, est_ok, states, v_long, t, rejected_by=rejected),
-                             slips, states, age, est_ok, t_start)
+                             wheels.slip, states, age, est_ok, t_start)
+
+    def accept(self, sample: Any) -> Sample:
+        """The typed :class:`Sample` of ``sample`` (a Sample as is); one that is not a sample is counted
+        (``bad_time`` or ``not_a_sample``) and raises :class:`InvalidSample` (see :meth:`step`)."""
+        if type(sample) is Sample:   # checked where it was made (a JSON source)
+            return sample
+        try:
+            return Sample.check(sample)
+        except InvalidSample as exc:
+            self.counters.count_invalid(exc.reason)
+            raise
 
     def set_mapped_groups(self, groups: Sequence[str]) -> None:
         """The source feeds only these sensor groups (a live topic map's): the others are *not

@@ -1,24 +1,24 @@
 """The serving decision of one tick: fused class or the class-free safe cap (design §10-11).
 
 Every fallback rule of serving and its priority live here, in :meth:`ServingPolicy.reason`;
-the predictor (:mod:`terrainml.stream.predictor`) only gathers the facts of the tick. The
-predictor fuses classifications over distance (:mod:`terrainml.stream.fusion`); this module
+the predictor (:mod:`terrainml.stream.tick.predictor`) only gathers the facts of the tick. The
+predictor fuses classifications over distance (:mod:`terrainml.stream.tick.fusion`); this module
 turns the fused posterior into what a tick serves:
 
 * **a class**: the argmax of the posterior, with the posterior as confidence, when it is at
   least ``serve_p`` (default 0.6) and the classification is not stale; per wheel
   ``s_des_i = sgn(v_long_i) s_target(class, state_i)`` (eq. 8.7-8.9,
-  :func:`terrainml.lookup.policy.desired_slip_per_wheel`);
+  :func:`terrainml.lookup.wheel_targets.desired_slip_per_wheel`);
 * **the safe cap** otherwise (design §10, :meth:`DesiredSlipTable.safe_cap` over the model's
-  classes, per wheel :func:`terrainml.lookup.policy.safe_cap_per_wheel`): the largest
+  classes, per wheel :func:`terrainml.lookup.wheel_targets.safe_cap_per_wheel`): the largest
   traction-peak slip of the classes in traction and steady, the most negative braking target in
   braking, 0 when idle; so no known class is stalled and no wheel runs away. The message names no
   class (``terrain_class`` -1, ``terrain_name`` ``"none"``) and carries the reason.
 
-Reasons, by priority (:data:`FALLBACK_REASONS`): ``clock_jump`` (the tick's stamp is off the
+Reasons, by priority (:data:`REASON_PRIORITY`): ``clock_jump`` (the tick's stamp is off the
 timeline, the chain did not run) > ``estimator_unhealthy`` > ``classifier_error`` (the last
 attempt raised, no fused class) > ``unknown_terrain`` (the latest classified windows are unlike
-the model's training windows: the fusion filter's ``unknown``, :mod:`terrainml.stream.fusion`;
+the model's training windows: the fusion filter's ``unknown``, :mod:`terrainml.stream.tick.fusion`;
 unknown ground) > ``windows_rejected`` (no class, or a stale one, and every
 window rejected while the robot moved more than ``warn_after_m`` healthy: the message's
 ``fallback_detail`` names the rule and channels) > ``no_classification`` (none yet) > ``stale_classification``
@@ -48,8 +48,9 @@ import numpy as np
 
 from terrainml.lookup.wheel_targets import desired_slip_per_wheel, safe_cap_per_wheel
 from terrainml.lookup.table import CLASS_FREE_DETAIL
+from terrainml.stream.tick.message import UNKNOWN_TERRAIN
 
-__all__ = ["FALLBACK_REASONS", "NO_CLASS_ID", "NO_CLASS_NAME", "SERVE_P", "GenericSafeCap",
+__all__ = ["REASON_PRIORITY", "NO_CLASS_ID", "NO_CLASS_NAME", "SERVE_P", "GenericSafeCap",
            "PolicyDecision", "ServingPolicy", "safe_cap_for"]
 
 log = logging.getLogger("terrainml.stream")
@@ -63,10 +64,11 @@ HOLD_S = 1.0
 SOFT_REASONS = ("", "stale_classification", "uncertain_classification")
 #: the one whose entry is held :data:`HOLD_S` (:meth:`ServingPolicy._held`)
 STALE = "stale_classification"
-#: the fallback reasons, highest priority first
-FALLBACK_REASONS = ("clock_jump", "estimator_unhealthy", "classifier_error", "unknown_terrain",
-                    "windows_rejected", "no_classification", "stale_classification",
-                    "uncertain_classification")
+#: the fallback reasons (:data:`terrainml.stream.tick.message.FALLBACK_REASONS`, whose order is
+#: their CAN code), highest priority first: the first that applies is served
+REASON_PRIORITY = ("clock_jump", "estimator_unhealthy", "classifier_error", UNKNOWN_TERRAIN,
+                   "windows_rejected", "no_classification", "stale_classification",
+                   "uncertain_classification")
 
 
 @dataclass(frozen=True)
@@ -80,7 +82,7 @@ class PolicyDecision:
     confidence : fused posterior of the served class (0.0 on fallback).
     slip_desired : tuple of N floats, signed per-wheel desired slip.
     fallback : True when the safe cap is served.
-    reason : "" or one of :data:`FALLBACK_REASONS`.
+    reason : "" or one of :data:`REASON_PRIORITY`.
     detail : for ``windows_rejected``, the rule (and channels) that rejects the windows; for a
         class served without terrain parameters, :data:`~terrainml.lookup.table.CLASS_FREE_DETAIL`;
         else "".
@@ -99,12 +101,12 @@ class PolicyDecision:
 
 
 class FusedClass(Protocol):
-    """What the policy reads of the fusion filter (:class:`~terrainml.stream.fusion.TerrainFilter`)."""
+    """What the policy reads of the fusion filter (:class:`~terrainml.stream.tick.fusion.TerrainFilter`)."""
 
     posterior: np.ndarray | None
     stale: bool
     #: optional (getattr): unknown ground, and the latest window's novelty over its threshold
-    #: (:class:`~terrainml.stream.fusion.TerrainFilter`); absent: known, -1.0
+    #: (:class:`~terrainml.stream.tick.fusion.TerrainFilter`); absent: known, -1.0
 
     def best(self) -> tuple[int, float]: ...
 
@@ -217,7 +219,7 @@ class ServingPolicy:
         if classifier_error and fused.posterior is None:
             return "classifier_error"
         if getattr(fused, "unknown", False):
-            return "unknown_terrain"
+            return UNKNOWN_TERRAIN
         if fused.posterior is None:
             return "windows_rejected" if rejected_by else "no_classification"
         if fused.stale or (self.max_age_s is not None and age_s is not None and age_s > self.max_age_s):

@@ -3,10 +3,10 @@
 ``terrainml predict --source ros2://0 [--topics MAP.yaml]`` joins DDS domain ``DOMAIN`` as a ROS 2
 participant (Cyclone DDS, the ``rmw_cyclonedds_cpp`` wire format; no ROS installation needed) and
 subscribes to every topic of the topic map -- the same YAML that MCAP ingest reads, the default
-map without ``--topics`` -- with the map's message types (:mod:`terrainml.stream.ros2.types`).
+map without ``--topics`` -- with the map's message types (:mod:`terrainml.stream.transports.ros2.types`).
 Each received message is decoded by ingest's decoder (:func:`terrainml.io.cdr.from_object`:
 header stamp, or the DDS source timestamp for types without a header, as ingest takes the log
-time) and aligned into base-rate samples by :class:`~terrainml.stream.ros2.align.LiveAligner`,
+time) and aligned into base-rate samples by :class:`~terrainml.stream.transports.ros2.align.LiveAligner`,
 the ingest engine run live: the samples, and so the served decisions, are those of ``terrainml
 predict --source LOG`` on a recording of the same messages.
 
@@ -58,12 +58,14 @@ from terrainml.io import cdr
 from terrainml.io.topicmap import BUILTIN_MAPS, Source, TopicMap, load_topic_map
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import DEFAULT_RATE_HZ
-from terrainml.stream.clock import MAX_GAP_S, REANCHOR_AFTER
-from terrainml.stream.inputs import InputWatch
-from terrainml.stream.ros2.align import REORDER_S, WARMUP_S, LiveAligner
-from terrainml.stream.ros2.names import (QOS_PROFILES, Ros2NameError, dds_topic_name, dds_type_name, parse_url,
-                                         qos_for, ros_topic_name, ros_type_name)
-from terrainml.stream.ros2.types import MESSAGE_TYPES
+from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
+from terrainml.stream.tick.inputs import InputWatch
+from terrainml.stream.transports.ros2.align import REORDER_S, WARMUP_S, LiveAligner
+from terrainml.stream.transports.ros2.names import (
+    QOS_PROFILES, Ros2NameError, dds_topic_name, dds_type_name, parse_url, qos_for, ros_topic_name,
+    ros_type_name,
+)
+from terrainml.stream.transports.ros2.types import MESSAGE_TYPES
 
 log = logging.getLogger("terrainml.stream")
 
@@ -240,10 +242,10 @@ def iter_ros2_samples(spec: str = "ros2://0", robot: RobotSpec | str | None = No
     """Samples from the ROS 2 topics of ``topic_map`` on the domain of ``spec`` (module docstring).
 
     Raises :class:`Ros2SourceError` before the first sample when the URL, the map or a publisher's
-    type is wrong. ``counters`` (a :class:`~terrainml.stream.sources.SourceCounters`) counts the
+    type is wrong. ``counters`` (a :class:`~terrainml.stream.transports.sources.SourceCounters`) counts the
     messages received; its ``idle`` is set to the idle-timeout line when the stream ends on it.
     ``max_gap_s`` / ``reanchor_after``: the clock policy's G and K (``predict --max-clock-gap-s``,
-    ``--reanchor-after``). ``watch``: per-topic freshness (:class:`~terrainml.stream.inputs.InputWatch`;
+    ``--reanchor-after``). ``watch``: per-topic freshness (:class:`~terrainml.stream.tick.inputs.InputWatch`;
     one is made when None), shared with a ROS 2 sink's ``/diagnostics``.
     """
     try:

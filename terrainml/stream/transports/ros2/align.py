@@ -39,7 +39,7 @@ topics are with its first message, logged (``topic /imu publishes again after 10
 other message is off the timeline and held. ``reanchor_after`` (K, 5) consistent held messages
 from two topics or more start a new timeline there: the old one is finished and the grid
 continues at the new stamps (same time origin), so the predictor sees the jump in ``t_s`` and applies its clock policy
-(:mod:`terrainml.stream.clock`). Held messages are dropped and counted when their topic comes back
+(:mod:`terrainml.stream.tick.clock`). Held messages are dropped and counted when their topic comes back
 on its timeline (one publisher with a wild clock), and so are the old timeline's stragglers.
 
 Return after total silence: when every topic has been silent on the wall clock for at least
@@ -67,7 +67,7 @@ from terrainml.io.ingest.ticks import TickProducer
 from terrainml.io.topicmap import TopicMap
 from terrainml.robot import RobotSpec
 from terrainml.schema import DEFAULT_RATE_HZ, VALID_GROUPS, column_map
-from terrainml.stream.clock import MAX_GAP_S, REANCHOR_AFTER
+from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
 
 log = logging.getLogger("terrainml.stream")
 
@@ -183,7 +183,7 @@ class LiveAligner:
         """Samples of the ticks settled so far (in order); starts the stream after the warm-up.
 
         ``wait_all``: decide no tick without a topic that lags the others (the process just
-        lagged, :meth:`terrainml.stream.inputs.InputWatch.in_grace`: its messages may still be
+        lagged, :meth:`terrainml.stream.tick.inputs.InputWatch.in_grace`: its messages may still be
         on their way), instead of waiting only ``reorder_s`` of stamps for it.
         """
         if self._prod is None:

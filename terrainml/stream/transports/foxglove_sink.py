@@ -19,7 +19,7 @@ machine's clock, and a ``clock_jump`` tick (``t_s`` off the timeline) would othe
 viewer's timeline years ahead. ``t_s`` stays in the message (use it as the Plot's x axis).
 
 A live view must never stop serving: if the port cannot be bound (in use, no such address) the
-sink logs it, raises on every ``send`` (which :class:`~terrainml.stream.sinks.GuardedSink`
+sink logs it, raises on every ``send`` (which :class:`~terrainml.stream.transports.sinks.GuardedSink`
 counts) and retries binding every ``retry_s`` seconds. A client that connects, lags or drops is
 the SDK's business: a slow client loses the oldest messages, never the predictor's time. With no
 client subscribed a tick costs one call (nothing is serialised).
@@ -37,7 +37,8 @@ import foxglove
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.io.topics import WHEEL_STATE_CODES
 from terrainml.schema import WHEEL_STATES
-from terrainml.stream.message import TOPIC, DesiredSlip, json_schema
+from terrainml.stream.tick.message import TOPIC, DesiredSlip, json_schema
+from terrainml.stream.tick.sample import NO_SAMPLE, Sample
 
 log = logging.getLogger("terrainml.stream")
 
@@ -71,7 +72,8 @@ def live_schema(n_wheels: int | None = None, class_names: Sequence[str] | None =
         "properties": {
             "wheel": {"type": "integer", "minimum": 1, "description": "wheel number (wheel1 = 1)"},
             "slip_desired": {"type": "number", "description": "desired slip (signed)"},
-            "slip_measured": {"type": "number", "description": "measured slip"},
+            "slip_measured": {"type": ["number", "null"],
+                              "description": "measured slip; null when not observable"},
             "state": {"type": "string", "enum": list(WHEEL_STATES), "description": "dynamic state"},
             "state_code": {"type": "integer", "enum": sorted(WHEEL_STATE_CODES.values()),
                            "description": "0 idle, 1 steady, 2 traction, 3 braking"},
@@ -160,7 +162,7 @@ class FoxgloveSink:
         log.info("%s: Foxglove live view ready (open connection -> Foxglove WebSocket -> ws://%s:%d)",
                  self.name, self.host, self.server.port)
 
-    def send(self, msg: DesiredSlip) -> None:
+    def send(self, msg: DesiredSlip, sample: Sample = NO_SAMPLE) -> None:
         if self.server is None:
             self._start()
         if not self.channel.has_sinks():  # nobody subscribed: skip the serialisation

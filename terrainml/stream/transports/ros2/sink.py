@@ -27,9 +27,9 @@ Options (URL query): each topic key above renames its topic (empty: not publishe
 ``odom_frame`` (default ``odom``), ``base_frame`` (``base_link``). Writers are reliable (the ROS
 default profile: best-effort and reliable subscribers both match), keep last :data:`SINK_DEPTH`.
 
-Odometry needs the tick's wheel speeds and steering: the serving loop hands the sample over in
-``msg.extra["sample"]``. A tick whose wheel group is invalid publishes no odometry (nothing is
-dead-reckoned from a stale encoder).
+Odometry needs the tick's wheel speeds and steering: the serving loop hands each message over
+with its :class:`~terrainml.stream.tick.sample.Sample` (``send(msg, sample)``). A tick whose
+wheel group is invalid publishes no odometry (nothing is dead-reckoned from a stale encoder).
 """
 
 from __future__ import annotations
@@ -50,14 +50,16 @@ from cyclonedds.topic import Topic
 from terrainml.estimation.slip_odometry import SlipAwareOdometry
 from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import VALID_GROUPS, valid_column, wheel_col
-from terrainml.stream.inputs import NO_INPUT_S, InputWatch
-from terrainml.stream.message import DesiredSlip
-from terrainml.stream.ros2.names import dds_topic_name, parse_url, qos_for
-from terrainml.stream.ros2.source import STAMP_ORIGIN_KEY
-from terrainml.stream.ros2.types import (Classification, DiagnosticArray, DiagnosticStatus, Float64MultiArray,
-                                         Header, KeyValue, MultiArrayDimension, MultiArrayLayout,
-                                         ObjectHypothesis, Odometry, Point, Pose, PoseWithCovariance,
-                                         Quaternion, Time, Twist, TwistWithCovariance, Vector3)
+from terrainml.stream.tick.inputs import NO_INPUT_S, InputWatch
+from terrainml.stream.tick.message import DesiredSlip
+from terrainml.stream.tick.sample import NO_SAMPLE, Sample
+from terrainml.stream.transports.ros2.names import dds_topic_name, parse_url, qos_for
+from terrainml.stream.transports.ros2.source import STAMP_ORIGIN_KEY
+from terrainml.stream.transports.ros2.types import (
+    Classification, DiagnosticArray, DiagnosticStatus, Float64MultiArray, Header, KeyValue,
+    MultiArrayDimension, MultiArrayLayout, ObjectHypothesis, Odometry, Point, Pose,
+    PoseWithCovariance, Quaternion, Time, Twist, TwistWithCovariance, Vector3,
+)
 
 log = logging.getLogger("terrainml.stream")
 
@@ -117,7 +119,7 @@ class Ros2Sink:
     spec : ``ros2://DOMAIN[?options]``.
     robot : RobotSpec or name (wheel names and geometry).
     sensors : the model's sensor groups (before the first tick: ``sensors_used``).
-    watch : the live source's :class:`~terrainml.stream.inputs.InputWatch` (one status per input
+    watch : the live source's :class:`~terrainml.stream.tick.inputs.InputWatch` (one status per input
         topic, mapped groups, silence); None: a fresh one (no input topics, silence judged by ticks).
     period_s : the diagnostics timer's period, s (wall clock).
     """
@@ -155,8 +157,8 @@ class Ros2Sink:
             self._timer.start()
 
     # ------------------------------------------------------------------ per tick
-    def send(self, msg: DesiredSlip) -> None:
-        sample = msg.extra.get("sample") or {}
+    def send(self, msg: DesiredSlip, tick_sample: Sample = NO_SAMPLE) -> None:
+        sample = tick_sample.columns
         origin = sample.get(STAMP_ORIGIN_KEY, 0)
         stamp_ns = int(origin if isinstance(origin, int) else 0) + int(round(msg.t_s * 1e9))
         header = Header(stamp=ros_time(stamp_ns), frame_id=self.base_frame)
@@ -290,7 +292,7 @@ class DiagnosticsState:
     the watch's, so tests drive it by hand.
 
     Serving status ``terrainml: predict``: when every input has been silent for more than
-    :data:`~terrainml.stream.inputs.NO_INPUT_S` (1 s; no input topic message, or no tick for a
+    :data:`~terrainml.stream.tick.inputs.NO_INPUT_S` (1 s; no input topic message, or no tick for a
     source without topics), level ERROR, "no input for N s", whatever the last tick said; else
     the last tick's: OK "serving CLASS", WARN "fallback: REASON", ERROR "estimator unhealthy".
     An input topic silent beyond its timeout is its own status at WARN, naming it.
@@ -343,7 +345,7 @@ class DiagnosticsState:
                       "classification_age_s": f"{msg.classification_age_s:.3f}",
                       "terrain": msg.terrain_name, "confidence": f"{msg.confidence:.3f}",
                       "sensors_used": ",".join(msg.sensors), "sensors_valid": ",".join(valid),
-                      "slip_measured": msg.extra.get("slip_unobservable") or "observed",
+                      "slip_measured": msg.slip_measured_note or "observed",
                       "odometry": self.odometry_note or "all wheels"}
             rates = self.rates.rates()
             values.update({f"rate_{g}_hz": f"{rates[g]:.1f}" for g in groups})

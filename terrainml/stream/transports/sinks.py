@@ -7,9 +7,9 @@ Sink specs (``terrainml predict --sink``; repeat the option for several sinks)::
     can://INTERFACE/CHANNEL         python-can, e.g. can://virtual/vcan0, can://socketcan/can0
     mcap:OUT.mcap                   MCAP recording, topic /terrainml/desired_slip, JSON schema
     ros2://DOMAIN                   ROS 2 topics over DDS: desired slip, terrain, diagnostics,
-                                    slip-aware odometry (stream/ros2/sink.py, docs/ros2.md)
+                                    slip-aware odometry (transports/ros2/sink.py, docs/ros2.md)
     foxglove://HOST:PORT            live view, Foxglove WebSocket server (default 127.0.0.1:8765;
-                                    port 0 picks a free one); stream/foxglove_sink.py
+                                    port 0 picks a free one); stream/transports/foxglove_sink.py
 
 A sink that fails (socket error, CAN bus down, disk full, Foxglove port in use) is wrapped by :class:`GuardedSink`:
 the error is logged (the first time and then every 1000th), counted, and the predictor goes on.
@@ -59,10 +59,11 @@ from mcap.writer import Writer
 
 from terrainml.atomic import part_path
 from terrainml.io.topics import WHEEL_STATE_CODES
-from terrainml.stream.foxglove_sink import DEFAULT_FOXGLOVE_SINK, FoxgloveSink, class_names_for
-from terrainml.stream.message import FALLBACK_REASONS, TOPIC, DesiredSlip, json_schema
-from terrainml.stream.ros2.names import Ros2NameError, is_ros2_spec
-from terrainml.stream.ros2.sink import Ros2Sink
+from terrainml.stream.transports.foxglove_sink import DEFAULT_FOXGLOVE_SINK, FoxgloveSink, class_names_for
+from terrainml.stream.tick.message import FALLBACK_REASONS, TOPIC, DesiredSlip, json_schema
+from terrainml.stream.tick.sample import NO_SAMPLE, Sample
+from terrainml.stream.transports.ros2.names import Ros2NameError, is_ros2_spec
+from terrainml.stream.transports.ros2.sink import Ros2Sink
 
 log = logging.getLogger("terrainml.stream")
 
@@ -84,7 +85,7 @@ class SinkError(ValueError):
 class Sink(Protocol):
     name: str
 
-    def send(self, msg: DesiredSlip) -> None: ...
+    def send(self, msg: DesiredSlip, sample: Sample = NO_SAMPLE) -> None: ...
 
     def close(self) -> None: ...
 
@@ -97,7 +98,7 @@ class StdoutSink:
         self.stream = stream or sys.stdout
         self.name = "stdout"
 
-    def send(self, msg: DesiredSlip) -> None:
+    def send(self, msg: DesiredSlip, sample: Sample = NO_SAMPLE) -> None:
         self.stream.write(msg.to_json() + "\n")
         self.stream.flush()
 
@@ -116,7 +117,7 @@ class UdpSink:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.name = f"udp://{host}:{port}"
 
-    def send(self, msg: DesiredSlip) -> None:
+    def send(self, msg: DesiredSlip, sample: Sample = NO_SAMPLE) -> None:
         self.sock.sendto(msg.to_json().encode(), self.addr)
 
     def close(self) -> None:
@@ -176,7 +177,7 @@ class CanSink:
         self.base_id = int(base_id)
         self.name = f"can://{interface}/{channel}"
 
-    def send(self, msg: DesiredSlip) -> None:
+    def send(self, msg: DesiredSlip, sample: Sample = NO_SAMPLE) -> None:
         for fid, data in encode_can_frames(msg, self.base_id):
             self.bus.send(can.Message(arbitration_id=fid, data=data, is_extended_id=False))
 
@@ -235,7 +236,7 @@ class McapSink:
         self._pending = 0       # ticks added since the last write reached the file
         self.failed: OSError | None = None
 
-    def send(self, msg: DesiredSlip) -> None:
+    def send(self, msg: DesiredSlip, sample: Sample = NO_SAMPLE) -> None:
         if self.failed is not None:
             raise SinkLost(f"{self.path}: recording stopped ({self.failed.strerror or self.failed})")
         t_ns = max(0, int(round(msg.t_s * 1e9)))
@@ -294,9 +295,9 @@ class GuardedSink:
         self.errors += lost
         return lost
 
-    def send(self, msg: DesiredSlip) -> None:
+    def send(self, msg: DesiredSlip, sample: Sample = NO_SAMPLE) -> None:
         try:
-            self.sink.send(msg)
+            self.sink.send(msg, sample)
             self.sent += 1
         except Exception as exc:  # noqa: BLE001 - a sink that is down must not stop serving
             self.errors += 1
@@ -340,7 +341,7 @@ def open_sink(spec: str, *, n_wheels: int | None = None, n_classes: int | None =
     ``class_names`` names the class ids 0..K-1 where a sink shows names (Foxglove); default the
     eight classes of design §6.1. ``robot`` (wheel names and geometry) and ``sensors`` (the model's
     sensor groups) are what the ROS 2 sink states in its layout, odometry and diagnostics;
-    ``watch`` (:class:`~terrainml.stream.inputs.InputWatch`) gives its ``/diagnostics`` the input
+    ``watch`` (:class:`~terrainml.stream.tick.inputs.InputWatch`) gives its ``/diagnostics`` the input
     topics' freshness.
     """
     s = spec.strip()

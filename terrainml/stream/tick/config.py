@@ -8,10 +8,10 @@ sensor groups): the CLI (``terrainml predict``) and the controllers build one an
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping
-
-from terrainml.stream.clock import MAX_GAP_S, REANCHOR_AFTER
-from terrainml.stream.policy import SERVE_P
+from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
+from terrainml.stream.tick.fusion import STALE_M, FusionConfig
+from terrainml.stream.tick.health import SILENT_S
+from terrainml.stream.tick.policy import SERVE_P
 
 __all__ = ["ServingConfig"]
 
@@ -29,20 +29,15 @@ class ServingConfig:
     serve_p : fused posterior below this → ``uncertain_classification`` fallback (0.6).
     max_age_s : s or None (default: off). An optional wall-time limit on the age of the last
         classification, on top of ``stale_m``.
-    fusion : dict of :class:`~terrainml.stream.fusion.TerrainFilter` settings (``length_m``,
-        ``alpha``, ``eps``, ``drift``, ``threshold``, ``confirm_windows``, ``unknown_windows``,
-        ``settle_m``; ``settle_m`` defaults to :data:`~terrainml.stream.fusion.SETTLE_M` (2.5 m,
-        the travel over which flags that begin on known ground must last), the two before it
-        default to :func:`~terrainml.stream.fusion.confirm_windows_for` the hop: 3
-        at 0.1 s, 1 at 0.5 s, and :func:`~terrainml.stream.fusion.unknown_windows_for` the hop and
-        window length: 5 for 1 s windows at 0.5 s, flagged windows that make the ground
-        ``unknown_terrain``).
+    fusion : :class:`~terrainml.stream.tick.fusion.FusionConfig`, the terrain filter's settings
+        (default: the filter's, with ``confirm_windows`` and ``unknown_windows`` from the model's
+        hop and window length and ``settle_m`` :data:`~terrainml.stream.tick.fusion.SETTLE_M`).
     silent_s : s (0.2), health rule: a sensor group silent this long is unhealthy.
     classify_lag_ticks : 0 (default) classifies inline on the hop tick. L > 0 runs the
         classification in a background thread and applies its result exactly L ticks later
-        (deterministic: the tick waits for it if needed; :mod:`terrainml.stream.scheduler`).
+        (deterministic: the tick waits for it if needed; :mod:`terrainml.stream.tick.scheduler`).
     max_clock_gap_s : s, > 0 (1.0). Largest step between consecutive ticks of one timeline; a
-        larger step either way is a clock jump (:mod:`terrainml.stream.clock`).
+        larger step either way is a clock jump (:mod:`terrainml.stream.tick.clock`).
     reanchor_after : int >= 1 (5). Consecutive consistent off-timeline samples (K) that
         re-anchor the stream on a new timeline (estimator, health, window buffer and
         classification restart).
@@ -57,11 +52,11 @@ class ServingConfig:
     """
 
     preset: str | None = None
-    stale_m: float = 3.0
+    stale_m: float = STALE_M
     serve_p: float = SERVE_P
     max_age_s: float | None = None
-    fusion: Mapping[str, float] | None = None
-    silent_s: float = 0.2
+    fusion: FusionConfig = FusionConfig()
+    silent_s: float = SILENT_S
     classify_lag_ticks: int = 0
     max_clock_gap_s: float = MAX_GAP_S
     reanchor_after: int = REANCHOR_AFTER

@@ -1,7 +1,7 @@
 """Unknown ground handed back for labelling: ``terrainml predict --record-unknown DIR``.
 
-:class:`UnknownGroundRecorder` takes every served message (with its sample, ``msg.extra["sample"]``,
-as :func:`terrainml.stream.runner.serve` attaches it) and writes each *stretch* of consecutive
+:class:`UnknownGroundRecorder` takes every served message with its sample (``send(msg, sample)``,
+as :func:`terrainml.stream.app.runner.serve` hands them over) and writes each *stretch* of consecutive
 ticks served ``unknown_terrain`` as one run into ``DIR``:
 
 * ``unknown_<UTC start of serving>_<NNN>.parquet``: the canonical run-table rows (design §5) of
@@ -44,7 +44,7 @@ import math
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -53,14 +53,14 @@ from terrainml.atomic import write_text
 from terrainml.io.mcap_writer import write_run_mcap
 from terrainml.robot import RobotSpec
 from terrainml.schema import column_map, validate_run_table, write_run_parquet
-from terrainml.stream.ros2.source import STAMP_ORIGIN_KEY
+from terrainml.stream.tick.message import UNKNOWN_TERRAIN
+from terrainml.stream.tick.sample import NO_SAMPLE, Sample
+from terrainml.stream.transports.ros2.source import STAMP_ORIGIN_KEY
 
-__all__ = ["UnknownGroundRecorder", "UNKNOWN_REASON", "MAX_ROWS", "RECORD_FORMATS"]
+__all__ = ["UnknownGroundRecorder", "MAX_ROWS", "RECORD_FORMATS"]
 
 log = logging.getLogger("terrainml.stream")
 
-#: the fallback reason whose ticks are recorded
-UNKNOWN_REASON = "unknown_terrain"
 #: a stretch longer than this many ticks is written in parts (10 min at 100 Hz)
 MAX_ROWS = 60_000
 #: the formats a stretch can be written in (``--record-format``), the first the default
@@ -126,11 +126,11 @@ class UnknownGroundRecorder:
         self._origin_ns = 0
         self._writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="record-unknown")
 
-    def send(self, msg: Any) -> None:
-        """Take one served message (never raises)."""
+    def send(self, msg: Any, sample: Sample = NO_SAMPLE) -> None:
+        """Take one served message and the sample it was served from (never raises)."""
         try:
-            if msg.fallback_reason == UNKNOWN_REASON:
-                self._take(msg)
+            if msg.fallback_reason == UNKNOWN_TERRAIN:
+                self._take(msg, sample.columns)
             elif self._rows is not None:
                 self._flush()
         except Exception as exc:  # noqa: BLE001 - the recorder must never stop serving
@@ -155,8 +155,7 @@ class UnknownGroundRecorder:
         return text
 
     # ------------------------------------------------------------------ parts
-    def _take(self, msg: Any) -> None:
-        sample = msg.extra.get("sample") or {}
+    def _take(self, msg: Any, sample: Mapping[str, Any]) -> None:
         if self._rows is None:
             self._rows, self._novelty = [], []
             self._span = {"t_start_s": float(msg.t_s), "d_start_m": float(self.distance())}
@@ -210,7 +209,7 @@ class UnknownGroundRecorder:
                 "robot": None if self.robot is None else self.robot.name,
                 "mean_novelty": float(np.mean(nov)) if nov else None,
                 "max_novelty": float(np.max(nov)) if nov else None,
-                "fallback_reason": UNKNOWN_REASON, "classes": self.class_names, "label": None}
+                "fallback_reason": UNKNOWN_TERRAIN, "classes": self.class_names, "label": None}
         if self.fmt == "mcap":  # a message's log time (ns) = this + round(t_s * 1e9)
             side["log_time_origin_ns"] = self._origin_ns
         return side

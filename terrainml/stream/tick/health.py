@@ -2,7 +2,7 @@
 
 Rules
 -----
-* **Ordering** of time stamps is the clock policy of :mod:`terrainml.stream.clock`.
+* **Ordering** of time stamps is the clock policy of :mod:`terrainml.stream.tick.clock`.
 * **Validity**: a sensor group (``wheels``, ``steer``, ``current``, ``imu``, ``cam``, ``cmd``) is
   *fresh* on a tick when all its data columns are present and finite and its ``{group}_valid``
   flag (if the sample carries one) is true. Otherwise the group's columns are set to NaN and
@@ -27,7 +27,7 @@ Rules
   each group's silent episodes are counted (``silent_episodes``). The first
   :data:`WARN_EPISODES` episodes of a group are warned, then every 100th. When the source knows
   that the group's topic publishes NaN or infinite values (``invalid_hint``, a live ROS 2
-  source's :meth:`~terrainml.stream.inputs.InputWatch.group_invalid`), the episode is said as
+  source's :meth:`~terrainml.stream.tick.inputs.InputWatch.group_invalid`), the episode is said as
   *invalid values* ("... valid again"), not as a silence. A group the source does not map is
   removed from ``monitored`` by the predictor (:meth:`Predictor.set_mapped_groups`).
 """
@@ -44,13 +44,15 @@ import numpy as np
 
 from terrainml.robot import RobotSpec
 from terrainml.schema import VALID_GROUPS, column_map, group_columns, physical_limit
-from terrainml.stream.sample import TIME_REASONS
+from terrainml.stream.tick.sample import TIME_REASONS
 
 _NAN = float("nan")
 log = logging.getLogger("terrainml.stream")
 _WHEEL_KEY = re.compile(r"wheel(\d+)_")
 #: silent episodes per group warned one by one (then every 100th)
 WARN_EPISODES = 5
+#: s a sensor group may go without a fresh sample before a tick is unhealthy
+SILENT_S = 0.2
 #: model sensor group (manifest ``sensors``) -> health group
 SENSOR_TO_GROUP = {"wheels": "wheels", "currents": "current", "imu": "imu", "cam": "cam"}
 
@@ -99,7 +101,7 @@ class InputCounters:
         return self.duplicate + self.out_of_order + self.bad_time + self.not_a_sample
 
     def count_invalid(self, reason: str) -> None:
-        """Count an :class:`~terrainml.stream.sample.InvalidSample` by its ``reason``: a ``t_s``
+        """Count an :class:`~terrainml.stream.tick.sample.InvalidSample` by its ``reason``: a ``t_s``
         that is missing, not a number or not finite is ``bad_time``, anything else ``not_a_sample``."""
         if reason in TIME_REASONS:
             self.bad_time += 1
@@ -129,7 +131,7 @@ class HealthMonitor:
         always: the estimator needs them).
     """
 
-    def __init__(self, robot: RobotSpec, silent_s: float = 0.2, sensors: Sequence[str] | None = None):
+    def __init__(self, robot: RobotSpec, silent_s: float = SILENT_S, sensors: Sequence[str] | None = None):
         self.robot = robot
         self.silent_s = float(silent_s)
         n = robot.n_wheels
@@ -153,7 +155,7 @@ class HealthMonitor:
         self._silent_now: set[str] = set()   # groups said silent and not yet back
         self.counters: InputCounters | None = None
         #: ``group -> bool``: the group's input brings invalid values (NaN, inf) rather than nothing
-        #: (a live source's :meth:`~terrainml.stream.inputs.InputWatch.group_invalid`); None: unknown
+        #: (a live source's :meth:`~terrainml.stream.tick.inputs.InputWatch.group_invalid`); None: unknown
         self.invalid_hint: Callable[[str], bool] | None = None
         self._invalid_now: set[str] = set()  # groups said invalid (not silent) and not yet back
 

@@ -1,7 +1,7 @@
 """The ROS 2 messages terrainml reads and publishes, as Cyclone DDS IDL structs.
 
 Each class is the DDS form of a ROS 2 message as ``rmw_cyclonedds_cpp`` puts it on the wire: the
-DDS type name is ``pkg::msg::dds_::Type_`` (:func:`terrainml.stream.ros2.names.dds_type_name`),
+DDS type name is ``pkg::msg::dds_::Type_`` (:func:`terrainml.stream.transports.ros2.names.dds_type_name`),
 fields keep their ROS names and order, ROS ``byte`` is IDL ``octet`` and ``uint8`` is ``uint8``,
 fixed arrays (``float64[9]``) are IDL arrays, unbounded arrays are sequences. The payload is
 little-endian XCDR1 (encapsulation ``00 01``), which ``cyclonedds`` writes for these final

@@ -1,7 +1,7 @@
 """Per-topic freshness of a live source on the process's monotonic clock (ROS 2 faults, docs/ros2.md).
 
 :class:`InputWatch` is shared by a live source, which reports every message it takes, and a sink,
-whose ``/diagnostics`` timer reads it once a second (:mod:`terrainml.stream.ros2.sink`). It
+whose ``/diagnostics`` timer reads it once a second (:mod:`terrainml.stream.transports.ros2.sink`). It
 judges each input topic on the wall clock, independently of the stamps the aligner and the
 health monitor judge ticks by:
 

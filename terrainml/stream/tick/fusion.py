@@ -62,11 +62,12 @@ each call costs a few microseconds.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["TerrainFilter", "CONFIRM_S", "SETTLE_M", "UNKNOWN_CONFIRM_S", "confirm_windows_for",
-           "fusion_settings", "unknown_windows_for"]
+__all__ = ["TerrainFilter", "FusionConfig", "CONFIRM_S", "SETTLE_M", "STALE_M", "UNKNOWN_CONFIRM_S",
+           "confirm_windows_for", "fusion_settings", "unknown_windows_for"]
 
 #: seconds of windows over which a change alarm is confirmed (tuning courses)
 CONFIRM_S = 0.2
@@ -84,6 +85,8 @@ UNKNOWN_CONFIRM_S = 1.0
 #: the demo's model: served right 88.6% -> 93.4% of moving ticks (94.2% without novelty) while
 #: steadily flagged unknown ground (wet_mud, tilled_loam held out) is entered within 2.8 m.
 SETTLE_M = 2.5
+#: m travelled since the last classification beyond which the fused class is stale
+STALE_M = 3.0
 
 
 def confirm_windows_for(hop_s: float, confirm_s: float = CONFIRM_S) -> int:
@@ -100,13 +103,35 @@ def unknown_windows_for(hop_s: float, window_s: float = 0.0, confirm_s: float = 
     return confirm_windows_for(hop_s, float(window_s) + confirm_s)
 
 
-def fusion_settings(hop_s: float, overrides: dict | None = None, window_s: float = 0.0) -> dict:
-    """The predictor's :class:`TerrainFilter` settings for its hop and window length
-    (``confirm_windows``, ``unknown_windows``, ``settle_m``), with the serving config's ``fusion``
-    overrides on top."""
-    return {"confirm_windows": confirm_windows_for(hop_s),
-            "unknown_windows": unknown_windows_for(hop_s, window_s), "settle_m": SETTLE_M,
-            **dict(overrides or {})}
+@dataclass(frozen=True)
+class FusionConfig:
+    """The serving config's :class:`TerrainFilter` settings (``ServingConfig.fusion``).
+
+    A field left None takes the filter's own default (``length_m``, ``alpha``, ``eps``, ``drift``,
+    ``threshold``) or the value the model's hop and window length give (``confirm_windows``:
+    :func:`confirm_windows_for` the hop, 3 at 0.1 s, 1 at 0.5 s; ``unknown_windows``:
+    :func:`unknown_windows_for` the hop and window length, 5 for 1 s windows at 0.5 s).
+    ``settle_m`` (m) is :data:`SETTLE_M` unless set. Units and meanings: :class:`TerrainFilter`.
+    """
+
+    length_m: float | None = None
+    alpha: float | None = None
+    eps: float | None = None
+    drift: float | None = None
+    threshold: float | None = None
+    confirm_windows: int | None = None
+    unknown_windows: int | None = None
+    settle_m: float = SETTLE_M
+
+
+def fusion_settings(hop_s: float, config: FusionConfig | None = None, window_s: float = 0.0) -> dict:
+    """The predictor's :class:`TerrainFilter` keyword settings for its hop (s) and window
+    length (s): those ``config`` sets, the hop's ``confirm_windows`` and ``unknown_windows``."""
+    cfg = config or FusionConfig()
+    settings = {f.name: getattr(cfg, f.name) for f in fields(cfg) if getattr(cfg, f.name) is not None}
+    settings.setdefault("confirm_windows", confirm_windows_for(hop_s))
+    settings.setdefault("unknown_windows", unknown_windows_for(hop_s, window_s))
+    return settings
 
 
 class TerrainFilter:
@@ -147,7 +172,7 @@ class TerrainFilter:
 
     def __init__(self, n_classes: int, *, length_m: float = 20.0, alpha: float = 0.35,
                  eps: float = 0.02, drift: float = 1.5, threshold: float = 4.0,
-                 stale_m: float = 3.0, confirm_windows: int = 1, unknown_windows: int = 2,
+                 stale_m: float = STALE_M, confirm_windows: int = 1, unknown_windows: int = 2,
                  settle_m: float = 0.0):
         if int(n_classes) < 1:
             raise ValueError("TerrainFilter: n_classes must be >= 1")
