@@ -31,7 +31,7 @@ from terrainml.experiments.borealtc import (ProtocolData, course_runs, course_sc
 from terrainml.features.windows import window_spec
 from terrainml.io.ingest import load_dataset
 from terrainml.pipeline.dataset import build_from_tables
-from terrainml.pipeline.options import TrainOptions
+from terrainml.pipeline.train_options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
 from terrainml.stream.tick.predictor import Predictor

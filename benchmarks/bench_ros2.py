@@ -47,7 +47,7 @@ INPUT_TYPES = {"/imu": "Imu", "/camera/odom/sample": "Odometry", "/wheels/joint_
 def _model(tmp: str) -> str:
     """A small SVM from the `make demo` chain (2 simulated runs per class, 20 s)."""
     from terrainml.pipeline.dataset import build_dataset
-    from terrainml.pipeline.options import TrainOptions
+    from terrainml.pipeline.train_options import TrainOptions
     from terrainml.pipeline.train import train
     from terrainml.robot import load_robot
     from terrainml.sim.generate import generate_dataset

@@ -73,7 +73,7 @@ def _with_courses(ds, scenarios, seeds, duration_s: float):
 def _model(spec_name: str, runs_per_class: int, out, course_seeds=TRAIN_COURSE_SEEDS):
     from terrainml.experiments.recipes import load_recipe, simulated_dataset
     from terrainml.features.windows import window_spec
-    from terrainml.pipeline.options import TrainOptions
+    from terrainml.pipeline.train_options import TrainOptions
     from terrainml.pipeline.train import train
 
     r = load_recipe("sim_default")

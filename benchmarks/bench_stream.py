@@ -179,7 +179,7 @@ CL_MODES = (
 def _cl_train_model(tmp, runs_per_class: int) -> str:
     """SVM on a small simulated labelled dataset (the `make demo` chain): generate -> windows -> train."""
     from terrainml.pipeline.dataset import build_dataset
-    from terrainml.pipeline.options import TrainOptions
+    from terrainml.pipeline.train_options import TrainOptions
     from terrainml.pipeline.train import train
     from terrainml.robot import load_robot
     from terrainml.sim.generate import generate_dataset

@@ -82,7 +82,7 @@ def run(quick: bool = False) -> str:
     from terrainml.experiments.recipes import simulated_dataset
     from terrainml.pipeline.dataset import find_logs
     from terrainml.pipeline.evaluate import evaluate
-    from terrainml.pipeline.options import TrainOptions
+    from terrainml.pipeline.train_options import TrainOptions
     from terrainml.pipeline.train import train
 
     ra, rb = _recipe(quick, "sim_default"), _recipe(quick, "sim_eval_seed1")

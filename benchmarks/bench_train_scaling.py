@@ -116,7 +116,7 @@ def point(windows: Path, workers: int, models: str, folds: int) -> dict:
     from terrainml.pipeline.cluster import dask_jobs
     from terrainml.pipeline.dataset import read_windows
     from terrainml.pipeline.candidates import parse_auto_models
-    from terrainml.pipeline.options import SelectionOptions, TrainOptions
+    from terrainml.pipeline.train_options import SelectionOptions, TrainOptions
 
     ds = read_windows(windows)
     with _PeakRSS() as rss, tempfile.TemporaryDirectory() as tmp, \

@@ -30,7 +30,7 @@ from terrainml.io.ingest import load_dataset
 from terrainml.io.ingest import load_run
 from terrainml.features.windows import window_spec
 from terrainml.pipeline.autotrain import train_auto
-from terrainml.pipeline.options import SelectionOptions, ServeOptions, TrainOptions
+from terrainml.pipeline.train_options import SelectionOptions, ReplayOptions, TrainOptions
 from terrainml.pipeline.dataset import find_logs
 from terrainml.robot import load_robot
 
@@ -114,7 +114,7 @@ def sim(n_jobs: int) -> list[str]:
     t0, c0 = time.perf_counter(), _cpu_s()
     tables = [load_run(p, robot=robot).table for p in find_logs(logs)]
     res = train_auto(tables, robot, OUT / "sim", TrainOptions(folds=4, n_jobs=n_jobs),
-                     SelectionOptions(specs=(window_spec("short"),), models=("svm",)), ServeOptions(segment_s=20.0),
+                     SelectionOptions(specs=(window_spec("short"),), models=("svm",)), ReplayOptions(segment_s=20.0),
                      progress=_log)
     return _section("Simulator (4 runs per class, 60 s, seed 0), `--windows short --model svm`, 4 folds", res,
                     time.perf_counter() - t0, _cpu_s() - c0)

@@ -37,7 +37,7 @@ from terrainml.experiments.borealtc import make_course, runs_by_class
 from terrainml.features.windows import window_spec
 from terrainml.io.ingest import load_dataset
 from terrainml.pipeline.dataset import build_from_tables
-from terrainml.pipeline.options import TrainOptions
+from terrainml.pipeline.train_options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
 from terrainml.models.novelty import MOVING_MPS

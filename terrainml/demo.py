@@ -31,7 +31,7 @@ from terrainml.io.ingest import load_run
 from terrainml.io.inspect import inspect_log
 from terrainml.io.mcap_writer import write_run_mcap
 from terrainml.pipeline.dataset import build_dataset, write_windows
-from terrainml.pipeline.options import TrainOptions
+from terrainml.pipeline.train_options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.robot import RobotSpec, reference_robot
 from terrainml.schema import wheel_col, write_run_parquet

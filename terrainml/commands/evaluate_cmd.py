@@ -73,7 +73,7 @@ def evaluate(
         check_novelty_false_alarm_option(novelty_false_alarm)
         if folds < 2:
             fail("--folds must be >= 2")
-        from terrainml.pipeline.options import TrainOptions
+        from terrainml.pipeline.train_options import TrainOptions
 
         options = TrainOptions(folds=folds, seed=seed, n_jobs=n_jobs, novelty_false_alarm=novelty_false_alarm)
         _evaluate_open_set(model_dir, data, out, options, model=model, windows=windows, robot=robot, preset=preset,
@@ -162,7 +162,7 @@ def _open_set_inputs(model_dir: Optional[Path], *, model, windows, robot, preset
 def _evaluate_open_set(model_dir: Optional[Path], data: Path, out: Optional[Path], options, *, model, windows,
                        robot, preset: str, dask_address, fmt: str, trusted_key, quiet: bool) -> None:
     """``evaluate --open-set``: the leave-one-class-out table on stdout, the report in ``out``;
-    ``options``: :class:`~terrainml.pipeline.options.TrainOptions` (folds, seed, jobs, novelty target)."""
+    ``options``: :class:`~terrainml.pipeline.train_options.TrainOptions` (folds, seed, jobs, novelty target)."""
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from terrainml.evaluation.open_set import open_set_markdown

@@ -25,7 +25,7 @@ from terrainml.models.novelty_target import DEFAULT_FALSE_ALARM
 
 if TYPE_CHECKING:  # the pipeline imports numpy and pandas: not at ``--help``
     from terrainml.features.windows import WindowSpec
-    from terrainml.pipeline.options import SelectionOptions, ServeOptions, TrainOptions
+    from terrainml.pipeline.train_options import SelectionOptions, ReplayOptions, TrainOptions
 
 
 @dataclass(frozen=True)
@@ -56,9 +56,9 @@ class TrainRequest:
     source : :class:`DataSource`. out : folder written (the staging folder); shown : the folder
         as the user named it (messages).
     kinds : model names of the single-spec path (None: selecting). spec : its window spec.
-    selection : :class:`~terrainml.pipeline.options.SelectionOptions` of the selecting path (None:
-        single-spec). options, serve : :class:`~terrainml.pipeline.options.TrainOptions`,
-        :class:`~terrainml.pipeline.options.ServeOptions`.
+    selection : :class:`~terrainml.pipeline.train_options.SelectionOptions` of the selecting path (None:
+        single-spec). options, serve : :class:`~terrainml.pipeline.train_options.TrainOptions`,
+        :class:`~terrainml.pipeline.train_options.ReplayOptions`.
     members : also train the sensor members. quiet : print errors only.
     """
 
@@ -69,7 +69,7 @@ class TrainRequest:
     spec: Optional[WindowSpec]
     selection: Optional[SelectionOptions]
     options: TrainOptions
-    serve: ServeOptions
+    serve: ReplayOptions
     members: bool
     quiet: bool
 
@@ -151,7 +151,7 @@ def train(
     check_n_jobs(n_jobs)
     check_output_writable(out, folder=True)
     from terrainml.commands.dataset_cmds import parse_sensors
-    from terrainml.pipeline.options import SelectionOptions, ServeOptions, TrainOptions
+    from terrainml.pipeline.train_options import SelectionOptions, ReplayOptions, TrainOptions
 
     groups = parse_sensors(sensors)
     groups = None if groups is None else tuple(groups)
@@ -162,7 +162,7 @@ def train(
                                    sensors=groups) if selecting else None,
         options=TrainOptions(folds=folds, seed=seed, n_jobs=n_jobs, novelty_false_alarm=novelty_false_alarm,
                              ablation=ablation, open_set=open_set),
-        serve=ServeOptions(segment_s=replay_s, allow_unproven=allow_unproven, catalogue=catalogue),
+        serve=ReplayOptions(segment_s=replay_s, allow_unproven=allow_unproven, catalogue=catalogue),
         members=members, quiet=quiet)
     _run(req)
 

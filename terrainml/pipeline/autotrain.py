@@ -42,7 +42,7 @@ from terrainml.models.calibration import CalibratedModel, Temperature
 from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.pipeline.dataset import Dataset, build_from_tables
 from terrainml.pipeline.progress import ProgressFn, report
-from terrainml.pipeline.options import SelectionOptions, ServeOptions, TrainOptions
+from terrainml.pipeline.train_options import SelectionOptions, ReplayOptions, TrainOptions
 from terrainml.pipeline.replay import ReplayRefused, pooled_replay, replay_refusal
 from terrainml.pipeline import train as train_lib  # make_factory read at call time
 from terrainml.pipeline.candidates import candidate_window_specs
@@ -160,7 +160,7 @@ def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, o
 
 def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str | Path,
                options: TrainOptions | None = None, selection: SelectionOptions | None = None,
-               serve: ServeOptions | None = None, *, datasets: dict | None = None,
+               serve: ReplayOptions | None = None, *, datasets: dict | None = None,
                progress: ProgressFn | None = None, preflight: dict | None = None) -> AutoResult:
     """Select, validate on the served path, calibrate and save a model (see the module docstring).
 
@@ -170,14 +170,14 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
         from them and every outer fold's held-out runs replayed; or None with ``datasets`` (e.g. a
         windows file: no other spec can be cut and nothing replayed).
     robot : RobotSpec. out : model folder, created.
-    options : :class:`~terrainml.pipeline.options.TrainOptions`: folds (K run groups), seed, joblib
+    options : :class:`~terrainml.pipeline.train_options.TrainOptions`: folds (K run groups), seed, joblib
         jobs, the novelty threshold's target (for the served model, the replay's fold models and
         the open-set evaluation alike) and ``open_set`` (also the leave-one-class-out evaluation
         of the chosen model's novelty score on the chosen windows: report section). None: defaults.
-    selection : :class:`~terrainml.pipeline.options.SelectionOptions`: candidate window specs
+    selection : :class:`~terrainml.pipeline.train_options.SelectionOptions`: candidate window specs
         and models, time budget (:func:`~terrainml.pipeline.select.select`), nested or not, the
         preset and sensor groups the windows are cut with. None: defaults.
-    serve : :class:`~terrainml.pipeline.options.ServeOptions`: replay length, refusal threshold,
+    serve : :class:`~terrainml.pipeline.train_options.ReplayOptions`: replay length, refusal threshold,
         ``allow_unproven``, terrain catalogue of the desired-slip table. None: defaults.
     datasets : {spec: Dataset} already cut (then ``selection.specs`` is not used).
     progress : callback with a short message per step and a
@@ -192,7 +192,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     """
     say = progress or (lambda msg: None)
     out = Path(out)
-    opt, choice, serve = options or TrainOptions(), selection or SelectionOptions(), serve or ServeOptions()
+    opt, choice, serve = options or TrainOptions(), selection or SelectionOptions(), serve or ReplayOptions()
     t0 = time.perf_counter()
     data, failed = _candidate_data(tables, robot, choice, opt.n_jobs, datasets, say)
     t_windows = time.perf_counter() - t0

@@ -27,8 +27,8 @@ saved and loaded as ``terrainml predict`` loads it and serves a course of the fo
 runs (:func:`replay_folds`, :mod:`terrainml.pipeline.replay`, the same replay as the selecting
 ``train``); a model whose replay classifies too little is refused
 (:class:`~terrainml.pipeline.replay.ReplayRefused`, report written, no model saved) unless
-``allow_unproven`` (:class:`~terrainml.pipeline.options.ServeOptions`). The options come as
-frozen records resolved once by the command line (:mod:`terrainml.pipeline.options`).
+``allow_unproven`` (:class:`~terrainml.pipeline.train_options.ReplayOptions`). The options come as
+frozen records resolved once by the command line (:mod:`terrainml.pipeline.train_options`).
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ from terrainml.models.svm import SVMClassifier
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.candidates import MODEL_KINDS, parse_models
 from terrainml.pipeline.dataset import Dataset
-from terrainml.pipeline.options import ServeOptions, TrainOptions
+from terrainml.pipeline.train_options import ReplayOptions, TrainOptions
 from terrainml.pipeline.progress import report
 from terrainml.pipeline.preflight import MIN_RUNS_PER_CLASS, SINGLE_RUN_RULE, table_for_classes
 from terrainml.pipeline.replay import (ReplayRefused, make_course,
@@ -283,7 +283,7 @@ def _ablation(ds: Dataset, plan: _CVPlan, opt: TrainOptions, table: Any, cv_all:
 
 
 def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), options: TrainOptions | None = None,
-          serve: ServeOptions | None = None, *, tables: Sequence[pd.DataFrame] | None = None,
+          serve: ReplayOptions | None = None, *, tables: Sequence[pd.DataFrame] | None = None,
           preflight: dict | None = None, progress: Callable[[str], None] | None = None) -> TrainResult:
     """Cross-validate, fit, report and save models on a window dataset.
 
@@ -292,9 +292,9 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), option
     ds : Dataset (from :func:`terrainml.pipeline.dataset.build_dataset` or ``read_windows``).
     out : model folder (``runs/NAME``), created.
     models : model kinds among ``svm``, ``cnn``, ``hgb`` or averages ``A+B``.
-    options : :class:`~terrainml.pipeline.options.TrainOptions` (folds, seed, jobs, ablation,
+    options : :class:`~terrainml.pipeline.train_options.TrainOptions` (folds, seed, jobs, ablation,
         open set, novelty target, model parameters); None: the defaults.
-    serve : :class:`~terrainml.pipeline.options.ServeOptions` (replay length, refusal, terrain
+    serve : :class:`~terrainml.pipeline.train_options.ReplayOptions` (replay length, refusal, terrain
         catalogue); None: the defaults.
     tables : the ingested run tables the dataset was cut from: every fold's held-out runs are
         replayed through the served path (refusal). None: no replay (e.g. a windows file).
@@ -319,7 +319,7 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), option
     out = Path(out)
     models = parse_models(models)
     opt = options or TrainOptions()
-    serve = serve or ServeOptions()
+    serve = serve or ReplayOptions()
     seed = opt.seed
     plan = _cv_plan(ds, opt.folds, seed, say)
     W = plan.W
@@ -453,7 +453,7 @@ def _fit_bases(ds: Dataset, bases: list[str], plan: _CVPlan, table: Any, opt: Tr
 
 
 def _served_replay(ds: Dataset, plan: _CVPlan, default: str, results: dict, table: Any,
-                   tables: Sequence[pd.DataFrame], serve: ServeOptions, opt: TrainOptions,
+                   tables: Sequence[pd.DataFrame], serve: ReplayOptions, opt: TrainOptions,
                    say: Callable[[str], None]) -> dict:
     """The served model's fold models replayed on their folds' held-out runs (:func:`replay_folds`):
     the report's ``replay`` entry (per fold, pooled, the refusal or "")."""

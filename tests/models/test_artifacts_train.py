@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from terrainml.models import artifacts
 from terrainml.models.artifacts import ArtifactError, load_artifact
 from terrainml.pipeline.evaluate import evaluate
-from terrainml.pipeline.options import TrainOptions
+from terrainml.pipeline.train_options import TrainOptions
 from terrainml.pipeline.train import served_table, train
 
 SMALL = {"svm": {"C_grid": (10.0,), "gamma_grid": ("scale",)},

@@ -8,7 +8,7 @@ import pytest
 
 from terrainml.features.windows import window_spec
 from terrainml.pipeline.candidates import SELECT_SPECS, candidate_window_specs, parse_auto_models, parse_models
-from terrainml.pipeline.options import SelectionOptions, ServeOptions, TrainOptions
+from terrainml.pipeline.train_options import SelectionOptions, ReplayOptions, TrainOptions
 
 
 def test_options_are_frozen_and_the_novelty_target_is_checked_once():
@@ -18,7 +18,7 @@ def test_options_are_frozen_and_the_novelty_target_is_checked_once():
     with pytest.raises(ValueError, match=r"\(0, 0.5\)"):
         TrainOptions(novelty_false_alarm=0.7)
     assert dataclasses.replace(opt, open_set=True).novelty_false_alarm == 0.2
-    assert ServeOptions().allow_unproven is False and SelectionOptions().nested is True
+    assert ReplayOptions().allow_unproven is False and SelectionOptions().nested is True
 
 
 def test_candidate_window_specs_parse_auto_names_and_parsed_specs_alike():

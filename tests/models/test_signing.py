@@ -29,7 +29,7 @@ from terrainml.models.artifacts import ArtifactError, load_artifact, read_manife
 from terrainml.models.signing import (MANIFEST_NAME, SIGNATURE_NAME, SignatureError, generate_keypair,
                                       key_fingerprint, load_public_key, sign_artifact, verify_artifact_signature)
 from terrainml.pipeline.dataset import write_windows
-from terrainml.pipeline.options import TrainOptions
+from terrainml.pipeline.train_options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.schema import write_run_parquet
 

@@ -15,7 +15,7 @@ from terrainml.lookup.table import DesiredSlipTable
 from terrainml.models.artifacts import load_artifact, write_manifest
 from terrainml.pipeline.dataset import build_from_tables
 from terrainml.pipeline.evaluate import ClassMismatchError, evaluate
-from terrainml.pipeline.options import TrainOptions
+from terrainml.pipeline.train_options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.robot import load_robot
 from terrainml.stream.tick.classify import ModelLoadError, load_serving_model

@@ -1,7 +1,7 @@
 """Options of ``terrainml train``, resolved once at the command line into frozen records.
 
 :class:`TrainOptions` says how every model is cross-validated, fitted and given its novelty
-score; :class:`ServeOptions` how the served model is proven on the served path before it is
+score; :class:`ReplayOptions` how the served model is proven on the served path before it is
 saved; :class:`SelectionOptions` what the selecting ``train`` chooses among. The command line
 builds them once (``terrainml.commands.train_cmd``) and hands them down unchanged to
 :func:`terrainml.pipeline.train.train`, :func:`terrainml.pipeline.autotrain.train_auto` and the
@@ -16,7 +16,7 @@ from typing import Any, Mapping
 from terrainml.models.novelty_target import DEFAULT_FALSE_ALARM, check_false_alarm
 from terrainml.pipeline.replay import MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S
 
-__all__ = ["TrainOptions", "ServeOptions", "SelectionOptions", "DEFAULT_BUDGET_MIN"]
+__all__ = ["TrainOptions", "ReplayOptions", "SelectionOptions", "DEFAULT_BUDGET_MIN"]
 
 #: ``--budget-min`` default, minutes
 DEFAULT_BUDGET_MIN = 30.0
@@ -52,7 +52,7 @@ class TrainOptions:
 
 
 @dataclass(frozen=True)
-class ServeOptions:
+class ReplayOptions:
     """How the served model is proven on the served path and what it serves.
 
     Attributes
