@@ -14,6 +14,7 @@ from typing import List, Optional
 import typer
 
 from terrainml.atomic import write_text
+from terrainml.commands._help import robot_help
 from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail, failure_message
 from terrainml.commands._model_inputs import (NOVELTY_FALSE_ALARM_HELP, TRUSTED_KEY_HELP,
                                               check_novelty_false_alarm_option, load_data)
@@ -42,8 +43,8 @@ def evaluate(
                                           "--format borealtc)."),
     folds: int = typer.Option(5, "--folds", help="With --open-set: outer grouped CV folds (by run)."),
     seed: int = typer.Option(0, "--seed", help="With --open-set: seed of folds, models and inner folds."),
-    robot: Optional[str] = typer.Option(None, "--robot", help="With --open-set: robot spec when building "
-                                        "from logs without a model folder."),
+    robot: Optional[str] = typer.Option(None, "--robot", help="With --open-set, building from logs without a "
+                                        "model folder: " + robot_help(None)),
     preset: str = typer.Option("robust", "--preset", help="With --open-set: estimation preset when building "
                                "from logs without a model folder."),
     n_jobs: int = typer.Option(1, "--n-jobs", "-j", help="Parallel jobs when building from logs (with "

@@ -7,6 +7,7 @@ from typing import Any, List, Optional
 
 import typer
 
+from terrainml.commands._help import BUILTIN_MAPS, BUILTIN_ROBOTS, listed
 from terrainml.commands._common import fail, open_dataset_spec, open_robot
 
 #: predict's help: a summary, one example, and where the reference is (docs/predict.md)
@@ -70,7 +71,8 @@ def register(app: typer.Typer) -> None:
                                        help="stdout (default), ros2://N, udp://, can://, mcap:FILE, "
                                             "foxglove://; repeatable."),
         realtime: bool = typer.Option(False, "--realtime", help="Pace a log at its stamps."),
-        robot: Optional[str] = typer.Option(None, "--robot", metavar="NAME", help="Robot; default: model's."),
+        robot: Optional[str] = typer.Option(None, "--robot", metavar="NAME",
+                                             help=f"{listed(BUILTIN_ROBOTS)} or YAML (the model's)."),
         preset: Optional[str] = typer.Option(None, "--preset", metavar="NAME", help="EKF preset (the model's)."),
         idle_timeout_s: Optional[float] = typer.Option(None, "--idle-timeout-s", metavar="S",
                                                        help="Silent input: exit 3."),
@@ -81,7 +83,7 @@ def register(app: typer.Typer) -> None:
                                                      help="Re-anchor after K samples."),
         trusted_key: Optional[List[Path]] = typer.Option(None, "--trusted-key", metavar="KEY",
                                                          help="Serve only a model signed for KEY.pub."),
-        topics: Optional[str] = typer.Option(None, "--topics", metavar="MAP", help="Topic map: name or YAML."),
+        topics: Optional[str] = typer.Option(None, "--topics", metavar="MAP", help=f"{listed(BUILTIN_MAPS)} or YAML."),
         fmt: Optional[str] = typer.Option(None, "--format", "--spec", metavar="SPEC",
                                           help="Dataset spec of the log."),
         allow_outside: bool = typer.Option(False, "--allow-outside-spec-dir", help="Spec may read outside."),

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Iterator, Optional
 import typer
 from rich.table import Table
 
+from terrainml.commands._help import robot_help
 from terrainml.commands._common import (check_n_jobs, check_output_writable, console, fail, failure_message,
                                         is_windows_file, open_dataset)
 from terrainml.commands._model_inputs import (NOVELTY_FALSE_ALARM_HELP, check_novelty_false_alarm_option,
@@ -105,7 +106,8 @@ def train(
                                                "logs) run on its cluster, whose threads set the "
                                                "parallelism; same figures as without it."),
     preset: str = typer.Option("robust", "--preset", help="Estimation preset when building from logs."),
-    robot: Optional[str] = typer.Option(None, "--robot", help="Robot spec when building from logs."),
+    robot: Optional[str] = typer.Option(None, "--robot", help="When building from logs: " + robot_help(
+        "the dataset format's robot (husky for borealtc), else the reference robot")),
     fmt: str = typer.Option("auto", "--format", help="auto or borealtc (when --data is a folder)."),
     ablation: bool = typer.Option(True, "--ablation/--no-ablation", help="SVM feature-set ablation."),
     members: bool = typer.Option(True, "--members/--no-members", help="Also train, the same way, members "

@@ -92,9 +92,8 @@ def test_robot_option_help_lists_every_built_in_robot():
     assert set(lacking) <= _ROBOT_HELP_ELSEWHERE, lacking
 
 
-#: ``--robot`` options of commands outside this area (commands/model_cmds.py, stream_cmds.py)
-#: whose help does not list the built-in robots yet
-_ROBOT_HELP_ELSEWHERE = {"train", "evaluate", "predict"}
+#: ``--robot`` options whose help need not list the built-in robots: none
+_ROBOT_HELP_ELSEWHERE: set[str] = set()
 
 
 def test_dataset_help_names_the_default_window_spec():
