@@ -18,6 +18,7 @@ import typer
 from rich.table import Table
 
 from terrainml.commands._help import robot_help
+from terrainml.pipeline.train_options import DEFAULT_BUDGET_MIN, REPLAY_SEGMENT_S
 from terrainml.commands._common import (check_n_jobs, check_output_writable, console, fail, failure_message,
                                         is_windows_file, open_dataset)
 from terrainml.commands._model_inputs import (NOVELTY_FALSE_ALARM_HELP, check_novelty_false_alarm_option,
@@ -89,10 +90,12 @@ def train(
                                 "model), several comma-separated to choose among, or short, steady, "
                                 "chunks (BorealTC authors' windows), state. One spec with a named --model: "
                                 "that model on those windows, grouped CV and served replay, no selection."),
-    budget_min: float = typer.Option(30.0, "--budget-min", help="Time budget of the selection, minutes: past "
-                                     "half of it after screening, only the best window spec gets its models."),
-    replay_s: float = typer.Option(30.0, "--replay-s", help="Seconds of every held-out run replayed through the "
-                                   "online predictor before the model is saved."),
+    budget_min: float = typer.Option(DEFAULT_BUDGET_MIN, "--budget-min",
+                                     help="Time budget of the selection, minutes: past half of it after "
+                                     "screening, only the best window spec gets its models."),
+    replay_s: float = typer.Option(REPLAY_SEGMENT_S, "--replay-s",
+                                   help="Seconds of every held-out run replayed through the online "
+                                   "predictor before the model is saved."),
     allow_unproven: bool = typer.Option(False, "--allow-unproven", help="Save the selected model even when the "
                                         "served replay of held-out runs classifies on too few moving ticks."),
     sensors: Optional[str] = typer.Option(None, "--sensors", help="Sensor groups the model may use, e.g. "

@@ -37,16 +37,13 @@ import pandas as pd
 
 from terrainml.stream.tick.config import ServingConfig
 from terrainml.stream.tick.predictor import Predictor
+from terrainml.pipeline.train_options import MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S
 from terrainml.stream.app.options import CLASSIFY_LAG_TICKS
 from terrainml.stream.app.scoring import replay_served, score_served
 
 __all__ = ["make_course", "replay_course", "replay_refusal", "pooled_replay", "REPLAY_SEGMENT_S",
            "MIN_CLASSIFIED_SHARE", "SETTLE_S", "ReplayRefused"]
 
-#: seconds of every held-out run replayed (from its middle)
-REPLAY_SEGMENT_S = 30.0
-#: a model whose replay classifies on fewer of the moving ticks is refused
-MIN_CLASSIFIED_SHARE = 0.5
 #: seconds after a label change left out of ``right_share_settled``
 SETTLE_S = 3.0
 

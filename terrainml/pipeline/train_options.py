@@ -14,12 +14,16 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from terrainml.models.novelty_target import DEFAULT_FALSE_ALARM, check_false_alarm
-from terrainml.pipeline.replay import MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S
 
-__all__ = ["TrainOptions", "ReplayOptions", "SelectionOptions", "DEFAULT_BUDGET_MIN"]
+__all__ = ["TrainOptions", "ReplayOptions", "SelectionOptions", "DEFAULT_BUDGET_MIN", "REPLAY_SEGMENT_S",
+           "MIN_CLASSIFIED_SHARE"]
 
 #: ``--budget-min`` default, minutes
 DEFAULT_BUDGET_MIN = 30.0
+#: ``--replay-s`` default: seconds of every held-out run replayed (from its middle)
+REPLAY_SEGMENT_S = 30.0
+#: a model whose replay classifies on fewer of the moving ticks is refused
+MIN_CLASSIFIED_SHARE = 0.5
 
 
 @dataclass(frozen=True)
