@@ -1,4 +1,4 @@
-"""Shared ways of filling the disk on real paths (issue 31 case 3): a file-size limit
+"""Shared ways of filling the disk on real paths: a file-size limit
 (``RLIMIT_FSIZE``: the kernel refuses writes past N bytes of any file with EFBIG) and a file object
 that raises ``OSError(ENOSPC)`` once full, for a writer module's ``open``."""
 

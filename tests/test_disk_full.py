@@ -1,4 +1,4 @@
-"""Disk-full and unwritable outputs (issue 31 case 3): every command that writes refuses with one
+"""Disk-full and unwritable outputs: every command that writes refuses with one
 ``error:`` line naming its output, exit code 2, no traceback, and leaves nothing at the output path.
 
 Two ways of filling the disk, both on real paths in ``tmp_path``: ``RLIMIT_FSIZE`` (the kernel

@@ -1,4 +1,4 @@
-"""Bounded YAML (issue 31, case 2): every YAML the project reads refuses an alias bomb, a
+"""Bounded YAML: every YAML the project reads refuses an alias bomb, a
 recursive alias and an oversized file quickly, naming the file."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Mission-suite policies (design §12, issue 20): one interface, hand-worked limits."""
+"""Mission-suite policies (design §12): one interface, hand-worked limits."""
 
 from __future__ import annotations
 
@@ -109,7 +109,7 @@ def _peak_current_a(robot, ctrl, cid):
 
 
 def test_served_firm_class_at_a_stall_escalates_to_the_safe_cap(robot):
-    """Issue 20 (greenhouse tuning seeds, dry sand into wet mud): the fused class lags a terrain
+    """Greenhouse tuning seeds, dry sand into wet mud: the fused class lags a terrain
     change and never goes stale at a stall, so a firm class's cap held the wheels short of the
     soil's peak for up to 48 s. A wheel held at the served cap with the body stalled must get the
     largest traction target of all classes after ``stall_s``, and the class again after ``hold_m``."""
@@ -148,7 +148,7 @@ def test_served_class_is_kept_at_a_start_that_builds_up(robot):
 
 
 def test_class_from_before_an_unhealthy_episode_is_not_served_until_reclassified(robot):
-    """Issue 20 (greenhouse tuning seed compacted_dirt 5004): the estimator went unhealthy while
+    """Greenhouse tuning seed compacted_dirt 5004: the estimator went unhealthy while
     the robot drove onto a tilled-loam patch; the odometer counts no unhealthy tick, so the class
     held from before (compacted dirt, s_T 0.142) came back unaged after it and stalled the wheels
     on the patch (+4.9% energy against no control). The class is served again only once a window
@@ -181,7 +181,7 @@ def test_class_from_before_an_unhealthy_episode_is_not_served_until_reclassified
 
 
 def test_served_cap_that_loses_speed_escalates_before_the_stall(robot):
-    """Issue 20 (greenhouse tuning seeds): a firm class's cap on softer ground holds the wheels
+    """Greenhouse tuning seeds: a firm class's cap on softer ground holds the wheels
     below the slip the soil needs to keep the speed, and the body slows under a steady command.
     A wheel held at its cap while the body loses speed faster than ``lag_decel_mps2`` behind its
     command escalates to the safe cap after ``lag_s``, while the body still moves, instead of
@@ -209,7 +209,7 @@ def test_served_cap_that_loses_speed_escalates_before_the_stall(robot):
 
 
 def test_served_cap_on_weak_thrust_contradicts_the_class(robot):
-    """Issue 20 (greenhouse tuning seed compacted_dirt 5004): on its own ground a wheel reaches the
+    """Greenhouse tuning seed compacted_dirt 5004: on its own ground a wheel reaches the
     class's traction-peak slip only near the class's peak thrust. Held at compacted dirt's cap on
     a tilled-loam patch it pulled about a third of that, and the cap held the robot back at low
     demand. A wheel held at its cap for 0.1 s on less than ``thrust_gate`` (0.5) of the class's
@@ -253,7 +253,7 @@ def test_weak_thrust_gate_needs_a_measured_current(robot):
 
 
 def test_unknown_ground_turns_on_refinement_of_the_safe_cap(robot):
-    """Issue #30 §3: on ``unknown_terrain`` the safe cap is served refined, read against the nominal
+    """On ``unknown_terrain`` the safe cap is served refined, read against the nominal
     curve of the class whose traction peak is the cap (the largest of the classes); any other
     fallback serves it unrefined (no class, no curve)."""
     from types import SimpleNamespace

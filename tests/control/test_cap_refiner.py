@@ -1,4 +1,4 @@
-"""Online cap refinement (design §12, issue 20): hand-worked estimator cases and the acceptance
+"""Online cap refinement (design §12): hand-worked estimator cases and the acceptance
 test on the simulator's truth (tuning seeds >= 5000 only; the mission suite's evaluation seeds are
 never used for tuning)."""
 

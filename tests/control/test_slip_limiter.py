@@ -1,4 +1,4 @@
-"""Slip limiter (design §12, issue 20): hand-worked cases and a towed-load start in the simulator."""
+"""Slip limiter (design §12): hand-worked cases and a towed-load start in the simulator."""
 
 from __future__ import annotations
 
@@ -117,7 +117,7 @@ def _towed_start(policy: str, load_w: float = 0.10, duration_s: float = 30.0):
     x = res.log[:, ph.L_X]
     finite = np.isfinite(res.log).all(axis=1)
     # the distance before any non-finite row (the uncontrolled run digs in without bound, see
-    # the report of issue 20)
+    # the slip limiter's report in docs/control.md)
     upto = np.argmin(finite) if not finite.all() else len(x)
     return float(np.max(x[:upto])), res, upto
 

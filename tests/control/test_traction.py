@@ -80,7 +80,7 @@ def test_bad_policy_rejected(robot):
 
 
 def test_default_law_is_the_slip_limiter_and_a_pid_config_selects_the_pid(robot):
-    """Issue 20: the limiter is the default; the thesis PID stays reachable explicitly."""
+    """The limiter is the default; the thesis PID stays reachable explicitly."""
     assert SlipController(robot, "fixed").law == "limiter"
     assert SlipController(robot, "fixed").pid is None
     assert SlipController(robot, "fixed", ControlSettings(pid=tuned_config(robot))).law == "pid"

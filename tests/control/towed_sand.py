@@ -1,4 +1,4 @@
-"""Shared simulator set-up of the control tests: a towed-load start on dry sand (design §12, issue 20)."""
+"""Shared simulator set-up of the control tests: a towed-load start on dry sand (design §12)."""
 
 import numpy as np
 

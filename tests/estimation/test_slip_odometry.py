@@ -1,4 +1,4 @@
-"""Slip-aware wheel odometry against simulator truth on sand (issue 29 acceptance)."""
+"""Slip-aware wheel odometry against simulator truth on sand."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Named window specs (design §8, issue #17): registry, side channels, the state spec's rule."""
+"""Named window specs (design §8): registry, side channels, the state spec's rule."""
 
 import numpy as np
 import pandas as pd
@@ -73,7 +73,7 @@ def test_state_spec_keeps_an_accelerating_window_the_steady_rules_reject():
 
 
 def test_label_at_end_keeps_a_straddling_window_with_the_newest_terrain():
-    """Issue #19: a window across a terrain change is labelled with the terrain under the robot
+    """A window across a terrain change is labelled with the terrain under the robot
     when it ends (what serving must report); ``only`` (every other spec) rejects it."""
     robot = load_robot(None)
     est = _est(["steady"] * 100, n=100)

@@ -1,4 +1,4 @@
-"""Bad input (issue 3): every case keeps the readable messages, counts the rest per topic, names the
+"""Bad input: every case keeps the readable messages, counts the rest per topic, names the
 file and topic, and gives exit 0 (usable, with warnings) or 2 (not usable) without a traceback."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Topic-map kind ``body_odometry``: a REP 105 odometry as the body-velocity reference (issue 29)."""
+"""Topic-map kind ``body_odometry``: a REP 105 odometry as the body-velocity reference."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""Damaged ROS 2 ``.db3`` bags (issue 31 case 6): the readable rows are kept, the lost counted.
+"""Damaged ROS 2 ``.db3`` bags: the readable rows are kept, the lost counted.
 
 Every bag is written here with rosbags' rosbag2 Writer and then damaged: cut at 60 % of its size,
 or 20 pages (4096-byte blocks) in its middle overwritten with random bytes, or its first pages

@@ -1,4 +1,4 @@
-"""Damaged-input suite (issue 21), every input generated here, none stored: bad cells in CSV and
+"""Damaged-input suite, every input generated here, none stored: bad cells in CSV and
 Parquet tables, damage counts carried in the run table's metadata, labels never carried across a
 hole, a truncated ROS 1 bag, a wheel count that differs from the robot spec.
 

@@ -173,7 +173,7 @@ def test_cli_ingest_with_a_spec(dataset, tmp_path):
 @pytest.mark.parametrize("pattern", ["../imu_{run}.parquet", "sub/../../imu_{run}.parquet",
                                      "/tmp/imu_{run}.parquet", "~/imu_{run}.parquet"])
 def test_spec_reading_outside_its_folder_is_refused_unless_allowed(tmp_path, pattern):
-    """Issue 31, case 8: a spec's ``../imu_{run}.csv`` read outside the dataset folder silently."""
+    """A spec's ``../imu_{run}.csv`` read outside the dataset folder silently."""
     root = tmp_path / "data"
     root.mkdir()
     _write_run(root, "01", ["gravel"], imu=False)

@@ -1,4 +1,4 @@
-"""``inspect`` memory does not grow with the log's length (issue 21: it was 67 MiB at 1 minute and
+"""``inspect`` memory does not grow with the log's length (it was 67 MiB at 1 minute and
 320 MiB at 30 minutes, every stamp and decoded message kept).
 
 The peak of Python allocations (tracemalloc, which numpy reports to) while inspecting a 10-s and a

@@ -1,7 +1,7 @@
 """Low-rate channels on the 100 Hz grid: a 15 Hz wheel log at constant speed stays constant.
 
 Ground truth: the robot drives straight at 0.56 m/s, so every resampled wheel speed is
-0.56 / R and the EKF's dynamic state is never "braking" (issue 17: 1,642 of 2,035 ticks were).
+0.56 / R and the EKF's dynamic state is never "braking" (1,642 of 2,035 ticks were).
 """
 
 import numpy as np

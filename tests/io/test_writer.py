@@ -62,7 +62,7 @@ def test_written_log_decodes_with_mcap_ros2(tmp_path):
     np.testing.assert_allclose(got[topics.SIM_WHEEL_STATE][0].position, [2, 3])
 
 
-# ----------------------------------------------------------------------------- block encoding (issue 18)
+# ----------------------------------------------------------------------------- block encoding
 def _hdr(t_ns, frame_id):
     return {"stamp": {"sec": int(t_ns) // 10**9, "nanosec": int(t_ns) % 10**9}, "frame_id": frame_id}
 

@@ -1,4 +1,4 @@
-"""Terrain catalogues and the table built from them (design §10, issue 17).
+"""Terrain catalogues and the table built from them (design §10).
 
 Independent truth: the targets design §10 / docs/lookup.md publish for the reference robot (3 dp),
 the nominal class parameters of ``terramechanics`` (the simulator's), the analytic Burckhardt

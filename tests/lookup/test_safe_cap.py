@@ -1,4 +1,4 @@
-"""Class-free safe cap: the fallback target of design §10 (issue 19), hand-worked.
+"""Class-free safe cap: the fallback target of design §10, hand-worked.
 
 A 3-class catalogue of direct targets (SAE slip):
 
@@ -74,7 +74,7 @@ def test_safe_cap_of_the_reference_table_is_wet_mud():
 
 
 def test_the_served_fallback_is_the_safe_cap_not_a_class():
-    """Serving (stream/tick/policy.py) serves the cap on fallback, naming no class (issue 19)."""
+    """Serving (stream/tick/policy.py) serves the cap on fallback, naming no class."""
     from terrainml.stream.tick.policy import ServingPolicy
 
     table = DesiredSlipTable.build(load_robot("agrimaro"))

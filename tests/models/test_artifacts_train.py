@@ -139,7 +139,7 @@ def test_cli_train_and_evaluate(log_dir, log_dir2, tmp_path, monkeypatch):
 
 
 def test_cli_train_on_a_full_disk_names_the_folder_and_leaves_no_manifest(log_dir, tmp_path, monkeypatch):
-    """Issue 31 case 3: the model folder's writes fail past 2 kB (RLIMIT_FSIZE, EFBIG, SIGXFSZ
+    """The model folder's writes fail past 2 kB (RLIMIT_FSIZE, EFBIG, SIGXFSZ
     ignored): one ``error:`` line naming the file of the model folder, exit 2, no traceback, and
     no ``manifest.json`` -- never a folder that looks complete."""
     import resource

@@ -86,13 +86,13 @@ def test_cli_train_auto_selects_replays_and_saves_a_calibrated_model(tmp_path):
     assert isinstance(served.classifier.model, CalibratedModel)
     entry = json.loads((out / "manifest.json").read_text())["models"]["hgb"]
     assert entry["calibration"]["temperature"] == pytest.approx(rep["selection"]["temperature"])
-    # issue #30: the default path saves the served model's novelty score (threshold from its
+    # the default path saves the served model's novelty score (threshold from its
     # training runs, one held out at a time),
     # so unknown ground is served unknown_terrain with no option given
     nov = json.loads((out / "manifest.json").read_text())["novelty"]
     assert nov["model"] == "hgb" and nov["threshold"] > 0
     assert served.classifier.novelty is not None
-    # the sensor members (issue #28 §3): the chosen spec and model again without the IMU and
+    # the sensor members: the chosen spec and model again without the IMU and
     # without the currents, each validated like the model, listed in the manifest, served
     members = json.loads((out / "manifest.json").read_text()).get("sensor_members", [])
     assert members, "default train made no sensor member"

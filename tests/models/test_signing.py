@@ -1,4 +1,4 @@
-"""Signed model folders (issue 21): keygen, sign, verify; refusals of an unsigned folder, a folder
+"""Signed model folders: keygen, sign, verify; refusals of an unsigned folder, a folder
 signed by another key, a manifest edited and re-hashed with the project's own writer after signing
 ("the hash proves integrity, not origin"), a forged or damaged signature and a tampered file; and
 ``predict`` / ``evaluate --trusted-key`` accepting a good folder and refusing each bad one, naming
@@ -306,7 +306,7 @@ def test_cli_predict_with_trusted_key(trained, keys, short_log, tmp_path):
     ("folder", "a folder, not a regular file"),
 ])
 def test_special_model_file_is_refused_with_its_real_cause(model, kind, cause):
-    """Issue 31, case 9: a model file replaced by a symlink to /dev/zero, a FIFO or a symlink
+    """A model file replaced by a symlink to /dev/zero, a FIFO or a symlink
     loop was refused as "missing"; each is named for what it is, before it is opened."""
     import os
 

@@ -1,4 +1,4 @@
-"""BorealTC through the servable path (issue #17): window specs, per-class report, sensor subsets,
+"""BorealTC through the servable path: window specs, per-class report, sensor subsets,
 models saved as verified artifacts, classes matched by name, and a served course of held-out runs.
 """
 
@@ -183,7 +183,7 @@ def test_a_course_of_held_out_runs_without_imu_is_served(boreal_tables, tmp_path
 
 
 def test_a_model_on_all_sensors_serves_a_course_without_imu_through_its_member(boreal_tables, tmp_path):
-    """Issue #28 acceptance: a course of held-out runs with the IMU file dropped, served by a model
+    """A course of held-out runs with the IMU file dropped, served by a model
     trained on every sensor (the chunks spec and hgb, as default ``train`` chooses on BorealTC),
     is served by its ``no_imu`` member (trained by :func:`train_members` as ``train`` does):
     >= 80% of moving ticks right (course_score leaves out 3 s after each label change)."""

@@ -1,4 +1,4 @@
-"""Mission physics (issue 18): grade, dig-in sinkage, starts from rest, battery energy.
+"""Mission physics: grade, dig-in sinkage, starts from rest, battery energy.
 
 Each test compares the simulator with a hand-worked value from the terramechanics functions and
 the robot spec, never with the simulator's own output.

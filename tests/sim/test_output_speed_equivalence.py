@@ -1,4 +1,4 @@
-"""Block-encoded simulator MCAP (issue 18): every message is what mcap-ros2's own encoder writes for
+"""Block-encoded simulator MCAP: every message is what mcap-ros2's own encoder writes for
 it, carries the simulator's values, and does not depend on the block size."""
 
 from __future__ import annotations

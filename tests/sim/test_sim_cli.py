@@ -1,4 +1,4 @@
-"""`terrainml sim` command line: the contract other tools call (issue 4)."""
+"""`terrainml sim` command line: the contract other tools call."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Simulator acceptance checks against independent ground truth (design §6, issue 4).
+"""Simulator acceptance checks against independent ground truth (design §6).
 
 Runs are short and shared through module fixtures; the whole file stays well inside its budget.
 """

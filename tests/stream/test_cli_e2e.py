@@ -144,7 +144,7 @@ def test_tampered_model_is_refused(tmp_path, model_dir, capsys):
 
 @pytest.mark.acceptance
 def test_hostile_stdin_never_stops_predict(model_dir):
-    """Issue 21: deep nesting, huge numbers, binary, NaN, an over-long line, a wild and an absurd
+    """Deep nesting, huge numbers, binary, NaN, an over-long line, a wild and an absurd
     first stamp: no traceback, exit 0, one finite message per tick, live warnings, counts."""
     samples = _drive(2, 8.0)
     good = [json.dumps(s).encode() for s in samples]
@@ -184,7 +184,7 @@ def test_hostile_stdin_never_stops_predict(model_dir):
 
 @pytest.mark.acceptance
 def test_predict_says_what_a_damaged_log_lost(tmp_path, model_dir, capsys):
-    """Issue 21: the damage counts of a log's ingest reach predict, before serving and in the summary."""
+    """The damage counts of a log's ingest reach predict, before serving and in the summary."""
     from terrainml.io.ingest import load_run
     from terrainml.io.mcap_writer import RosMcapWriter
     from terrainml.stream.app.options import ServeOptions

@@ -1,4 +1,4 @@
-"""The clock policy (issue 21, "One bad timestamp wedges or silences it"): stream/tick/clock.py.
+"""The clock policy ("One bad timestamp wedges or silences it"): stream/tick/clock.py.
 
 A wild stamp costs one ``clock_jump`` tick; an absurd first stamp, a forward jump and a backward
 step re-anchor after K consistent samples; the stream never wedges, every tick is served with

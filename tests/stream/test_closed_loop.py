@@ -55,7 +55,7 @@ def test_fixed_low_target_holds_the_wheels_back_on_soft_soil():
 def test_terrain_aware_targets_keep_speed_on_deformable_soil():
     """The lookup's targets are at or above the slip the soil needs, so the slip limiter (the
     default law) keeps the robot's speed (within 5%) where the fixed 0.1 target stalls it.
-    Measured (issue 20): dry sand -0.5% speed, +0.1% energy; wet mud 0.0%, 0.0%. The former
+    Measured: dry sand -0.5% speed, +0.1% energy; wet mud 0.0%, 0.0%. The former
     default, the PID path, was 6.2% slower on dry sand (thrust from shear displacement)."""
     for terrain in ("dry_sand", "wet_mud"):
         free = run_closed_loop(terrain, "none", duration_s=10.0, seed=2)

@@ -1,4 +1,4 @@
-"""Acceptance: a simulated mixed-terrain course served by the predictor (issue 9).
+"""Acceptance: a simulated mixed-terrain course served by the predictor.
 
 A model trained on simulated straight runs of four classes serves a course that crosses all
 four with transitions. Truth is the simulator's class under the robot.

@@ -1,4 +1,4 @@
-"""Fault handling of the online predictor (issue 9 acceptance: each fault a test)."""
+"""Fault handling of the online predictor (each fault a test)."""
 
 from __future__ import annotations
 
@@ -113,7 +113,7 @@ def test_out_of_order_and_duplicate_timestamps_dropped_and_counted(robot, fake_p
     for s in stream:
         try:
             m = pred.step(s)
-        except InvalidSample as exc:  # the documented error (issue 21), counted as bad_time
+        except InvalidSample as exc:  # the documented error, counted as bad_time
             assert math.isnan(s["t_s"]) and exc.reason == "t_s_not_finite"
             continue
         if m is not None:
@@ -304,7 +304,7 @@ def test_odometer_ignores_an_unobserved_lateral_speed():
 
 @pytest.mark.parametrize("gap_s,rate_hz", [(1.0, 100.0), (60.0, 100.0), (600.0, 10.0)])
 def test_recovers_from_an_all_null_gap_of_any_length(robot, gap_s, rate_hz):
-    """Every sensor null for 1 s, 60 s or 10 min (issue 31, case 1: past ~55 s the EKF covariance
+    """Every sensor null for 1 s, 60 s or 10 min (past ~55 s the EKF covariance
     stayed past the health limit for good): good samples are served healthy within 2 s, and
     classified again once a full window of them is in."""
     from stream_fakes import FakeTable
@@ -335,7 +335,7 @@ def test_recovers_from_an_all_null_gap_of_any_length(robot, gap_s, rate_hz):
 
 
 def test_a_missing_group_is_named_live_at_start_and_when_it_goes(robot, fake_predictor, caplog):
-    """Issue 31, case 4: a group absent from the start, and one that stops later, are each
+    """A group absent from the start, and one that stops later, are each
     named on the log the tick they pass the 0.2 s limit, and again when they return."""
     imu = ["imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2", "imu_yaw_rate_radps"]
     cur = [f"wheel{i}_current_a" for i in range(1, robot.n_wheels + 1)]
@@ -361,7 +361,7 @@ def test_a_missing_group_is_named_live_at_start_and_when_it_goes(robot, fake_pre
 
 
 def test_predict_on_a_log_without_imu_names_the_missing_topic(tmp_path, model_dir, capsys):
-    """Issue 31, case 4: a log with wheels but no IMU was served as 3,001 estimator_unhealthy
+    """A log with wheels but no IMU was served as 3,001 estimator_unhealthy
     ticks with nothing on stderr naming /imu."""
     from terrainml.io import topics
     from terrainml.io.mcap_writer import RosMcapWriter

@@ -1,4 +1,4 @@
-"""Temporal fusion over distance (issue #19): hand-made probability sequences with known answers."""
+"""Temporal fusion over distance: hand-made probability sequences with known answers."""
 
 from __future__ import annotations
 

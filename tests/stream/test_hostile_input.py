@@ -1,4 +1,4 @@
-"""Hostile input never stops the stream (issue 21, "One input line can kill the stream").
+"""Hostile input never stops the stream ("One input line can kill the stream").
 
 The parser of ``terrainml predict``'s UDP / stdin sources counts every malformed datagram or line
 by reason and skips it; ``Predictor.step`` raises only ``InvalidSample`` on what is not a sample.
@@ -344,7 +344,7 @@ def test_step_with_the_real_estimator_raises_nothing_but_invalid_sample(robot, j
     ("imu_ax_mps2", -2e3, "imu"), ("cam_vx_mps", 150.0, "cam"), ("wheel2_steer_rad", 1e5, "steer"),
 ])
 def test_a_finite_value_beyond_physics_invalidates_its_group(robot, column, value, group):
-    """Issue 31, case 9a: a finite ±1e308 current passed the sample check; each channel has a
+    """A finite ±1e308 current passed the sample check; each channel has a
     physical limit (1000 A, 1000 rad/s, 1000 m/s^2, 100 m/s, 1e4 rad) past which its group is
     invalid, counted per column; a value inside the limit passes."""
     from terrainml.stream.tick.health import HealthMonitor, InputCounters
@@ -390,7 +390,7 @@ def test_huge_current_never_reaches_the_features(model_dir):
 
 
 def test_wheel_keys_beyond_the_robot_are_counted_and_warned(robot, fake_predictor, caplog):
-    """Issue 31, case 7: a stream with ``wheel4_*`` keys was served as three wheels silently."""
+    """A stream with ``wheel4_*`` keys was served as three wheels silently."""
     import logging
 
     pred = fake_predictor()
@@ -408,7 +408,7 @@ def test_wheel_keys_beyond_the_robot_are_counted_and_warned(robot, fake_predicto
 
 
 def test_serving_robot_that_differs_from_the_training_robot_is_warned(model_dir, tmp_path, caplog):
-    """Issue 31, case 7: twice the wheel radius and three times the mass were served silently."""
+    """Twice the wheel radius and three times the mass were served silently."""
     import logging
 
     from terrainml.robot import RobotSpec, load_robot

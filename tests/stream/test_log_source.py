@@ -153,7 +153,7 @@ def test_topics_and_format_are_refused_for_udp_and_stdin():
 
 def test_predict_on_a_full_disk_counts_every_lost_tick_of_the_mcap_sink(sim_log, model_dir, tmp_path,
                                                                          monkeypatch, capsys):
-    """Issue 31 case 3: the recording's disk is full (ENOSPC from its file object): serving goes
+    """The recording's disk is full (ENOSPC from its file object): serving goes
     on (exit 0, every tick on stdout), the summary counts each lost tick, not one error, and no
     recording is left at the sink's path as if complete."""
     import terrainml.stream.transports.sinks as sinks

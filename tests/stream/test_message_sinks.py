@@ -15,8 +15,8 @@ from terrainml.stream.transports.sinks import (decode_can_frames, encode_can_fra
 DESIGN_11_FIELDS = ["t_s", "seq", "slip_desired", "slip_measured", "wheel_state", "terrain_class",
                     "terrain_name", "confidence", "class_probabilities", "classification_age_s",
                     "fallback", "fallback_reason", "estimator_ok", "processing_ms"]
-#: added by issue #28 (design §11 amendment: say which sensors served, and why windows are rejected)
-#: and issue #30 (the novelty score of the latest window)
+#: the fields that say which sensors served and why windows are rejected (design §11),
+#: and the novelty score of the latest window
 ADDED = ["fallback_detail", "sensors", "novelty"]
 
 

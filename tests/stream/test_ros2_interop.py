@@ -1,4 +1,4 @@
-"""`terrainml predict` as a ROS 2 participant, against an independent peer process (issue 29).
+"""`terrainml predict` as a ROS 2 participant, against an independent peer process.
 
 The peer (``ros2_peer.py``, its own process, its own cyclonedds IDL classes, the log read by
 ``mcap_ros2``; no terrainml code) replays a simulated MCAP onto DDS; a second peer process records

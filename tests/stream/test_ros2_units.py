@@ -1,5 +1,5 @@
 """ROS 2 participant, without DDS traffic: name mapping, the live aligner against ingest, the sink's
-message contents (issue 29)."""
+message contents."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Serving on the sensors that are there (issue #28): a model with IMU carries a member without it.
+"""Serving on the sensors that are there: a model with IMU carries a member without it.
 
 Hand-made truth: two classes told apart by the motor current alone (2 A or 6 A on every wheel);
 the model reads the side channels with the IMU, its member ``no_imu`` the wheel speeds and

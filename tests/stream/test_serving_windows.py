@@ -1,4 +1,4 @@
-"""Issue #19: the `short` window spec cut online from the ring equals the offline cut, bit for bit;
+"""The `short` window spec cut online from the ring equals the offline cut, bit for bit;
 the serving chain row by row (estimator, ring, the classifier's cut and features) equals the
 offline chain; the safe cap is served on fallback, with its reason and no class name."""
 

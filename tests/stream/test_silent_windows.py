@@ -1,4 +1,4 @@
-"""`predict` never goes silent (issue #28): windows the rules reject while the robot moves are named.
+"""`predict` never goes silent: windows the rules reject while the robot moves are named.
 
 The hand-made log is a Husky drive without the roll and pitch gyro rates; the model reads the
 side channels, which include them (``imu_wx``, ``imu_wy``). Every tick is healthy (the IMU

@@ -1,4 +1,4 @@
-"""Serving unknown ground (issue #30 §3): a model that never saw the ground serves the safe cap.
+"""Serving unknown ground: a model that never saw the ground serves the safe cap.
 
 Hand-made truth: a model trained on two slip levels (the ``SLIP_OF`` classes 0 and 2, slip 0.02
 and 0.12, simulated kinematic runs) serves one drive whose true slip is 0.02, then 0.45 (far
@@ -162,7 +162,7 @@ def test_a_folder_without_novelty_serves_exactly_as_before(served, drive):
         for d in (da, db):
             d.pop("novelty"), d.pop("processing_ms")
         assert da == db
-    # and on the far slip the closed-set model names a class (today's behaviour, issue #30)
+    # and on the far slip the closed-set model names a class (today's behaviour)
     t = drive["t_s"].to_numpy()
     far = (t > ON_S + 5.0) & (t < OFF_S)
     assert (np.array([m.terrain_class for m in old])[far] >= 0).mean() > 0.5
