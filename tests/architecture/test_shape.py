@@ -4,7 +4,7 @@ These are the structural rules of the design (design §2): every module of the p
 600 lines; no function outside ``terrainml/commands/`` takes more than 10 parameters (``self`` and
 ``cls`` not counted), except numba kernels, which take flat arrays and scalars and say so in their
 docstring; no two modules share a file name; ``docs/design.md`` is at most 600 lines and the README
-at most 150; neither the package nor the docs cite issue numbers (git keeps the history).
+at most 150; neither the package, its tests and benchmarks nor the docs cite issue numbers (git keeps the history).
 """
 
 from __future__ import annotations
@@ -67,7 +67,8 @@ def test_the_design_and_the_readme_are_short_enough_to_read():
 
 
 def test_neither_code_nor_docs_cite_issue_numbers():
-    files = _modules() + sorted((ROOT / "docs").rglob("*.md")) + [ROOT / "README.md"]
+    files = (_modules() + sorted((ROOT / "tests").rglob("*.py")) + sorted((ROOT / "benchmarks").rglob("*.py"))
+             + sorted((ROOT / "docs").rglob("*.md")) + [ROOT / "README.md", ROOT / "BENCHMARKS.md"])
     hits = [f"{p.relative_to(ROOT)}:{i}: {line.strip()}" for p in files
             for i, line in enumerate(p.read_text().splitlines(), 1) if ISSUE_NUMBER.search(line)]
     assert not hits, "issue numbers (git keeps the history):\n" + "\n".join(hits)
