@@ -347,10 +347,44 @@ def replay_markdown(rep: dict, fold_word: str = "fold") -> list[str]:
                              _f(pooled.get("right_share"), 1, 100), "", _f(pooled.get("fallback_share"), 1, 100),
                              _f(pooled.get("classifications_per_m"), 2), _f(pooled.get("median_change_m"), 2),
                              pooled.get("changes_never_right", "n/a")]]), ""]
+    md += tick_losses_markdown([(str(f["fold"] + 1), f.get("losses")) for f in fr] + [("all", pooled.get("losses"))],
+                               fold_word)
     if rep.get("refusal"):
         md += [f"**Refused:** {rep['refusal']}" + (" (saved anyway: `--allow-unproven`)." if rep.get("overridden")
                                                   else "; no model saved."), ""]
     return md
+
+
+def tick_losses_markdown(rows: list[tuple[str, dict | None]], fold_word: str = "fold") -> list[str]:
+    """Markdown of where the moving ticks went (:func:`terrainml.stream.app.tick_losses.tick_losses`),
+    one row per (name, losses); rows without losses are left out."""
+    rows = [(name, los) for name, los in rows if los and los.get("moving_ticks")]
+    if not rows:
+        return []
+
+    def pct(los: dict, kind: str) -> str:
+        return _f(los["kinds"].get(kind, 0) / los["moving_ticks"], 1, 100)
+
+    def reasons(los: dict) -> str:
+        top = sorted(los["fallback_reasons"].items(), key=lambda kv: -kv[1])[:3]
+        return ", ".join(f"{r} {_f(n / los['moving_ticks'], 1, 100)}" for r, n in top) or "-"
+
+    settle_s = rows[0][1].get("settle_s", float("nan"))
+    return ["#### Where the moving ticks went", "",
+            "Windows right: the windows the served path classified on moving labelled ground, each "
+            "scored by its own class against the label at its end. Every moving labelled tick is then "
+            "one of: served right; a fallback (top reasons, % of moving ticks; `unknown_terrain` is "
+            "unknown ground flagged on known ground); a wrong class within "
+            f"{settle_s:g} s of a change (transition); "
+            "a wrong class while the latest window was right (fusion lag); a wrong class with the "
+            "window wrong too (classifier).", "",
+            markdown_table([fold_word, "windows right %", "ticks right %", "fallback %", "top fallback reasons",
+                            "transition %", "fusion lag %", "classifier %"],
+                           [[name, _f(los["windows_right"] / los["windows"], 1, 100) if los["windows"] else "n/a",
+                             pct(los, "right"), pct(los, "fallback"), reasons(los), pct(los, "transition"),
+                             pct(los, "fusion_lag"),
+                             _f((los["kinds"]["window_wrong"] + los["kinds"]["no_window"]) / los["moving_ticks"],
+                                1, 100)] for name, los in rows]), ""]
 
 
 def preflight_markdown(pre: dict | None) -> list[str]:

@@ -40,6 +40,7 @@ from terrainml.stream.tick.predictor import Predictor
 from terrainml.pipeline.train_options import MIN_CLASSIFIED_SHARE, REPLAY_SEGMENT_S
 from terrainml.stream.app.options import CLASSIFY_LAG_TICKS
 from terrainml.stream.app.scoring import replay_served, score_served
+from terrainml.stream.app.tick_losses import pooled_tick_losses, tick_losses
 
 __all__ = ["make_course", "replay_course", "replay_refusal", "pooled_replay", "REPLAY_SEGMENT_S",
            "MIN_CLASSIFIED_SHARE", "SETTLE_S", "ReplayRefused"]
@@ -131,18 +132,21 @@ def replay_course(model_dir: str | Path, course: pd.DataFrame, settle_s: float =
     dict: ``ticks``, ``moving_ticks``, ``right_share``, ``right_share_settled``, ``fallback_share``,
     ``classified_share``, ``classifications``, ``distance_m``, ``classifications_per_m``,
     ``changes``, ``median_change_m``, ``changes_never_right``, ``fallback_reasons`` (counts
-    over moving ticks).
+    over moving ticks), ``losses`` (where the moving ticks went:
+    :func:`terrainml.stream.app.tick_losses.tick_losses`).
     """
     p = Predictor.from_model_dir(model_dir, config=config or ServingConfig(classify_lag_ticks=CLASSIFY_LAG_TICKS))
     cols = list(course.columns)
     ticks = replay_served(p, (dict(zip(cols, row)) for row in course.itertuples(index=False)))
-    return score_served(ticks.t_s, ticks.label, ticks.served, ticks.odometer_m, ticks.reasons, settle_s,
-                        ticks.stats)
+    scores = score_served(ticks.t_s, ticks.label, ticks.served, ticks.odometer_m, ticks.reasons, settle_s,
+                          ticks.stats)
+    scores["losses"] = tick_losses(ticks, settle_s)
+    return scores
 
 
 def pooled_replay(folds: Sequence[dict]) -> dict[str, Any]:
     """Tick-weighted figures over the folds' replays (``right_share``, ``fallback_share``,
-    ``classified_share``; classifications per metre over the total distance)."""
+    ``classified_share``; classifications per metre over the total distance; ``losses`` summed)."""
     n = sum(f["moving_ticks"] for f in folds)
     def w(k):
         return (float(sum(f[k] * f["moving_ticks"] for f in folds if f["moving_ticks"]) / n) if n
@@ -154,7 +158,8 @@ def pooled_replay(folds: Sequence[dict]) -> dict[str, Any]:
             "classifications_per_m": float(sum(f["classifications"] for f in folds) / dist) if dist else float("nan"),
             "median_change_m": float(np.median(meds)) if meds else float("nan"),
             "changes": int(sum(f["changes"] for f in folds)),
-            "changes_never_right": int(sum(f["changes_never_right"] for f in folds))}
+            "changes_never_right": int(sum(f["changes_never_right"] for f in folds)),
+            "losses": pooled_tick_losses([f["losses"] for f in folds if "losses" in f])}
 
 
 def replay_refusal(pooled: dict, min_share: float = MIN_CLASSIFIED_SHARE) -> str:
