@@ -31,12 +31,14 @@ from terrainml.io.ingest import load_run
 from terrainml.io.inspect import inspect_log
 from terrainml.io.mcap_writer import write_run_mcap
 from terrainml.pipeline.dataset import build_dataset, write_windows
+from terrainml.pipeline.replay import SETTLE_S
 from terrainml.pipeline.train_options import TrainOptions
 from terrainml.pipeline.train import train
 from terrainml.robot import RobotSpec, reference_robot
 from terrainml.schema import wheel_col, write_run_parquet
 from terrainml.sim.generate import generate_dataset, simulate, write_run
 from terrainml.stream.app.scoring import replay_summary
+from terrainml.stream.app.tick_losses import losses_sentence, tick_losses
 
 
 def handmade_run_table(robot: RobotSpec, seed: int = 0, seconds: float = 20.0,
@@ -174,7 +176,9 @@ def step_course(out: Path, seed: int, duration_s: float = DEMO_COURSE_DURATION_S
 
 def step_serve(model_dir: Path, course: Path, console: Console) -> list[dict]:
     """5b. replay the course through the online predictor; print what it served."""
-    segments = replay_summary(model_dir, course, console=console)
+    losses: list[dict] = []
+    segments = replay_summary(model_dir, course, console=console,
+                              on_ticks=lambda ticks: losses.append(tick_losses(ticks, SETTLE_S)))
     n = sum(s.get("moving_ticks", 0) for s in segments)
     if n:
         ok = sum(s.get("moving_right", 0) for s in segments)
@@ -182,6 +186,8 @@ def step_serve(model_dir: Path, course: Path, console: Console) -> list[dict]:
         console.print(f"served class = terrain under the robot on {ok / n:.0%} of all {n} moving ticks "
                       f"(fallback ticks, {n_fb / n:.0%}, counted wrong: they serve the class-free "
                       "safe cap)", highlight=False)
+    if losses and losses[0]["moving_ticks"]:
+        console.print(losses_sentence(losses[0]), highlight=False)
     return segments
 
 

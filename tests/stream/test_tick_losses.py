@@ -8,7 +8,7 @@ import numpy as np
 
 from terrainml.evaluation.report import replay_markdown
 from terrainml.stream.app.scoring import FALLBACK, NO_MESSAGE, ServedTicks
-from terrainml.stream.app.tick_losses import TICK_KINDS, pooled_tick_losses, tick_losses
+from terrainml.stream.app.tick_losses import TICK_KINDS, losses_sentence, pooled_tick_losses, tick_losses
 
 # 12 ticks 0.5 s apart at 1 m/s; ground class 0, then class 1 from t = 3.0 s (tick 6)
 T = np.arange(12) * 0.5
@@ -59,3 +59,9 @@ def test_pooled_losses_add_up_and_the_report_shows_them():
     assert "Where the moving ticks went" in md
     row = [line for line in md.splitlines() if line.startswith("| all")][-1]  # the losses table's
     assert "80.0" in row and "50.0" in row and "unknown_terrain 10.0" in row
+
+
+def test_the_sentence_names_every_kind_that_happened_and_the_fallback_reasons():
+    line = losses_sentence(tick_losses(_ticks(), settle_s=1.0))
+    assert line.startswith("where the 10 moving ticks went: windows right 80.0% of 10; ticks right 50.0%")
+    assert "transition 20.0%" in line and "no window" not in line and "unknown_terrain 10.0%" in line

@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 from rich.console import Console
@@ -165,7 +165,8 @@ def score_served(t, lab, served, odo, reasons, settle_s: float, st: dict) -> dic
 
 
 def replay_summary(model: str | Path, log_path: str | Path, *, console: Console | None = None,
-                   robot: RobotSpec | None = None) -> list[dict[str, Any]]:
+                   robot: RobotSpec | None = None,
+                   on_ticks: Callable[[ServedTicks], None] | None = None) -> list[dict[str, Any]]:
     """Replay a recorded log through the predictor and print what it served (for ``make demo``).
 
     Consecutive ticks serving the same class with the same fallback reason form one segment;
@@ -173,13 +174,16 @@ def replay_summary(model: str | Path, log_path: str | Path, *, console: Console 
     ``terrain_name``, ``fallback_reason``, ``ticks``, ``mean_slip_desired``, ``true_class``,
     the most frequent logged ``terrain`` label of the segment when the log has labels, and
     ``moving_ticks`` / ``moving_right``: moving labelled ticks (:func:`moving_ticks`) and those
-    of them that served the logged class (a fallback tick is never right)).
+    of them that served the logged class (a fallback tick is never right)). ``on_ticks`` is given
+    the replay's :class:`ServedTicks` (e.g. to say where the moving ticks went).
     """
     console = console or Console(stderr=True, soft_wrap=True)
     predictor = Predictor.from_model_dir(
         model, robot=robot, config=ServingConfig(classify_lag_ticks=CLASSIFY_LAG_TICKS))
     ticks = replay_served(predictor, open_source(str(log_path), robot=predictor.robot))
     segments = _segments(ticks)
+    if on_ticks is not None:
+        on_ticks(ticks)
     table = Table(title=f"served by {Path(model).name} on {Path(log_path).name}")
     for col in ("t (s)", "served class", "fallback", "mean desired slip", "logged class"):
         table.add_column(col)

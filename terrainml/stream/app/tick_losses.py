@@ -32,7 +32,7 @@ import numpy as np
 
 from terrainml.stream.app.scoring import FALLBACK, ServedTicks, moving_ticks
 
-__all__ = ["TICK_KINDS", "tick_losses", "pooled_tick_losses"]
+__all__ = ["TICK_KINDS", "tick_losses", "pooled_tick_losses", "losses_sentence"]
 
 #: the kinds a moving labelled tick is given, in the order it is given one
 TICK_KINDS = ("right", "fallback", "transition", "fusion_lag", "window_wrong", "no_window")
@@ -122,3 +122,14 @@ def pooled_tick_losses(parts: Sequence[dict[str, Any]]) -> dict[str, Any]:
             out["fallback_reasons"][r] = out["fallback_reasons"].get(r, 0) + v
     out["fallback_reasons"] = dict(sorted(out["fallback_reasons"].items()))
     return out
+
+
+def losses_sentence(los: dict[str, Any]) -> str:
+    """One line for a person: windows right, then where the moving ticks went (:func:`tick_losses`)."""
+    n = los["moving_ticks"]
+    windows = (f"windows right {los['windows_right'] / los['windows']:.1%} of {los['windows']}; "
+               if los["windows"] else "no window classified; ")
+    kinds = ", ".join(f"{k.replace('_', ' ')} {v / n:.1%}" for k, v in los["kinds"].items() if v)
+    reasons = ", ".join(f"{r} {v / n:.1%}" for r, v in los["fallback_reasons"].items())
+    return (f"where the {n} moving ticks went: {windows}ticks {kinds}"
+            + (f" (fallback reasons: {reasons})" if reasons else ""))
