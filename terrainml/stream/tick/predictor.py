@@ -260,7 +260,7 @@ class Predictor:
     def accept(self, sample: Any) -> Sample:
         """The typed :class:`Sample` of ``sample`` (a Sample as is); one that is not a sample is counted
         (``bad_time`` or ``not_a_sample``) and raises :class:`InvalidSample` (see :meth:`step`)."""
-        if type(sample) is Sample:   # checked where it was made (a JSON source)
+        if type(sample) is Sample:   # checked where it was made (every source)
             return sample
         try:
             return Sample.check(sample)
