@@ -35,7 +35,7 @@ from terrainml.estimation.reference import ReferenceEkf
 from terrainml.estimation.row import EstimatorRow, RowLayout
 from terrainml.estimation.slip import DEAD_BAND_MPS
 from terrainml.robot import RobotSpec
-from terrainml.schema import VALID_GROUPS, WHEEL_STATES, est_columns, valid_column, wheel_col
+from terrainml.schema import EST_BODY_COLUMNS, VALID_GROUPS, WHEEL_STATES, est_columns, valid_column, wheel_col
 
 #: rows of vx, vy, r, ax, ay in the EKF state (the wheel kernel takes the layout as an argument)
 _BODY_ROWS = np.array([I_VX, I_VY, I_R, I_AX, I_AY], dtype=np.int64)
@@ -288,6 +288,6 @@ class OnlineEstimator:
         """The values of the EST columns of the last tick, in order."""
         x = self.ekf.x.tolist()
         ekf = self.ekf
-        return (self.t_s, *x[:8], *self.steer.tolist(), x[self._i_bias], *self.slip.tolist(),
+        return (self.t_s, *x[:len(EST_BODY_COLUMNS)], *self.steer.tolist(), x[self._i_bias], *self.slip.tolist(),
                 *[WHEEL_STATES[c] for c in self.state.tolist()], *self.v_long.tolist(),
                 float(ekf.nis), int(ekf.nis_dof), self.estimator_ok, bool(self.slip_available))
