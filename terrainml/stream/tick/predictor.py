@@ -82,8 +82,8 @@ class Predictor:
         eight of design §6.1.
     estimator : object with ``step(sample) -> EST row`` (an
         :class:`~terrainml.estimation.row.EstimatorRow`, or a mapping of EST column names, which is
-        typed once); default ``OnlineEstimator(robot, preset)``. On a re-anchor a built one is built afresh, an
-        injected one is ``reset()`` if it has that method, else kept.
+        typed once); default ``OnlineEstimator(robot, preset)``. On a re-anchor a built one is
+        built afresh, an injected one is ``reset()`` if it has that method, else kept.
     window_spec : the model's :class:`~terrainml.features.windows.WindowSpec`, the one spec of
         serving: its window length sizes the ring buffer, its online hop the classification
         rate. None: the classifier's ``window_spec``, else ``WindowSpec()`` (2.0 s, hop 0.5 s,
