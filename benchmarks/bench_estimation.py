@@ -245,7 +245,7 @@ def _speed_section(quick: bool) -> str:
              "(`terrainml/estimation/reference.py`, on the filterpy ticks); filterpy is given that "
              "reference's numpy f, F, h, H. Whole chain: `estimate_run` (EKF, slip, dynamic state, "
              "EST table). Online: "
-             "`OnlineEstimator.step(dict)` per sample, dict in, EST row dict out.\n",
+             "`OnlineEstimator.step(dict)` per sample, dict in, typed EST row (`EstimatorRow`) out.\n",
              "| preset | ours, whole table [ticks/s] (x real time at 100 Hz) | ours, tick by tick [ticks/s] | "
              "numpy reference [ticks/s] | filterpy EKF [ticks/s] | ratio whole table / filterpy | "
              "ratio tick by tick / filterpy | max abs state diff vs filterpy | "

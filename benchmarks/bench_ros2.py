@@ -280,7 +280,7 @@ def _udp_run(model: str, log: Path, tmp: Path) -> dict:
     from terrainml.io.ingest import load_run
     from terrainml.stream.transports.sources import iter_table_samples
 
-    samples = list(iter_table_samples(load_run(log).table))
+    samples = [s.columns for s in iter_table_samples(load_run(log).table)]   # JSON objects, as sent
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 * 2**20)
     rx.bind(("127.0.0.1", 0))

@@ -423,7 +423,7 @@ def run(quick: bool = False) -> str:
         proc[k] = time.perf_counter() - c0
         cpu[k] = time.thread_time() - u0
         cls_cpu[k] = timed.last_cpu_s
-        is_cls[k] = pred.scheduler.last_attempt_t == s["t_s"]
+        is_cls[k] = pred.scheduler.last_attempt_t == s.t_s
         if k % 6000 == 5999:
             rss.append(_rss_mb())
     wall = time.perf_counter() - t_start

@@ -84,7 +84,7 @@ def serve(model: Path, course: Path, settle_m: float, threshold: float | None = 
                 continue
             if msg is None:
                 continue
-            lab = sample.get("terrain")
+            lab = sample.columns.get("terrain")
             lab = -1 if lab is None or lab != lab else int(lab)
             dt = 0.0 if t_prev is None else msg.t_s - t_prev
             moving = dt > 0 and (p.odometer_m - odo_prev) / dt >= MOVING_TICK_MPS

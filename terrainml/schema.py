@@ -290,7 +290,35 @@ def read_run_parquet(path: str | Path, *, validate: bool = True) -> pd.DataFrame
     return df
 
 
+# --------------------------------------------------------------------- estimator (EST) rows
+#: the EKF's body states in an estimator (EST) row, in order: pose (m, m, rad), body velocity
+#: (m/s, m/s), yaw rate (rad/s), body acceleration (m/s^2, m/s^2)
+EST_BODY_COLUMNS = ("ekf_x_m", "ekf_y_m", "ekf_yaw_rad", "ekf_vx_mps", "ekf_vy_mps",
+                    "ekf_yaw_rate_radps", "ekf_ax_mps2", "ekf_ay_mps2")
+#: the body speeds and yaw rate (m/s, m/s, rad/s): a tick is healthy only where they are finite
+EST_VX, EST_VY, EST_YAW_RATE = EST_BODY_COLUMNS[3:6]
+#: the EKF's gyro bias (rad/s)
+EST_GYRO_BIAS = "ekf_gyro_bias_radps"
+#: the estimator's health flag (bool): EKF fresh and sane (contract 2)
+EST_OK = "estimator_ok"
+#: the EKF's consistency and slip availability: NIS (-), its degrees of freedom (int), camera
+#: healthy so measured slip is available (bool)
+EST_HEALTH_COLUMNS = ("nis", "nis_dof", EST_OK, "slip_available")
+#: suffix of each per-wheel EST column kind (:func:`est_wheel_col`), in the row's order
+EST_WHEEL_KINDS = ("steer", "slip", "state", "v_long")
+
+
 def est_wheel_col(kind: str, i: int) -> str:
     """An estimator (EST) row's per-wheel column: ``est_wheel_col("v_long", 2) -> "v_long2_mps"``
-    (kind: slip, state, v_long)."""
-    return {"slip": f"slip{i}", "state": f"state{i}", "v_long": f"v_long{i}_mps"}[kind]
+    (kind: one of :data:`EST_WHEEL_KINDS`; steer in rad, slip -, state a :data:`WHEEL_STATES`
+    name, v_long in m/s)."""
+    return {"steer": f"ekf_steer{i}_rad", "slip": f"slip{i}", "state": f"state{i}",
+            "v_long": f"v_long{i}_mps"}[kind]
+
+
+def est_columns(n_wheels: int) -> list[str]:
+    """The estimated columns of an EST row (without pass-through columns), in order."""
+    wheels = range(1, n_wheels + 1)
+    return ["t_s", *EST_BODY_COLUMNS, *(est_wheel_col("steer", i) for i in wheels), EST_GYRO_BIAS,
+            *(est_wheel_col(kind, i) for kind in EST_WHEEL_KINDS[1:] for i in wheels),
+            *EST_HEALTH_COLUMNS]

@@ -80,7 +80,7 @@ from terrainml.estimation.online import OnlineEstimator
 from terrainml.lookup.wheel_targets import desired_slip_per_wheel
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import RobotSpec
-from terrainml.schema import est_wheel_col, wheel_col
+from terrainml.schema import wheel_col
 from terrainml.stream.tick.config import ServingConfig
 from terrainml.stream.tick.policy import safe_cap_for
 from terrainml.stream.tick.predictor import Predictor
@@ -364,18 +364,18 @@ class SlipController:
             ok = msg.estimator_ok
         else:
             row = self.estimator.step(s)  # type: ignore[union-attr]
-            states = [row[est_wheel_col("state", i)] for i in range(1, n + 1)]
-            v_long = np.array([row[est_wheel_col("v_long", i)] for i in range(1, n + 1)], dtype=float)
+            states = list(row.wheels("state", n))
+            v_long = np.array(row.wheels("v_long", n), dtype=float)
             cid = self.true_class
             if self.class_lookup is not None:
                 cid = int(self.class_lookup(t))
             s_des = np.asarray(desired_slip_per_wheel(cid or 0, states, v_long, self.table))
             s_des = self._steady_at_peak(s_des, states, v_long, cid or 0, self.table)
-            s_meas = np.array([row[est_wheel_col("slip", i)] for i in range(1, n + 1)], dtype=float)
+            s_meas = np.array(row.wheels("slip", n), dtype=float)
             if self.limiter is not None:
                 pair = self._target_pair(self.table, cid or 0, states)
             x = self.estimator.ekf.x  # type: ignore[union-attr]
-            ok = bool(row["estimator_ok"])
+            ok = row.estimator_ok
         if self.limiter is not None:
             return self._limit(t, s, omega_ll, v_long, pair, dt)  # type: ignore[arg-type]
         body = math.hypot(float(x[I_VX]), float(x[I_VY])) if ok else float("nan")

@@ -8,7 +8,8 @@ code, so offline and online outputs are identical.
 Sample format: a mapping with ``t_s`` (s) and any canonical run-table columns (design §5), e.g.
 ``wheel1_omega_radps``, ``imu_ax_mps2``, ``cam_vx_mps`` and optionally ``{group}_valid``. A row
 is used only when its group is valid (missing ``_valid`` key = valid) and its value is finite;
-missing keys are treated as invalid, never as stale values.
+missing keys are treated as invalid, never as stale values. The EST row of a tick is an
+immutable :class:`~terrainml.estimation.row.EstimatorRow` (column names: :mod:`terrainml.schema`).
 
 Speed (``step()`` runs at 100 Hz inside a control loop): a tick is three compiled calls
 (:mod:`terrainml.estimation._kernel`): the measurement pre-processing (``measurements_tick``),
@@ -31,9 +32,10 @@ from terrainml.estimation._wheel_kernel import (MAX_P_DIAG, MAX_SPEED_MPS, SLIP_
 from terrainml.estimation.dynamic_state import DWELL_S, MANOEUVRE_TAU_S, THETA_M2PS3, WheelStateMachine
 from terrainml.estimation.ekf import Ekf, EkfPreset, PlanarModel, get_preset
 from terrainml.estimation.reference import ReferenceEkf
+from terrainml.estimation.row import EstimatorRow, RowLayout
 from terrainml.estimation.slip import DEAD_BAND_MPS
 from terrainml.robot import RobotSpec
-from terrainml.schema import VALID_GROUPS, WHEEL_STATES, valid_column, wheel_col
+from terrainml.schema import EST_BODY_COLUMNS, VALID_GROUPS, WHEEL_STATES, est_columns, valid_column, wheel_col
 
 #: rows of vx, vy, r, ax, ay in the EKF state (the wheel kernel takes the layout as an argument)
 _BODY_ROWS = np.array([I_VX, I_VY, I_R, I_AX, I_AY], dtype=np.int64)
@@ -53,16 +55,9 @@ G_WHEELS, G_IMU, G_CAM, G_STEER = range(4)
 
 
 def est_state_columns(n_wheels: int) -> list[str]:
-    """Estimated columns of the EST table (without pass-through columns), in order."""
-    cols = ["t_s", "ekf_x_m", "ekf_y_m", "ekf_yaw_rad", "ekf_vx_mps", "ekf_vy_mps",
-            "ekf_yaw_rate_radps", "ekf_ax_mps2", "ekf_ay_mps2"]
-    cols += [f"ekf_steer{i}_rad" for i in range(1, n_wheels + 1)]
-    cols += ["ekf_gyro_bias_radps"]
-    cols += [f"slip{i}" for i in range(1, n_wheels + 1)]
-    cols += [f"state{i}" for i in range(1, n_wheels + 1)]
-    cols += [f"v_long{i}_mps" for i in range(1, n_wheels + 1)]
-    cols += ["nis", "nis_dof", "estimator_ok", "slip_available"]
-    return cols
+    """Estimated columns of the EST table (without pass-through columns), in order
+    (:func:`terrainml.schema.est_columns`)."""
+    return est_columns(n_wheels)
 
 
 def passthrough_columns(n_wheels: int, available: list[str] | None = None) -> list[str]:
@@ -169,7 +164,7 @@ class OnlineEstimator:
         self._nan_wheels = np.full(N, np.nan)
         self._pass_cols = passthrough_columns(N)
         self._copy_cache: dict = {}
-        self._row_keys = est_state_columns(N)
+        self._row_layout = RowLayout(est_state_columns(N))
         self._i_bias = self.model.i_bias
         # outputs of the last tick (arrays are overwritten in place every tick: copy to keep)
         self.steer = np.zeros(N)
@@ -257,8 +252,13 @@ class OnlineEstimator:
         self.t_s = t_s
 
     # ----------------------------------------------------------------- online API
-    def step(self, sample: Mapping[str, Any]) -> dict[str, Any]:
-        """Process one sample (canonical column names + ``t_s``); return one EST row as a dict."""
+    def step(self, sample: Mapping[str, Any]) -> EstimatorRow:
+        """Process one sample (canonical column names + ``t_s``); return its EST row.
+
+        The row (:class:`~terrainml.estimation.row.EstimatorRow`, immutable) holds the EST columns
+        (:func:`est_state_columns`) and then the sample's pass-through columns
+        (:func:`passthrough_columns`, simulator truth ``gt_*`` included), in the sample's order.
+        """
         get = sample.get
         t = float(sample["t_s"])
         z = np.array([get(col, math.nan) for col in self.row_columns], dtype=float)  # None -> NaN
@@ -270,22 +270,24 @@ class OnlineEstimator:
         valid = np.isfinite(z)
         valid &= mask
         self.core(t, z, valid, z[:self.n_wheels] if gvalid[G_WHEELS] else self._nan_wheels)
-        row = self.row()
         keys = tuple(sample)
-        copy = self._copy_cache.get(keys)
-        if copy is None:  # which keys to pass through (cached per key layout)
+        cached = self._copy_cache.get(keys)
+        if cached is None:  # which keys to pass through, and the row's layout (per key layout)
             wanted = set(self._pass_cols)
             copy = [k for k in keys if k in wanted or k.startswith("gt_")]
-            self._copy_cache = {keys: copy}
-        for key in copy:
-            row[key] = sample[key]
-        return row
+            cached = (copy, self._row_layout.plus(tuple(copy)))
+            self._copy_cache = {keys: cached}
+        copy, layout = cached
+        return EstimatorRow(layout, self._values() + tuple([sample[k] for k in copy]))
 
-    def row(self) -> dict[str, Any]:
-        """The EST columns of the last tick as a dict (keys: :func:`est_state_columns`)."""
+    def row(self) -> EstimatorRow:
+        """The EST columns of the last tick (names: :func:`est_state_columns`), without pass-through."""
+        return EstimatorRow(self._row_layout, self._values())
+
+    def _values(self) -> tuple[Any, ...]:
+        """The values of the EST columns of the last tick, in order."""
         x = self.ekf.x.tolist()
         ekf = self.ekf
-        values = [self.t_s, *x[:8], *self.steer.tolist(), x[self._i_bias], *self.slip.tolist(),
-                  *[WHEEL_STATES[c] for c in self.state.tolist()], *self.v_long.tolist(),
-                  float(ekf.nis), int(ekf.nis_dof), self.estimator_ok, bool(self.slip_available)]
-        return dict(zip(self._row_keys, values))
+        return (self.t_s, *x[:len(EST_BODY_COLUMNS)], *self.steer.tolist(), x[self._i_bias], *self.slip.tolist(),
+                *[WHEEL_STATES[c] for c in self.state.tolist()], *self.v_long.tolist(),
+                float(ekf.nis), int(ekf.nis_dof), self.estimator_ok, bool(self.slip_available))

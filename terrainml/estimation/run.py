@@ -17,7 +17,8 @@ import pandas as pd
 from terrainml.estimation.ekf import EkfPreset
 from terrainml.estimation.online import OnlineEstimator, est_state_columns, passthrough_columns
 from terrainml.robot import RobotSpec, reference_robot
-from terrainml.schema import WHEEL_STATES, infer_n_wheels, table_metadata, valid_column, wheel_col
+from terrainml.schema import (EST_BODY_COLUMNS, EST_GYRO_BIAS, EST_HEALTH_COLUMNS, WHEEL_STATES, est_wheel_col,
+                              infer_n_wheels, table_metadata, valid_column, wheel_col)
 
 
 @dataclass
@@ -109,7 +110,7 @@ def estimate_run_detailed(table: pd.DataFrame, robot: RobotSpec | None = None,
         progress(n, n)
 
     df = _est_table(table, robot, est, t, out_x, out_steer, out_slip, out_state, out_vlong,
-                    {"nis": out_nis, "nis_dof": out_dof, "estimator_ok": out_ok, "slip_available": out_sa})
+                    dict(zip(EST_HEALTH_COLUMNS, (out_nis, out_dof, out_ok, out_sa))))
     diag = Diagnostics(rows=[r.name for r in est.model.rows], innovation=innov,
                        innovation_var=innov_var, n_gated=ekf.n_gated, preset=est.preset.name)
     return df, diag
@@ -144,25 +145,23 @@ def _est_table(table: pd.DataFrame, robot: RobotSpec, est: OnlineEstimator, t, o
                out_state, out_vlong, health: dict) -> pd.DataFrame:
     """The EST table (contract 2) of the per-tick outputs, pass-through columns copied from ``table``."""
     N = robot.n_wheels
-    data: dict[str, object] = {
-        "t_s": t, "ekf_x_m": out_x[:, 0], "ekf_y_m": out_x[:, 1], "ekf_yaw_rad": out_x[:, 2],
-        "ekf_vx_mps": out_x[:, 3], "ekf_vy_mps": out_x[:, 4], "ekf_yaw_rate_radps": out_x[:, 5],
-        "ekf_ax_mps2": out_x[:, 6], "ekf_ay_mps2": out_x[:, 7],
-    }
+    data: dict[str, object] = {"t_s": t}
+    for j, name in enumerate(EST_BODY_COLUMNS):   # the first eight EKF states, in order
+        data[name] = out_x[:, j]
     for i in range(N):
-        data[f"ekf_steer{i + 1}_rad"] = out_steer[:, i]
-    data["ekf_gyro_bias_radps"] = out_x[:, est.model.i_bias]
+        data[est_wheel_col("steer", i + 1)] = out_steer[:, i]
+    data[EST_GYRO_BIAS] = out_x[:, est.model.i_bias]
     names = np.asarray(WHEEL_STATES, dtype=object)
     for i in range(N):
-        data[f"slip{i + 1}"] = out_slip[:, i]
+        data[est_wheel_col("slip", i + 1)] = out_slip[:, i]
     for i in range(N):
-        data[f"state{i + 1}"] = names[out_state[:, i]]
+        data[est_wheel_col("state", i + 1)] = names[out_state[:, i]]
     for i in range(N):
-        data[f"v_long{i + 1}_mps"] = out_vlong[:, i]
+        data[est_wheel_col("v_long", i + 1)] = out_vlong[:, i]
     data.update(health)
     df = pd.DataFrame(data, columns=est_state_columns(N))
     for i in range(N):
-        df[f"state{i + 1}"] = df[f"state{i + 1}"].astype(str)
+        df[est_wheel_col("state", i + 1)] = df[est_wheel_col("state", i + 1)].astype(str)
     for c in passthrough_columns(N, list(table.columns)):
         df[c] = table[c].to_numpy()
     df.attrs["terrainml"] = dict(table_metadata(table), estimation_preset=est.preset.name,

@@ -35,7 +35,7 @@ def _drive(cid: int, duration_s: float, seed: int = 7):
                           imu_acc_noise=0.005, vx=lambda t: trapezoid_speed(t, 1.0, 1.0, 0.5),
                           run_id="e2e")
     table = table.drop(columns=[c for c in table.columns if c.startswith("gt_")] + ["terrain"])
-    return list(iter_table_samples(table))
+    return [dict(s.columns) for s in iter_table_samples(table)]  # JSON objects, as sent
 
 
 def _wait_ready(proc, timeout_s=60.0) -> str:

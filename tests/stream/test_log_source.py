@@ -47,7 +47,7 @@ def test_realtime_paces_a_log_at_its_time_stamps(sim_log):
         if n == 0:
             t0 = time.perf_counter()  # the clock starts with the first sample (after ingest)
         n += 1
-        if s["t_s"] >= 1.0:
+        if s.t_s >= 1.0:
             break
     elapsed = time.perf_counter() - t0
     assert n >= 100
@@ -98,8 +98,8 @@ def test_csv_source_with_a_dataset_spec_gets_si_units_and_sides(tmp_path):
     csv, spec = _side_csv(tmp_path)
     samples = list(open_source(str(csv), SourceOptions(dataset=str(spec)), robot=load_robot("husky")))
     assert len(samples) == 200
-    s = samples[50]
-    assert s["t_s"] == pytest.approx(0.5)                       # 500 ms
+    s = samples[50].columns
+    assert samples[50].t_s == s["t_s"] == pytest.approx(0.5)                       # 500 ms
     for i, v in ((1, 0.33), (3, 0.33), (2, 0.66), (4, 0.66)):   # left -> 1, 3; right -> 2, 4
         assert s[f"wheel{i}_omega_radps"] == pytest.approx(v / R_HUSKY)  # 0.33 / 0.1651 = 1.9988 rad/s
     assert s["wheel1_current_a"] == pytest.approx(1.5) and s["wheel4_current_a"] == pytest.approx(2.5)
@@ -136,8 +136,8 @@ def test_topic_map_reads_a_log_with_other_topic_names(tmp_path):
     with pytest.raises(SourceError):  # the default map finds none of the required topics
         next(iter(open_source(str(log), robot=load_robot())))
     samples = list(open_source(str(log), SourceOptions(topic_map=str(tmap)), robot=load_robot()))
-    s = samples[100]
-    assert s["t_s"] == pytest.approx(1.0)
+    s = samples[100].columns
+    assert samples[100].t_s == s["t_s"] == pytest.approx(1.0)
     assert [s[f"wheel{i}_omega_radps"] for i in (1, 2, 3)] == pytest.approx([2.0, 3.0, 4.0])  # i + t
     assert [s[f"wheel{i}_current_a"] for i in (1, 2, 3)] == pytest.approx([3.0, 4.0, 5.0])    # 2 + i
     assert s["imu_yaw_rate_radps"] == pytest.approx(0.2)
@@ -172,3 +172,24 @@ def test_predict_on_a_full_disk_counts_every_lost_tick_of_the_mcap_sink(sim_log,
     assert len(captured.out.splitlines()) == n_ticks
     assert f"sink errors: {{'mcap:{out}': {n_ticks}}}" in captured.err.replace("\n", "")
     assert not out.exists() and "Traceback" not in captured.err
+
+
+def test_a_log_source_yields_typed_samples_and_counts_a_row_without_a_time(sim_log):
+    """Every row is checked once, where the source makes it: a typed Sample; a row whose t_s is not
+    finite is counted as malformed and skipped, the stream goes on."""
+    import math
+
+    from terrainml.io.ingest import load_run
+    from terrainml.stream.tick.sample import Sample
+    from terrainml.stream.transports.sources import MALFORMED_REASONS, SourceCounters, iter_table_samples
+
+    table = load_run(sim_log, robot=load_robot()).table.head(50).copy()
+    table["t_s"] = table["t_s"].astype(float)
+    table.loc[10, "t_s"] = math.nan
+    table.loc[20, "t_s"] = math.inf
+    counters = SourceCounters()
+    samples = list(iter_table_samples(table, counters=counters))
+    assert len(samples) == 48 and all(type(s) is Sample for s in samples)
+    assert [s.t_s for s in samples] == [s.columns["t_s"] for s in samples]
+    assert counters.malformed == 2 and counters.malformed_by_reason == {"t_s_not_finite": 2}
+    assert set(counters.malformed_by_reason) <= set(MALFORMED_REASONS)

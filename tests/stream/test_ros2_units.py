@@ -100,7 +100,7 @@ def _same(a: dict, b: dict) -> list[str]:
 def test_live_aligner_gives_ingests_samples_message_by_message(sand_log):
     """One message at a time, in log order: the samples equal the ingested table's rows exactly."""
     tmap = load_topic_map(None)
-    offline = list(iter_table_samples(load_run(sand_log).table))
+    offline = [s.columns for s in iter_table_samples(load_run(sand_log).table)]
     al = LiveAligner(tmap, load_robot(), name="test", warmup_wait_s=0.0)
     live = []
     for topic, part in _messages(sand_log, tmap):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from stream_fakes import FakeClassifier, FakeEstimator, make_samples
 
+from terrainml.estimation.row import EstimatorRow
 from terrainml.features.windows import WindowSpec, cut_windows, window_spec
 from terrainml.lookup.table import DesiredSlipTable
 from terrainml.robot import load_robot
@@ -40,7 +41,7 @@ def test_short_windows_online_equal_offline_bit_for_bit(course_est):
     ring = RingBuffer(T)
     matched = 0
     for k, row in enumerate(est.to_dict("records")):
-        ring.append(row)
+        ring.append(EstimatorRow.from_mapping(row))
         start = k + 1 - T
         if start < 0 or start % hop:
             continue
@@ -145,3 +146,21 @@ def test_uncertain_posterior_is_a_fallback():
     assert out[-1].fallback and out[-1].fallback_reason == "uncertain_classification"
     assert out[-1].terrain_name == "none"
 
+
+def test_ring_copies_rows_in_column_order_as_the_dict_rows_were():
+    """Values by field whatever the layout: a later row without a field gives NaN (None for a
+    state), extra fields are not kept, a value that is not a number is NaN."""
+    ok = "estimator_ok"
+    first = EstimatorRow.from_mapping({"t_s": 0.0, "slip1": 0.1, "state1": "steady", ok: True, "nis_dof": 4})
+    later = EstimatorRow.from_mapping({"nis_dof": 3, "t_s": 0.01, ok: False, "extra": 9.0})
+    odd = EstimatorRow.from_mapping({"t_s": 0.02, "slip1": "x", "state1": "idle", ok: True, "nis_dof": 10**400})
+    ring = RingBuffer(4)
+    for r in (first, later, odd):
+        ring.append(r)
+    frame = ring.frame()
+    assert list(frame.columns) == ["t_s", "slip1", "estimator_ok", "nis_dof", "state1"]
+    np.testing.assert_array_equal(frame["t_s"], [0.0, 0.01, 0.02])
+    np.testing.assert_array_equal(frame["slip1"], [0.1, np.nan, np.nan])
+    np.testing.assert_array_equal(frame["nis_dof"], [4.0, 3.0, np.nan])
+    assert frame["estimator_ok"].tolist() == [True, False, True]
+    assert ring.snapshot()[1][:, 0].tolist() == ["steady", None, "idle"]

@@ -43,6 +43,7 @@ from terrainml.schema import read_run_parquet
 from terrainml.stream.tick.config import ServingConfig
 from terrainml.stream.tick.fusion import SETTLE_M, FusionConfig, TerrainFilter
 from terrainml.stream.tick.predictor import Predictor
+from terrainml.stream.tick.sample import Sample
 from terrainml.stream.app.recorder import RECORD_FORMATS, UnknownGroundRecorder
 from terrainml.stream.transports.ros2.source import STAMP_ORIGIN_KEY
 from terrainml.stream.app.runner import serve
@@ -261,7 +262,7 @@ def test_flags_after_known_ground_enter_unknown_only_once_they_outlast_the_settl
 def test_predict_says_unknown_terrain_in_its_json_and_its_summary(folders, drive, tmp_path):
     """``terrainml predict`` end to end (stdin JSON lines in, stdout JSON lines out), recording
     the unknown stretch with ``--record-unknown``."""
-    lines = "\n".join(json.dumps(s) for s in iter_table_samples(drive)) + "\n"
+    lines = "\n".join(json.dumps(s.columns) for s in iter_table_samples(drive)) + "\n"
     rec = tmp_path / "unknown"
     proc = subprocess.run([sys.executable, "-m", "terrainml.cli", "predict", "--model", str(folders["with"]),
                            "--source", "-", "--sink", "stdout", "--record-unknown", str(rec)], input=lines,
@@ -292,7 +293,7 @@ def _record(folder, drive, out_dir, origin_ns=None, **kw):
 
     samples = iter_table_samples(drive)
     if origin_ns is not None:
-        samples = ({**s, STAMP_ORIGIN_KEY: origin_ns} for s in samples)
+        samples = (Sample(s.t_s, {**s.columns, STAMP_ORIGIN_KEY: origin_ns}) for s in samples)
     n = serve(p, samples, [rec], on_message=keep)
     rec.close()
     p.close()
@@ -516,7 +517,7 @@ def test_an_unknown_record_format_is_refused_before_anything_is_created(folders,
 def test_predict_settle_m_sets_how_long_flags_after_known_ground_must_last(folders, drive, served):
     """``predict --settle-m 0``: the stretch is entered after its flagged windows alone, earlier than
     with the default (whose ticks the in-process predictor served); a negative value is refused."""
-    lines = "\n".join(json.dumps(s) for s in iter_table_samples(drive)) + "\n"
+    lines = "\n".join(json.dumps(s.columns) for s in iter_table_samples(drive)) + "\n"
     cmd = [sys.executable, "-m", "terrainml.cli", "predict", "--model", str(folders["with"]), "--source", "-",
            "--sink", "stdout"]
     proc = subprocess.run(cmd + ["--settle-m", "0"], input=lines, capture_output=True, text=True, timeout=300)

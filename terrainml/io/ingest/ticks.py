@@ -5,7 +5,8 @@ DataFrame per chunk: right for a log (thousands of ticks a chunk), some 10 ms of
 one tick, which is what a live stream asks for at every base period. :class:`TickProducer` takes the
 same :class:`~terrainml.io.ingest.logs.Plan` (the scan's time origin, gap thresholds, column
 templates, IMU orientation, first T265 pose), the same settling test and the same rules, and
-produces the same rows as sample dicts (python scalars, as ``iter_table_samples`` gives them):
+produces the same rows as sample dicts (python scalars, the columns of the samples a log source
+yields, ``iter_table_samples``):
 
 * each message is converted once, by :func:`~terrainml.io.ingest.signals.signals_for` (units,
   frames, IMU mount, T265 lever arm and yaw zeroing; a row-wise transform), in one batch per source

@@ -1,9 +1,9 @@
 """The estimation stage of a tick: the EKF warmed up before serving, its row read per wheel.
 
 :func:`warm_up` loads the EKF's compiled kernels before the first tick; :class:`WheelRow` reads
-an estimator (EST) row into the typed :class:`WheelEstimate` a message serves per wheel (slip,
-dynamic state, longitudinal speed) and completes the row with the raw columns the model's
-windows read.
+an estimator (EST) row (:class:`~terrainml.estimation.row.EstimatorRow`) into the typed
+:class:`WheelEstimate` a message serves per wheel (slip, dynamic state, longitudinal speed) and
+completes it (a new row) with the raw columns the model's windows read.
 """
 
 from __future__ import annotations
@@ -13,15 +13,16 @@ import math
 from typing import Any, Mapping, NamedTuple, Sequence
 
 from terrainml.estimation.online import OnlineEstimator
+from terrainml.estimation.row import EstimatorRow, RowLayout
 from terrainml.robot import RobotSpec
-from terrainml.schema import WHEEL_STATES, est_wheel_col, wheel_col
+from terrainml.schema import EST_VX, EST_VY, EST_YAW_RATE, WHEEL_STATES, est_wheel_col, wheel_col
 
 __all__ = ["WheelEstimate", "WheelRow", "warm_up"]
 
 log = logging.getLogger("terrainml.stream")
 
 #: EKF states that must be finite for a healthy tick
-STATE_VARS = ("ekf_vx_mps", "ekf_vy_mps", "ekf_yaw_rate_radps")
+STATE_VARS = (EST_VX, EST_VY, EST_YAW_RATE)
 
 
 def warm_up(robot: RobotSpec, preset: str = "robust") -> None:
@@ -45,7 +46,7 @@ def warm_up(robot: RobotSpec, preset: str = "robust") -> None:
 
 
 class WheelRow:
-    """Per-wheel fields of an EST row, for N wheels.
+    """Per-wheel fields of an EST row (:class:`~terrainml.estimation.row.EstimatorRow`), for N wheels.
 
     Parameters
     ----------
@@ -57,21 +58,29 @@ class WheelRow:
     def __init__(self, n_wheels: int, raw_columns: Sequence[str] = ()):
         self.n = int(n_wheels)
         self.raw_columns = tuple(raw_columns)
-        self._slip_keys = [est_wheel_col("slip", i) for i in range(1, self.n + 1)]
-        self._state_keys = [est_wheel_col("state", i) for i in range(1, self.n + 1)]
-        self._vlong_keys = [est_wheel_col("v_long", i) for i in range(1, self.n + 1)]
+        self._keys = {kind: [est_wheel_col(kind, i) for i in range(1, self.n + 1)]
+                      for kind in ("slip", "state", "v_long")}
+        self._missing: dict[RowLayout, tuple[str, ...]] = {}
 
-    def complete(self, row: dict, clean: dict) -> None:
-        """Copy into ``row`` the raw columns of the (sanitised) sample it lacks (NaN if absent)."""
-        for k in self.raw_columns:
-            if k not in row:
-                row[k] = clean.get(k, math.nan)
+    def complete(self, row: EstimatorRow, clean: Mapping[str, Any]) -> EstimatorRow:
+        """``row`` followed by the raw columns it lacks, from the (sanitised) sample (NaN if
+        absent there); ``row`` itself when it lacks none."""
+        missing = self._missing.get(row.layout)
+        if missing is None:
+            missing = self._missing[row.layout] = tuple(k for k in self.raw_columns if k not in row)
+        if not missing:
+            return row
+        return row.with_columns(missing, tuple([clean.get(k, math.nan) for k in missing]))
 
     def idle(self) -> "WheelEstimate":
         """Slip 0, state ``idle``, v_long 0 m/s on every wheel (a tick without a usable row)."""
         return WheelEstimate(False, [0.0] * self.n, ["idle"] * self.n, [0.0] * self.n)
 
-    def read(self, row: Mapping[str, Any]) -> "WheelEstimate":
+    def _wheels(self, row: EstimatorRow, kind: str, default: Any) -> Sequence[Any]:
+        values = row.wheels(kind, self.n)
+        return values if values is not None else [row.get(k, default) for k in self._keys[kind]]
+
+    def read(self, row: EstimatorRow) -> "WheelEstimate":
         """The per-wheel estimate of an EST row; ``finite`` False if an EKF state is not finite.
 
         Non-finite slip becomes 0 (e.g. no camera: slip unavailable); a wheel with a non-finite
@@ -84,11 +93,14 @@ class WheelRow:
             if v is None or not math.isfinite(float(v)):
                 ok = False
         slips, states, v_long = [0.0] * self.n, ["idle"] * self.n, [0.0] * self.n
+        row_slip = self._wheels(row, "slip", None)
+        row_state = self._wheels(row, "state", "idle")
+        row_v = self._wheels(row, "v_long", 0.0)
         for i in range(self.n):
-            s = row.get(self._slip_keys[i])
+            s = row_slip[i]
             slips[i] = float(s) if s is not None and math.isfinite(float(s)) else 0.0
-            st = row.get(self._state_keys[i], "idle")
-            v = row.get(self._vlong_keys[i], 0.0)
+            st = row_state[i]
+            v = row_v[i]
             v = float(v) if v is not None and math.isfinite(float(v)) else math.nan
             if math.isnan(v):
                 st, v = "idle", 0.0

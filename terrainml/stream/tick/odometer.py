@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 from typing import Any, Mapping
 
+from terrainml.schema import EST_VX, EST_VY
+
 __all__ = ["Odometer"]
 
 
@@ -30,6 +32,7 @@ class Odometer:
     def advance(self, t: float, row: Mapping[str, Any] | None) -> float | None:
         """Distance (m) covered since the previous tick, added to :attr:`distance_m`; or None.
 
+        ``row``: the tick's EST row (``ekf_vx_mps``, ``ekf_vy_mps``, m/s).
         None for the first tick of a timeline, an unhealthy tick (``row`` None: its speed is not
         trusted), a speed that is not a finite number, or a step that is not forward in time
         (dt is bounded by the clock policy, <= max_clock_gap_s).
@@ -39,7 +42,7 @@ class Odometer:
         if row is None or not dt > 0:
             return None
         try:
-            vx, vy = float(row.get("ekf_vx_mps", 0.0)), float(row.get("ekf_vy_mps", 0.0))
+            vx, vy = float(row.get(EST_VX, 0.0)), float(row.get(EST_VY, 0.0))
             v = math.hypot(vx, vy) if self.lateral_observed else abs(vx)
         except (TypeError, ValueError):
             return None

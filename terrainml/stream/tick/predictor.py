@@ -11,7 +11,8 @@ Each stage is its own module; the predictor only hands a tick's facts from one t
   :class:`~terrainml.stream.tick.sample.InvalidSample` (the one exception :meth:`Predictor.step`
   raises); the clock policy (:mod:`terrainml.stream.tick.clock`) decides which stamps are ticks.
 * Estimation is :class:`terrainml.estimation.online.OnlineEstimator` (the same step code the
-  offline ``estimate_run`` loops over); its rows go to the column ring buffer
+  offline ``estimate_run`` loops over); its rows (:class:`~terrainml.estimation.row.EstimatorRow`,
+  immutable: the tick makes a new one to flag or complete it) go to the column ring buffer
   (:mod:`terrainml.stream.tick.ring`), one window of the model's window spec long.
 * Classification (:mod:`terrainml.stream.tick.scheduler`) runs at most once per online hop of the
   window spec, on the latest window, with the offline window and feature code
@@ -41,6 +42,7 @@ from typing import Any, Callable, Protocol, Sequence
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.estimation.online import OnlineEstimator
+from terrainml.estimation.row import EstimatorRow
 from terrainml.features.windows import WindowSpec
 from terrainml.lookup.wheel_targets import TargetTable
 from terrainml.robot import RobotSpec
@@ -63,7 +65,7 @@ __all__ = ["InvalidSample", "Predictor"]
 log = logging.getLogger("terrainml.stream")
 
 class Estimator(Protocol):
-    def step(self, sample: dict) -> dict: ...
+    def step(self, sample: dict) -> Mapping[str, Any]: ...
 
 
 class Predictor:
@@ -78,9 +80,10 @@ class Predictor:
         (:class:`terrainml.stream.tick.classify.WindowClassifier`), or None (always fallback). Its
         ``class_names`` (names by class id), when it has them, name the served classes; else the
         eight of design §6.1.
-    estimator : object with ``step(sample) -> dict`` (an EST row); default
-        ``OnlineEstimator(robot, preset)``. On a re-anchor a built one is built afresh, an
-        injected one is ``reset()`` if it has that method, else kept.
+    estimator : object with ``step(sample) -> EST row`` (an
+        :class:`~terrainml.estimation.row.EstimatorRow`, or a mapping of EST column names, which is
+        typed once); default ``OnlineEstimator(robot, preset)``. On a re-anchor a built one is
+        built afresh, an injected one is ``reset()`` if it has that method, else kept.
     window_spec : the model's :class:`~terrainml.features.windows.WindowSpec`, the one spec of
         serving: its window length sizes the ring buffer, its online hop the classification
         rate. None: the classifier's ``window_spec``, else ``WindowSpec()`` (2.0 s, hop 0.5 s,
@@ -226,10 +229,10 @@ class Predictor:
             self.switch.ticks[self.switch.active.name] += 1
 
         row = self._estimate(clean)
-        est_ok = healthy and row is not None and (bool(row.get("estimator_ok", True)) or not self._estimator_flag)
+        est_ok = healthy and row is not None and (row.estimator_ok or not self._estimator_flag)
         wheels = None
         if row is not None:
-            self.wheels.complete(row, clean)  # columns the model's windows read, not the EKF's
+            row = self.wheels.complete(row, clean)  # columns the model's windows read, not the EKF's
             try:
                 wheels = self.wheels.read(row)
                 est_ok = wheels.finite and est_ok
@@ -240,7 +243,7 @@ class Predictor:
             if not self._estimator_flag:
                 # the EKF's own flag needs a fresh IMU; a model without it reads the body channels
                 # of its windows as valid on the ticks that are healthy on its own groups
-                row["estimator_ok"] = est_ok
+                row = row.with_flag(est_ok)
             self.ring.append(row)
         if wheels is None:   # no row, or one that cannot be read: every wheel idle
             wheels = self.wheels.idle()
@@ -260,7 +263,7 @@ class Predictor:
     def accept(self, sample: Any) -> Sample:
         """The typed :class:`Sample` of ``sample`` (a Sample as is); one that is not a sample is counted
         (``bad_time`` or ``not_a_sample``) and raises :class:`InvalidSample` (see :meth:`step`)."""
-        if type(sample) is Sample:   # checked where it was made (a JSON source)
+        if type(sample) is Sample:   # checked where it was made (every source)
             return sample
         try:
             return Sample.check(sample)
@@ -364,9 +367,12 @@ class Predictor:
         self.policy.reset()
 
     # ------------------------------------------------------------------ parts
-    def _estimate(self, clean: dict) -> dict | None:
+    def _estimate(self, clean: dict) -> EstimatorRow | None:
+        """The EST row of the sanitised sample (typed; an injected estimator's mapping converted),
+        or None when the estimator fails (counted)."""
         try:
-            return self.estimator.step(clean)
+            row = self.estimator.step(clean)
+            return None if row is None else EstimatorRow.from_mapping(row)
         except Exception as exc:  # noqa: BLE001 - never crash the serving loop
             self.n_estimator_errors += 1
             if self.n_estimator_errors <= 3:

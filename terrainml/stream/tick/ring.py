@@ -1,21 +1,29 @@
 """Column ring buffer of the online predictor: the last window of estimator rows (design §11).
 
 :class:`RingBuffer` keeps a fixed number of EST rows (one window length) in preallocated arrays
-with O(1) append; :meth:`RingBuffer.snapshot` copies them in time order on the tick path, and
-:meth:`RingBuffer.column_view` (a :class:`SnapshotColumns`) hands the classification thread the
-columns in place, labels left out (:func:`is_label`), without building a DataFrame.
+with O(1) append (a row's values copied in column order, no dict); :meth:`RingBuffer.snapshot`
+copies them in time order on the tick path, and :meth:`RingBuffer.column_view` (a
+:class:`SnapshotColumns`) hands the classification thread the columns in place, labels left out
+(:func:`is_label`), without building a DataFrame.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from operator import itemgetter
 from typing import Callable
 
 import numpy as np
 import pandas as pd
 
+from terrainml.estimation.row import EstimatorRow, RowLayout
+
 __all__ = ["RingBuffer", "SnapshotColumns", "is_label"]
+
+
+#: the value of a numeric field a row lacks
+_PAD = (math.nan,)
 
 
 def is_label(name: str) -> bool:
@@ -24,11 +32,15 @@ def is_label(name: str) -> bool:
 
 
 class RingBuffer:
-    """Fixed-capacity buffer of estimator rows (dicts) with O(1) append.
+    """Fixed-capacity buffer of estimator rows (:class:`~terrainml.estimation.row.EstimatorRow`)
+    with O(1) append.
 
     Numeric fields are kept in a preallocated float array, everything else (wheel states,
-    run id) in an object array; :meth:`frame` returns the rows in time order as a DataFrame,
-    the same layout as the offline EST table.
+    run id) in an object array; the fields are the first row's. A row's values are copied in
+    column order through a plan made once per row layout (a later row lacking a field gives NaN
+    there, or None for a non-numeric one; fields the first row lacked are not kept).
+    :meth:`frame` returns the rows in time order as a DataFrame, the same layout as the offline
+    EST table.
     """
 
     def __init__(self, capacity: int):
@@ -43,10 +55,11 @@ class RingBuffer:
         self.count = 0
         self._index: dict[str, tuple[int, int]] | None = None
         self._view_keys: dict[Callable[[str], bool], tuple[list[str], frozenset]] = {}
+        self._plans: dict[RowLayout, tuple[Callable[[tuple], tuple], bool, list[int]]] = {}
 
-    def _init(self, row: dict) -> None:
+    def _init(self, row: EstimatorRow) -> None:
         num, obj = [], []
-        for k, v in row.items():
+        for k, v in zip(row.layout.names, row.values):
             if isinstance(v, (bool, np.bool_)):
                 num.append(k)
             elif isinstance(v, (int, float, np.integer, np.floating)):
@@ -58,19 +71,44 @@ class RingBuffer:
         self._num = np.full((self.capacity, len(num)), np.nan)
         self._obj = np.empty((self.capacity, len(obj)), dtype=object)
 
-    def append(self, row: dict) -> None:
+    def _plan(self, layout: RowLayout) -> tuple[Callable[[tuple], tuple], bool, list[int]]:
+        """How a row of ``layout`` fills a slot: a getter of its numeric values (in the order of
+        the numeric fields), whether it needs the values padded with one NaN (a numeric field the
+        layout lacks reads past the end), and the positions of the other fields (-1: missing)."""
+        n = len(layout.names)
+        pos = [layout.index.get(k, n) for k in self._num_keys]  # type: ignore[union-attr]
+        padded = n in pos
+        getter: Callable[[tuple], tuple]
+        if len(pos) == 1:
+            getter = lambda v, j=pos[0]: (v[j],)  # noqa: E731 - itemgetter of one gives a scalar
+        elif pos:
+            getter = itemgetter(*pos)
+        else:
+            getter = lambda v: ()  # noqa: E731
+        plan = (getter, padded, [layout.index.get(k, -1) for k in self._obj_keys])
+        self._plans[layout] = plan
+        return plan
+
+    def append(self, row: EstimatorRow) -> None:
+        """Copy ``row``'s values into the next slot (the oldest row when full)."""
         if self._num_keys is None:
             self._init(row)
+        getter, padded, obj_pos = self._plans.get(row.layout) or self._plan(row.layout)
+        values = row.values
         i = self._i
         num = self._num
-        for j, k in enumerate(self._num_keys):  # type: ignore[arg-type]
-            v = row.get(k, math.nan)
-            try:
-                num[i, j] = v  # type: ignore[index]
-            except (TypeError, ValueError, OverflowError):  # e.g. a str, or an int beyond float
-                num[i, j] = math.nan  # type: ignore[index]
-        for j, k in enumerate(self._obj_keys):
-            self._obj[i, j] = row.get(k)  # type: ignore[index]
+        nums = getter(values + _PAD if padded else values)
+        try:
+            num[i] = nums  # type: ignore[index]
+        except (TypeError, ValueError, OverflowError):  # e.g. a str, or an int beyond float
+            for j, v in enumerate(nums):
+                try:
+                    num[i, j] = v  # type: ignore[index]
+                except (TypeError, ValueError, OverflowError):
+                    num[i, j] = math.nan  # type: ignore[index]
+        obj = self._obj
+        for j, p in enumerate(obj_pos):
+            obj[i, j] = values[p] if p >= 0 else None  # type: ignore[index]
         self._i = (i + 1) % self.capacity
         self.count = min(self.count + 1, self.capacity)
 

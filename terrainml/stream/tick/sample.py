@@ -1,23 +1,24 @@
 """What a sample is, and the one error raised for anything that is not one (design §11).
 
-A source yields a sample as it reads it: a mapping of ``str`` keys to values with a ``t_s`` (s)
-that is a real number (``int``, ``float`` or a numpy scalar, not ``bool``) with a finite float
-value; any other key is a canonical run-table column (:mod:`terrainml.schema`) or an extra
-(values of the wrong type or non-finite only invalidate their sensor group,
-:mod:`terrainml.stream.tick.health`). :func:`check_sample` is the single definition:
-:meth:`Sample.check` turns a mapping that passes it into the typed :class:`Sample` a tick and the
-sinks take, :meth:`terrainml.stream.tick.predictor.Predictor.step` raises its
-:class:`InvalidSample`, and the JSON parser of :mod:`terrainml.stream.transports.sources` counts it
-as a malformed line.
+A sample is a mapping of ``str`` keys to values with a ``t_s`` (s) that is a real number
+(``int``, ``float`` or a numpy scalar, not ``bool``) with a finite float value; any other key is a
+canonical run-table column (:mod:`terrainml.schema`) or an extra (values of the wrong type or
+non-finite only invalidate their sensor group, :mod:`terrainml.stream.tick.health`).
+:func:`check_sample` is the single definition: :meth:`Sample.check` turns a mapping that passes it
+into the typed :class:`Sample` a tick and the sinks take. Every source of
+:mod:`terrainml.stream.transports` checks each sample once, where it makes it, and yields it typed
+(:func:`typed_samples`; one that fails is counted as malformed and skipped);
+:meth:`terrainml.stream.tick.predictor.Predictor.step` checks a plain mapping (the Python API) and
+raises its :class:`InvalidSample`.
 """
 
 from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 #: reasons an :class:`InvalidSample` carries (``InvalidSample.reason``)
 INVALID_REASONS: tuple[str, ...] = (
@@ -85,6 +86,23 @@ class Sample:
     def check(cls, sample: Any) -> "Sample":
         """The typed sample of a mapping that passes :func:`check_sample` (else :class:`InvalidSample`)."""
         return cls(check_sample(sample), sample)
+
+
+def typed_samples(samples: Iterable[Any],
+                  count_invalid: Callable[[str, Any], None] | None = None) -> Iterator[Sample]:
+    """The typed :class:`Sample` of each of ``samples`` (mappings a source made), checked once.
+
+    One that is not a sample is handed to ``count_invalid(reason, sample)`` (``reason`` one of
+    :data:`INVALID_REASONS`) and skipped: a source never raises for it.
+    """
+    for raw in samples:
+        try:
+            t_s = check_sample(raw)
+        except InvalidSample as exc:
+            if count_invalid is not None:
+                count_invalid(exc.reason, raw)
+            continue
+        yield Sample(t_s, raw)
 
 
 #: the sample of a tick that has none to hand over (a sink called without one)

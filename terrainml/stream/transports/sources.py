@@ -2,10 +2,11 @@
 
 A *sample* is a mapping of ``t_s`` and canonical run-table column names (design §5), e.g.
 ``{"t_s": 1.23, "wheel1_omega_radps": 6.1, ..., "imu_ax_mps2": 0.02, ...}``; missing groups,
-``null`` or non-finite values simply make that sensor group invalid for the tick. The JSON
-sources (UDP, stdin) check each one as they parse it and yield it typed
-(:class:`~terrainml.stream.tick.sample.Sample`); a log or ROS 2 source yields the mapping, which
-the predictor checks (:meth:`~terrainml.stream.tick.predictor.Predictor.accept`).
+``null`` or non-finite values simply make that sensor group invalid for the tick. Every source
+checks each sample once, where it makes it (:func:`terrainml.stream.tick.sample.check_sample`),
+and yields it typed (:class:`~terrainml.stream.tick.sample.Sample`): the JSON sources (UDP, stdin)
+as they parse it, a log source per row of its run table, the ROS 2 source per aligned tick. One
+that fails is counted in :class:`SourceCounters` and skipped.
 
 Source specs (``terrainml predict --source``)::
 
@@ -56,7 +57,7 @@ from terrainml.schema import DEFAULT_RATE_HZ
 from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
 from terrainml.stream.transports.ros2.names import is_ros2_spec
 from terrainml.stream.transports.ros2.source import Ros2SourceError, iter_ros2_samples
-from terrainml.stream.tick.sample import InvalidSample, Sample, check_sample
+from terrainml.stream.tick.sample import InvalidSample, Sample, check_sample, typed_samples
 
 log = logging.getLogger("terrainml.stream")
 
@@ -79,6 +80,9 @@ MALFORMED_REASONS: tuple[str, ...] = (
     "not_an_object",        # a list, a number, a string, null
     "no_t_s",               # an object without "t_s"
     "bad_t_s",              # t_s not a number (a string, a bool, null, ...)
+    "t_s_not_finite",       # a log row's or live tick's t_s is NaN or infinite
+    "not_a_mapping",        # a log or live source made something that is not a mapping
+    "bad_key",              # ... or one with a key that is not a str
 )
 # a JSON string (possibly unterminated) or one bracket: consumed left to right in linear time
 _TOKENS = re.compile(r'"(?:[^"\\]|\\.)*"?|[\[\]{}]', re.S)
@@ -103,8 +107,8 @@ class SourceCounters:
         self.malformed += 1
         self.malformed_by_reason[reason] = self.malformed_by_reason.get(reason, 0) + 1
         if self.malformed <= 3 or self.malformed % 1000 == 0:
-            log.warning("malformed sample skipped (%s; %d so far): %.80r", reason, self.malformed,
-                        data[:80])
+            head = data[:80] if isinstance(data, (str, bytes, bytearray)) else repr(data)[:80]
+            log.warning("malformed sample skipped (%s; %d so far): %.80r", reason, self.malformed, head)
 
     def as_dict(self) -> dict[str, Any]:
         return {"received": self.received, "malformed": self.malformed,
@@ -213,7 +217,7 @@ def parse_sample(data: bytes | str, counters: SourceCounters | None = None, *,
 # --------------------------------------------------------------------------- log files
 def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = DEFAULT_RATE_HZ,
                      realtime: bool = False, topic_map: Any = None, dataset: Any = None,
-                     counters: SourceCounters | None = None) -> Iterator[dict]:
+                     counters: SourceCounters | None = None) -> Iterator[Sample]:
     """Samples of a recorded log at the base rate (ingest + resampling of the io owner).
 
     ``topic_map`` and ``dataset`` are :func:`terrainml.io.ingest.load_run`'s: a topic map (name,
@@ -243,27 +247,39 @@ def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = DE
         counters.damage = damage
     if damage.any:
         log.warning("%s: %s", path, damage.text)
-    yield from iter_table_samples(res.table, realtime=realtime)
+    yield from iter_table_samples(res.table, realtime=realtime, counters=counters)
 
 
-def iter_table_samples(table: Any, *, realtime: bool = False) -> Iterator[dict]:
-    """Rows of a run table (DataFrame) as sample dicts, optionally paced at their ``t_s``."""
-    cols = [str(c) for c in table.columns]
+def iter_table_samples(table: Any, *, realtime: bool = False,
+                       counters: SourceCounters | None = None) -> Iterator[Sample]:
+    """Rows of a run table (DataFrame) as typed samples, optionally paced at their ``t_s``.
+
+    Each row is checked once (:func:`~terrainml.stream.tick.sample.typed_samples`); a row whose
+    ``t_s`` is missing or not finite is counted in ``counters`` (malformed) and skipped.
+    """
+    count = counters.count_malformed if counters is not None else None
     t0_wall = None
     t0 = None
+    for sample in typed_samples(_table_rows(table), count):
+        if realtime:
+            t = sample.t_s
+            if t0_wall is None:
+                t0_wall, t0 = time.perf_counter(), t
+            delay = (t - t0) - (time.perf_counter() - t0_wall)
+            if delay > 0:
+                time.sleep(delay)
+        yield sample
+
+
+def _table_rows(table: Any) -> Iterator[dict[str, Any]]:
+    """Rows of a DataFrame as dicts of Python scalars (numpy scalars unwrapped)."""
+    cols = [str(c) for c in table.columns]
     for values in table.itertuples(index=False, name=None):
         sample = {}
         for c, v in zip(cols, values):
             if hasattr(v, "item"):
                 v = v.item()
             sample[c] = v
-        if realtime:
-            t = float(sample["t_s"])
-            if t0_wall is None:
-                t0_wall, t0 = time.perf_counter(), t
-            delay = (t - t0) - (time.perf_counter() - t0_wall)
-            if delay > 0:
-                time.sleep(delay)
         yield sample
 
 
@@ -375,7 +391,7 @@ class SourceOptions:
 
 
 def open_source(spec: str, options: SourceOptions = SourceOptions(), *, robot: Any = None,
-                counters: SourceCounters | None = None, ready: Any = None, watch: Any = None) -> Iterator[Any]:
+                counters: SourceCounters | None = None, ready: Any = None, watch: Any = None) -> Iterator[Sample]:
     """Iterator of samples for a ``--source`` spec (see the module docstring).
 
     ``options.topic_map`` / ``options.dataset``: how a log file is read (:func:`iter_log_samples`);

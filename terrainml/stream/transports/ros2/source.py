@@ -60,6 +60,7 @@ from terrainml.robot import RobotSpec, load_robot
 from terrainml.schema import DEFAULT_RATE_HZ
 from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
 from terrainml.stream.tick.inputs import InputWatch
+from terrainml.stream.tick.sample import Sample, typed_samples
 from terrainml.stream.transports.ros2.align import REORDER_S, WARMUP_S, LiveAligner
 from terrainml.stream.transports.ros2.names import (
     QOS_PROFILES, Ros2NameError, dds_topic_name, dds_type_name, parse_url, qos_for, ros_topic_name,
@@ -238,8 +239,11 @@ def iter_ros2_samples(spec: str = "ros2://0", robot: RobotSpec | str | None = No
                       topic_map: Any = None, rate_hz: float = DEFAULT_RATE_HZ,
                       idle_timeout_s: float | None = None, ready: Callable[[Any], None] | None = None,
                       counters: Any = None, max_gap_s: float = MAX_GAP_S, reanchor_after: int = REANCHOR_AFTER,
-                      watch: InputWatch | None = None) -> Iterator[dict]:
-    """Samples from the ROS 2 topics of ``topic_map`` on the domain of ``spec`` (module docstring).
+                      watch: InputWatch | None = None) -> Iterator[Sample]:
+    """Typed samples from the ROS 2 topics of ``topic_map`` on the domain of ``spec`` (module docstring).
+
+    Each aligned tick is checked once, as it is made (:func:`~terrainml.stream.tick.sample.typed_samples`;
+    one that fails is counted in ``counters`` as malformed and skipped).
 
     Raises :class:`Ros2SourceError` before the first sample when the URL, the map or a publisher's
     type is wrong. ``counters`` (a :class:`~terrainml.stream.transports.sources.SourceCounters`) counts the
@@ -293,7 +297,8 @@ def _lagging_alive(aligner: LiveAligner, watch: InputWatch, subs: list[_Sub], no
 
 
 def _serve(dp: DomainParticipant, subs: list[_Sub], disc: _Discovery, aligner: LiveAligner, tmap: TopicMap,
-           spec: str, idle_timeout_s: float | None, counters: Any, watch: InputWatch) -> Iterator[dict]:
+           spec: str, idle_timeout_s: float | None, counters: Any, watch: InputWatch) -> Iterator[Sample]:
+    count = counters.count_malformed if counters is not None else None
     ws = WaitSet(dp)
     for sub in subs:
         ws.attach(ReadCondition(sub.reader, SampleState.NotRead))
@@ -329,10 +334,10 @@ def _serve(dp: DomainParticipant, subs: list[_Sub], disc: _Discovery, aligner: L
                     last_warn = now
             for s in aligner.poll(wait_all=watch.in_grace(now) or _lagging_alive(aligner, watch, subs, now)):
                 s[STAMP_ORIGIN_KEY] = aligner.t0_ns
-                yield s
+                yield from typed_samples((s,), count)
         for s in aligner.finish():
             s[STAMP_ORIGIN_KEY] = aligner.t0_ns
-            yield s
+            yield from typed_samples((s,), count)
     finally:
         st = aligner.stats()
         if st["late"] or st["off_timeline"] or st["ignored"]:
