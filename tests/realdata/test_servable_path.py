@@ -196,11 +196,12 @@ def test_a_model_on_all_sensors_serves_a_course_without_imu_through_its_member(b
     ds = build_from_tables(kept, HUSKY, spec=spec)
     assert "imu" in ds.sensors
     out = tmp_path / "all"
-    train(ds, out, ["hgb"], folds=2, seed=0, ablation=False)
+    options = TrainOptions(folds=2, seed=0, ablation=False)
+    train(ds, out, ["hgb"], options)
 
     def fit(subset, folder):
         train(build_from_tables(kept, HUSKY, spec=window_spec("chunks").resolve(HUSKY, subset)), folder,
-              ["hgb"], folds=2, seed=0, ablation=False)
+              ["hgb"], options)
 
     assert "no_imu" in train_members(out, ds.sensors, fit)
     course = make_course(tables, held, segment_s=30.0)
