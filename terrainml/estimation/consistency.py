@@ -24,6 +24,7 @@ from scipy import stats
 from scipy.ndimage import uniform_filter1d
 
 from terrainml.estimation.run import Diagnostics
+from terrainml.schema import EST_VX, EST_VY, EST_YAW_RATE
 
 THESIS_INNOVATION_VAR = {"cam_vx": 7e-6, "cam_vy": 4e-6, "cam_yaw_rate": 3.81e-4}  # thesis §6.2
 #: mean NIS/dof outside this band: the filter's noise model does not fit the robot's sensors
@@ -132,8 +133,8 @@ def truth_metrics(est: pd.DataFrame, n_wheels: int | None = None, t_min_s: float
     keep = t >= t_min_s
     out: dict[str, Any] = {}
     if {"gt_vx_mps", "gt_vy_mps"} <= set(est.columns):
-        ex = est["ekf_vx_mps"].to_numpy() - est["gt_vx_mps"].to_numpy()
-        ey = est["ekf_vy_mps"].to_numpy() - est["gt_vy_mps"].to_numpy()
+        ex = est[EST_VX].to_numpy() - est["gt_vx_mps"].to_numpy()
+        ey = est[EST_VY].to_numpy() - est["gt_vy_mps"].to_numpy()
         e2 = (ex ** 2 + ey ** 2)[keep]
         out["vel_rmse_mps"] = float(np.sqrt(np.nanmean(e2)))
         if "slip_available" in est.columns:  # camera healthy (robots with a camera)
@@ -141,7 +142,7 @@ def truth_metrics(est: pd.DataFrame, n_wheels: int | None = None, t_min_s: float
             if ok.any():
                 out["vel_rmse_cam_ok_mps"] = float(np.sqrt(np.nanmean(e2[ok])))
     if "gt_yaw_rate_radps" in est.columns:
-        er = (est["ekf_yaw_rate_radps"].to_numpy() - est["gt_yaw_rate_radps"].to_numpy())[keep]
+        er = (est[EST_YAW_RATE].to_numpy() - est["gt_yaw_rate_radps"].to_numpy())[keep]
         out["yaw_rate_rmse_radps"] = float(np.sqrt(np.nanmean(er ** 2)))
     maes, mean_errs, all_err = [], [], []
     steady_kin = steady_mask_from_truth(est) if {"gt_vx_mps", "gt_vy_mps"} <= set(est.columns) else None

@@ -11,7 +11,7 @@ from matplotlib.figure import Figure  # no pyplot: no global figure state, no ba
 from terrainml.estimation.consistency import nis_band
 from terrainml.estimation.run import Diagnostics
 from terrainml.robot import RobotSpec
-from terrainml.schema import wheel_col
+from terrainml.schema import EST_VX, EST_VY, EST_YAW_RATE, wheel_col
 
 
 def wheel_kinematics_twist(run: pd.DataFrame, robot: RobotSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -59,9 +59,9 @@ def _twist_figures(run: pd.DataFrame, est: pd.DataFrame, robot: RobotSpec, t, ou
     fk_vx, fk_vy, fk_r = wheel_kinematics_twist(run, robot)
     has_cam = "cam_vx_mps" in run.columns
     has_gt = "gt_vx_mps" in run.columns
-    series = [("vx", "ekf_vx_mps", "cam_vx_mps", fk_vx, "gt_vx_mps", "longitudinal velocity [m/s]", "6_1"),
-              ("vy", "ekf_vy_mps", "cam_vy_mps", fk_vy, "gt_vy_mps", "lateral velocity [m/s]", "6_3"),
-              ("yaw_rate", "ekf_yaw_rate_radps", "cam_yaw_rate_radps", fk_r, "gt_yaw_rate_radps",
+    series = [("vx", EST_VX, "cam_vx_mps", fk_vx, "gt_vx_mps", "longitudinal velocity [m/s]", "6_1"),
+              ("vy", EST_VY, "cam_vy_mps", fk_vy, "gt_vy_mps", "lateral velocity [m/s]", "6_3"),
+              ("yaw_rate", EST_YAW_RATE, "cam_yaw_rate_radps", fk_r, "gt_yaw_rate_radps",
                "yaw rate [rad/s]", "6_5")]
     for name, ekf_col, cam_col, fk, gt_col, label, fig in series:
         f = Figure(figsize=(10, 4))

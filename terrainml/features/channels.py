@@ -26,7 +26,7 @@ from __future__ import annotations
 from typing import Sequence
 
 from terrainml.robot import RobotSpec
-from terrainml.schema import wheel_col
+from terrainml.schema import EST_OK, EST_VX, EST_VY, EST_YAW_RATE, est_wheel_col, wheel_col
 
 __all__ = ["BODY_CHANNELS", "IMU_CHANNELS", "SIDE_CHANNEL_NAMES", "SENSOR_GROUPS", "channel_sensor_group",
            "is_side_channel_set", "side_wheels", "default_channels", "channel_source", "channel_column"]
@@ -79,13 +79,13 @@ def channel_source(channel: str) -> tuple[str, tuple[str, ...]]:
     """EST column and validity columns of a channel, e.g. ``("slip1", ("wheels_valid", ...))``."""
     if channel.startswith("slip_"):
         i = int(channel[5:])
-        return f"slip{i}", ("wheels_valid", "cam_valid", "estimator_ok")
+        return est_wheel_col("slip", i), ("wheels_valid", "cam_valid", EST_OK)
     if channel.startswith("current_") and channel[8:].isdigit():
         i = int(channel[8:])
         return wheel_col("current", i), ("current_valid",)
-    body = {"vx": "ekf_vx_mps", "vy": "ekf_vy_mps", "r": "ekf_yaw_rate_radps"}
+    body = {"vx": EST_VX, "vy": EST_VY, "r": EST_YAW_RATE}
     if channel in body:
-        return body[channel], ("estimator_ok",)
+        return body[channel], (EST_OK,)
     if channel in IMU_CHANNELS:
         return f"{channel}_mps2", ("imu_valid",)
     if channel in _GYRO_COLUMNS:

@@ -59,7 +59,7 @@ import pandas as pd
 from terrainml.features.channels import channel_column
 from terrainml.features.window_spec import MOVING_STATES, RULES, STEADY_STATES, WindowSpec
 from terrainml.robot import RobotSpec
-from terrainml.schema import wheel_col
+from terrainml.schema import EST_VX, EST_VY, EST_YAW_RATE, wheel_col
 
 __all__ = ["cut_window_arrays", "empty_window_meta"]
 
@@ -288,8 +288,8 @@ class _RowArrays:
         N = self.N = robot.n_wheels
         n = cols.n
         self.t = cols.float("t_s")
-        vx, vy = cols.float("ekf_vx_mps"), cols.float("ekf_vy_mps")
-        r = cols.float("ekf_yaw_rate_radps")
+        vx, vy = cols.float(EST_VX), cols.float(EST_VY)
+        r = cols.float(EST_YAW_RATE)
         ax, ay = cols.float("ekf_ax_mps2"), cols.float("ekf_ay_mps2")
         if spec.remove_centripetal:
             ax, ay = ax - r * vy, ay + r * vx
