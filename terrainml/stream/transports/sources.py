@@ -53,7 +53,7 @@ from typing import IO, Any, Iterator
 
 from terrainml.io.damage import DamageSummary, damage_summary
 from terrainml.io.ingest import load_run
-from terrainml.schema import DEFAULT_RATE_HZ
+from terrainml.schema import DEFAULT_RATE_HZ, VALID_GROUPS
 from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
 from terrainml.stream.transports.ros2.names import is_ros2_spec
 from terrainml.stream.transports.ros2.source import Ros2SourceError, iter_ros2_samples
@@ -217,7 +217,7 @@ def parse_sample(data: bytes | str, counters: SourceCounters | None = None, *,
 # --------------------------------------------------------------------------- log files
 def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = DEFAULT_RATE_HZ,
                      realtime: bool = False, topic_map: Any = None, dataset: Any = None,
-                     counters: SourceCounters | None = None) -> Iterator[Sample]:
+                     counters: SourceCounters | None = None, watch: Any = None) -> Iterator[Sample]:
     """Samples of a recorded log at the base rate (ingest + resampling of the io owner).
 
     ``topic_map`` and ``dataset`` are :func:`terrainml.io.ingest.load_run`'s: a topic map (name,
@@ -225,6 +225,9 @@ def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = DE
     a CSV/Parquet file of one run (module docstring); None: the defaults of ``terrainml ingest``.
     With ``realtime`` each sample is released at its ``t_s`` relative to the start (wall clock).
     Ingest's warnings (a mapped topic not in the log, ...) are logged before the first sample.
+    ``watch`` (:class:`~terrainml.stream.tick.inputs.InputWatch`) is told the sensor groups the log
+    has at all (``mapped_groups``): a group no row of the log has is *not mapped*, so the predictor
+    serves on the sensors there from the first tick instead of calling that group silent.
     What ingest could not read (corrupt messages, bad cells, a truncated tail) is warned about
     before the first sample and kept in ``counters.damage`` for the end-of-run summary; the ticks
     it left without data are invalid in the table, so they are served as flagged fallbacks.
@@ -245,6 +248,9 @@ def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = DE
     damage = damage_summary(res.table)
     if counters is not None:
         counters.damage = damage
+    if watch is not None:  # a group no row of the whole log has is not mapped, never "silent"
+        watch.mapped_groups = [g for g in VALID_GROUPS
+                               if f"{g}_valid" in res.table.columns and bool(res.table[f"{g}_valid"].any())]
     if damage.any:
         log.warning("%s: %s", path, damage.text)
     yield from iter_table_samples(res.table, realtime=realtime, counters=counters)
@@ -433,4 +439,4 @@ def open_source(spec: str, options: SourceOptions = SourceOptions(), *, robot: A
     if ready is not None:
         ready(None)
     return iter_log_samples(path, robot, rate_hz=opt.rate_hz, realtime=opt.realtime, topic_map=opt.topic_map,
-                            dataset=opt.dataset, counters=counters)
+                            dataset=opt.dataset, counters=counters, watch=watch)
