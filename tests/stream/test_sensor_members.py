@@ -162,3 +162,18 @@ def test_an_imu_lost_midway_hands_over_to_the_member_without_a_gap(with_member):
     # the fused class carries over the switch: no tick after it falls back
     assert all(not m.fallback and m.terrain_name == "SNOW" for m in after)
     assert p.stats()["member_switches"] == 1
+
+
+def test_predict_on_a_log_without_the_imu_serves_the_member_from_the_first_tick(with_member, tmp_path, capsys):
+    """A replayed log with no IMU row at all: the group is not mapped (said once), never a silent
+    episode, and the member serves every message from the first tick."""
+    from terrainml.schema import write_run_parquet
+    from terrainml.stream.app.options import ServeOptions
+    from terrainml.stream.app.runner import run_predict
+
+    log = write_run_parquet(_drive(imu=False), tmp_path / "no_imu.parquet")
+    assert run_predict(ServeOptions(model=with_member, source=str(log), sinks=("stdout",))) == 0
+    out, err = capsys.readouterr()
+    msgs = [json.loads(line) for line in out.splitlines() if line.startswith("{")]
+    assert msgs and {tuple(m["sensors"]) for m in msgs} == {("wheels", "currents")}
+    assert "sensor group 'imu' not mapped" in err and "'imu' silent" not in err

@@ -39,8 +39,8 @@ def serve(predictor: Predictor, samples: Iterable[Any], sinks: Sequence[Any],
     Each sink is handed the message and the tick's :class:`~terrainml.stream.tick.sample.Sample`
     (``sink.send(msg, sample)``: the ROS 2 sink's stamps and odometry, the recorder's rows). A
     sample the predictor refuses (:class:`~terrainml.stream.tick.sample.InvalidSample`, counted in
-    ``predictor.counters``) is skipped; serving goes on. ``watch``: a live source's topics; once
-    it knows the sensor groups the source maps, the predictor is told
+    ``predictor.counters``) is skipped; serving goes on. ``watch``: the source's topics; once it
+    knows the sensor groups the source maps (a live topic map's, or those a log has), the predictor is told
     (:meth:`Predictor.set_mapped_groups`) before the first tick.
     """
     n = 0
@@ -120,7 +120,7 @@ def run_predict(options: ServeOptions) -> int:
     if recorder is False:
         predictor.close()
         return 2
-    watch = InputWatch()   # the live source's topics, for the ROS 2 sink's /diagnostics
+    watch = InputWatch()   # the source's topics and groups, for the ROS 2 sink's /diagnostics
     counters = SourceCounters()
     opened = _open_sinks(options.sinks, predictor, watch, console)
     if opened is None:
@@ -218,7 +218,7 @@ def _serve_until_done(predictor: Predictor, samples: Iterable[dict], opened: lis
                           TimeElapsedColumn(), console=console, transient=True) as bar:
                 task = bar.add_task(progress, total=None)
                 serve(predictor, samples, opened,
-                      on_message=lambda m: bar.advance(task, 100) if m.seq % 100 == 99 else None)
+                      on_message=lambda m: bar.advance(task, 100) if m.seq % 100 == 99 else None, watch=watch)
         else:
             serve(predictor, samples, opened, watch=watch)
     except KeyboardInterrupt:
