@@ -15,9 +15,10 @@ import typer
 
 from terrainml.atomic import write_text
 from terrainml.commands._help import robot_help
-from terrainml.commands._common import check_n_jobs, check_output_writable, console, fail, failure_message
+from terrainml.commands._common import (check_n_jobs, check_output_writable, console, fail, failure_message,
+                                        is_windows_file)
 from terrainml.commands._model_inputs import (NOVELTY_FALSE_ALARM_HELP, TRUSTED_KEY_HELP,
-                                              check_novelty_false_alarm_option, load_data)
+                                              check_novelty_false_alarm_option, load_data, load_tables)
 from terrainml.models.novelty_target import DEFAULT_FALSE_ALARM
 
 
@@ -107,7 +108,9 @@ def _evaluate_model(model_dir: Path, data: Path, out: Optional[Path], *, model, 
         spec = WindowSpec.from_dict(manifest["window_spec"])
         ds = load_data(data, robot=rb, preset=manifest.get("preset", "robust"), n_jobs=n_jobs,
                        dask_address=dask_address, fmt=fmt, spec=spec, quiet=quiet)
-        m = do_eval(model_dir, ds, model, class_map=parse_class_map(class_map))
+        # logs with labels are also served tick by tick, as train's served replay does
+        tables = None if is_windows_file(data) else load_tables(data, robot=rb, fmt=fmt, quiet=True)[0]
+        m = do_eval(model_dir, ds, model, class_map=parse_class_map(class_map), tables=tables)
     except typer.Exit:
         raise
     except (ArtifactError, SignatureError) as exc:  # the message names the file or folder
@@ -128,6 +131,12 @@ def _evaluate_model(model_dir: Path, data: Path, out: Optional[Path], *, model, 
                       f"accuracy {m['accuracy']:.3f}, macro-F1 {m['macro_f1']:.3f}, desired-slip error "
                       f"{'n/a' if dse is None or dse != dse else f'{dse:.4f}'}"
                       + (f"; [green]wrote[/] {out}" if out else ""), highlight=False)
+        rep = m.get("served_replay")
+        if rep and rep.get("moving_ticks"):
+            from terrainml.stream.app.tick_losses import losses_sentence
+
+            console.print(f"served replay ({rep['runs']} runs, {rep['moving_ticks']} moving ticks): class right on "
+                          f"{rep['right_share']:.1%}; {losses_sentence(rep['losses'])}", highlight=False)
 
 
 def _open_set_inputs(model_dir: Optional[Path], *, model, windows, robot, preset: str, fmt: str, trusted_key):

@@ -3,7 +3,9 @@
 :func:`evaluate` (``terrainml evaluate MODEL_DIR``) relabels the data's classes to the model's by
 name (:func:`match_classes`, with ``--class-map`` renames: :func:`parse_class_map`) and computes
 the metrics of :func:`~terrainml.evaluation.metrics.classification_metrics`, the desired-slip
-error through the table stored with the model.
+error through the table stored with the model. Given the labelled run tables too (``evaluate``
+on a folder of logs), :func:`served_replay` serves them tick by tick through the online predictor
+and says where the moving ticks went, as ``train``'s served replay does.
 """
 
 from __future__ import annotations
@@ -12,14 +14,17 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+import pandas as pd
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.evaluation.metrics import classification_metrics, is_ordered
 from terrainml.models.artifacts import load_artifact
 from terrainml.pipeline.dataset import Dataset
+from terrainml.pipeline.replay import make_course, replay_course
 from terrainml.pipeline.train import served_table
+from terrainml.pipeline.train_options import REPLAY_SEGMENT_S
 
-__all__ = ["evaluate", "ClassMismatchError", "parse_class_map", "match_classes"]
+__all__ = ["evaluate", "served_replay", "ClassMismatchError", "parse_class_map", "match_classes"]
 
 
 class ClassMismatchError(ValueError):
@@ -62,18 +67,21 @@ def match_classes(data_names: Sequence[str], model_names: Sequence[str],
 
 
 def evaluate(model_dir: str | Path, ds: Dataset, model: str | None = None,
-             class_map: dict[str, str] | None = None, **load_kwargs: Any) -> dict:
+             class_map: dict[str, str] | None = None, tables: Sequence[pd.DataFrame] | None = None,
+             **load_kwargs: Any) -> dict:
     """Score a saved model (verified on load) on a dataset, classes matched by name.
 
     ``class_map`` maps data class names to model class names (``--class-map A=B``); a data class
-    the model lacks is refused (:class:`ClassMismatchError`, both sets listed). ``load_kwargs`` go
-    to :func:`~terrainml.models.artifacts.load_artifact` (e.g. ``trusted_keys``).
+    the model lacks is refused (:class:`ClassMismatchError`, both sets listed). ``tables``: the
+    labelled run tables the dataset was built from; given, they are also served tick by tick
+    (:func:`served_replay`). ``load_kwargs`` go to
+    :func:`~terrainml.models.artifacts.load_artifact` (e.g. ``trusted_keys``).
 
     Returns
     -------
     dict with ``balanced_accuracy, accuracy, macro_f1, desired_slip_error_mean, n_windows``, the
     other metrics of :func:`classification_metrics`, ``model``, ``model_dir``,
-    ``training_fingerprint`` and ``data_fingerprint``.
+    ``training_fingerprint`` and ``data_fingerprint``; with ``tables``, ``served_replay``.
     """
     art = load_artifact(model_dir, model, **load_kwargs)
     W = ds.windows
@@ -106,4 +114,35 @@ def evaluate(model_dir: str | Path, ds: Dataset, model: str | None = None,
               "data_fingerprint": ds.fingerprint,
               "class_names": art.class_names,
               "class_map": {k: v for k, v in mapping.items() if k != v}})
+    if tables:
+        m["served_replay"] = served_replay(model_dir, tables, relabel)
     return m
+
+
+def served_replay(model_dir: str | Path, tables: Sequence[pd.DataFrame], relabel: dict[int, int],
+                  segment_s: float = REPLAY_SEGMENT_S) -> dict[str, Any]:
+    """Serve ``segment_s`` s of every labelled run (from its middle, classes interleaved) through
+    the online predictor of ``model_dir``, as ``train``'s served replay does.
+
+    ``relabel`` maps the data's class ids to the model's (matched by name); a row whose class the
+    model lacks, or without a label, is unlabelled (-1) and not scored.
+
+    Returns
+    -------
+    dict: :func:`~terrainml.pipeline.replay.replay_course`'s figures, with ``losses`` (where the
+    moving ticks went, :mod:`terrainml.stream.app.tick_losses`) and ``runs``.
+    """
+    labelled = []
+    for df in tables:
+        if not len(df) or "terrain" not in df.columns:
+            continue
+        df = df.copy()
+        lab = df["terrain"].to_numpy()
+        df["terrain"] = [relabel.get(int(v), -1) if v == v and v >= 0 else -1 for v in lab]
+        if (df["terrain"] >= 0).any():
+            labelled.append(df)
+    if not labelled:
+        raise ValueError("no run has a terrain label the model knows: nothing to serve and score")
+    out = replay_course(model_dir, make_course(labelled, segment_s=segment_s))
+    out["runs"] = len(labelled)
+    return out

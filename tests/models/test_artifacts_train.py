@@ -131,6 +131,13 @@ def test_cli_train_and_evaluate(log_dir, log_dir2, tmp_path, monkeypatch):
     for k in ("balanced_accuracy", "accuracy", "macro_f1", "desired_slip_error_mean", "n_windows"):
         assert k in m
     assert m["balanced_accuracy"] >= 0.9 and m["n_windows"] > 5
+    # logs with labels are also served tick by tick; every moving tick is accounted for once
+    rp = m["served_replay"]
+    assert rp["runs"] == 3 and rp["moving_ticks"] > 0
+    assert sum(rp["losses"]["kinds"].values()) == rp["losses"]["moving_ticks"] == rp["moving_ticks"]
+    assert rp["right_share"] == rp["losses"]["kinds"]["right"] / rp["moving_ticks"]
+    # the classes are told apart by construction: the windows and the served class are mostly right
+    assert rp["losses"]["windows_right"] >= 0.9 * rp["losses"]["windows"] and rp["right_share"] >= 0.85
     # unusable inputs: a message and exit code 2, no traceback
     r = runner.invoke(app, ["evaluate", str(tmp_path / "nope"), "--data", str(w)])
     assert r.exit_code == 2 and "nope" in r.output and "Traceback" not in r.output
