@@ -35,7 +35,7 @@ from terrainml.stream.tick.sample import NO_SAMPLE, InvalidSample, Sample
 from terrainml.stream.transports.sources import open_source
 
 __all__ = ["MOVING_TICK_MPS", "NO_MESSAGE", "FALLBACK", "ServedTicks", "replay_served",
-           "moving_ticks", "score_served", "replay_summary"]
+           "moving_ticks", "label_changes", "after_changes", "score_served", "replay_summary"]
 
 #: a served tick is scored when the robot's body moved at least this fast since the tick before,
 #: m/s: any tick of a robot under way counts. The novelty gate's line
@@ -122,6 +122,19 @@ def moving_ticks(t_s: np.ndarray, label: np.ndarray, served: np.ndarray, odomete
     return (speed >= MOVING_TICK_MPS) & (label >= 0) & (served != NO_MESSAGE)
 
 
+def label_changes(label: np.ndarray) -> np.ndarray:
+    """Indices (k,) of the ticks whose labelled class differs from the tick before's."""
+    return np.flatnonzero((label[1:] != label[:-1]) & (label[1:] >= 0)) + 1
+
+
+def after_changes(t_s: np.ndarray, label: np.ndarray, settle_s: float) -> np.ndarray:
+    """Bool (n,): ticks within ``settle_s`` s after a change of the labelled class."""
+    out = np.zeros(len(t_s), bool)
+    for tc in t_s[label_changes(label)]:
+        out |= (t_s >= tc) & (t_s < tc + settle_s)
+    return out
+
+
 def score_served(t, lab, served, odo, reasons, settle_s: float, st: dict) -> dict[str, Any]:
     """The served-path figures of one replay (:func:`terrainml.pipeline.replay.replay_course`).
 
@@ -134,10 +147,8 @@ def score_served(t, lab, served, odo, reasons, settle_s: float, st: dict) -> dic
     """
     moving = moving_ticks(t, lab, served, odo)
     right = served == lab
-    change = np.flatnonzero((lab[1:] != lab[:-1]) & (lab[1:] >= 0)) + 1
-    settled = np.ones(len(t), bool)
-    for tc in t[change]:
-        settled &= ~((t >= tc) & (t < tc + settle_s))
+    change = label_changes(lab)
+    settled = ~after_changes(t, lab, settle_s)
     dists, never = [], 0
     bounds = list(change) + [len(t)]
     for a, b in zip(bounds[:-1], bounds[1:]):

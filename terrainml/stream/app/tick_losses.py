@@ -30,7 +30,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from terrainml.stream.app.scoring import FALLBACK, ServedTicks, moving_ticks
+from terrainml.stream.app.scoring import FALLBACK, ServedTicks, after_changes, moving_ticks
 
 __all__ = ["TICK_KINDS", "tick_losses", "pooled_tick_losses", "losses_sentence"]
 
@@ -55,15 +55,6 @@ def window_classes(messages: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
             cls[i] = int(np.argmax(p))
             t_win[i] = msg.t_s - msg.classification_age_s
     return cls, t_win
-
-
-def _after_change(t_s: np.ndarray, label: np.ndarray, settle_s: float) -> np.ndarray:
-    """Bool (n,): ticks within ``settle_s`` s after a change of the labelled class."""
-    change = np.flatnonzero((label[1:] != label[:-1]) & (label[1:] >= 0)) + 1
-    out = np.zeros(len(t_s), bool)
-    for tc in t_s[change]:
-        out |= (t_s >= tc) & (t_s < tc + settle_s)
-    return out
 
 
 def _window_right(ticks: ServedTicks, moving: np.ndarray, cls: np.ndarray, t_win: np.ndarray) -> tuple[int, int]:
@@ -92,7 +83,7 @@ def tick_losses(ticks: ServedTicks, settle_s: float) -> dict[str, Any]:
     right = ticks.served == ticks.label
     fallback = ticks.served == FALLBACK
     wrong = ~right & ~fallback
-    after = _after_change(ticks.t_s, ticks.label, settle_s)
+    after = after_changes(ticks.t_s, ticks.label, settle_s)
     kinds = {"right": moving & right, "fallback": moving & fallback,
              "transition": moving & wrong & after}
     rest = moving & wrong & ~after

@@ -53,7 +53,7 @@ from typing import IO, Any, Iterator
 
 from terrainml.io.damage import DamageSummary, damage_summary
 from terrainml.io.ingest import load_run
-from terrainml.schema import DEFAULT_RATE_HZ, VALID_GROUPS
+from terrainml.schema import DEFAULT_RATE_HZ, VALID_GROUPS, valid_column
 from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
 from terrainml.stream.transports.ros2.names import is_ros2_spec
 from terrainml.stream.transports.ros2.source import Ros2SourceError, iter_ros2_samples
@@ -249,8 +249,8 @@ def iter_log_samples(path: str | Path, robot: Any = None, *, rate_hz: float = DE
     if counters is not None:
         counters.damage = damage
     if watch is not None:  # a group no row of the whole log has is not mapped, never "silent"
-        watch.mapped_groups = [g for g in VALID_GROUPS
-                               if f"{g}_valid" in res.table.columns and bool(res.table[f"{g}_valid"].any())]
+        valid = {g: valid_column(g).name for g in VALID_GROUPS}
+        watch.mapped_groups = [g for g, col in valid.items() if col in res.table.columns and bool(res.table[col].any())]
     if damage.any:
         log.warning("%s: %s", path, damage.text)
     yield from iter_table_samples(res.table, realtime=realtime, counters=counters)
