@@ -371,6 +371,43 @@ def test_odometry_comes_from_the_valid_wheels(monkeypatch):
         sink.close()
 
 
+def test_odometry_from_one_side_takes_the_yaw_rate_from_the_imu(monkeypatch):
+    """Husky at 1 m/s turning at 0.2 rad/s, both left wheels NaN: with a valid IMU the right wheels
+    and the IMU's yaw rate give the speed (flagged, finite, larger variance); without the IMU one
+    side cannot tell speed from turning, and the speed is not taken from it."""
+    from test_ros2_interop import LOOPBACK
+
+    from terrainml.stream.transports.ros2.sink import UNKNOWN_VAR, Ros2Sink
+    from terrainml.stream.transports.ros2.types import Header
+
+    monkeypatch.setenv("CYCLONEDDS_URI", LOOPBACK)
+    robot = load_robot("husky")
+    sink = Ros2Sink("ros2://212?desired_slip=&terrain=&diagnostics=", robot)
+    try:
+        vx, r = 1.0, 0.2
+
+        def sample(bad=(), imu=True):
+            s = {"wheels_valid": not bad, "imu_valid": imu, "imu_yaw_rate_radps": r}
+            for i, w in enumerate(robot.wheels, start=1):
+                s[f"wheel{i}_omega_radps"] = math.nan if i in bad else (vx - r * w.y_m) / robot.wheel_radius_m
+                s[f"wheel{i}_steer_rad"] = 0.0
+            return s
+
+        def odo(k, s):
+            return sink._odometry(_msg(k * 0.01, "estimator_unhealthy", ok=False), s, Header())
+
+        full = odo(0, sample())
+        right = odo(1, sample(bad=(1, 3)))
+        assert sink.odometry_note == "from 2 of 4 wheels (wheel1, wheel3 invalid)"
+        assert right.twist.twist.linear.x == pytest.approx(vx, abs=0.02)
+        assert right.twist.twist.angular.z == pytest.approx(r, abs=0.01)
+        assert full.twist.covariance[0] < right.twist.covariance[0] < UNKNOWN_VAR
+        blind = odo(2, sample(bad=(1, 3), imu=False))
+        assert blind is None and sink.odometry_note == "2 of 4 wheels valid, on one side, and no IMU: not published"
+    finally:
+        sink.close()
+
+
 def test_the_built_in_map_that_fits_the_graph_is_named():
     from terrainml.stream.transports.ros2.source import fitting_maps
 

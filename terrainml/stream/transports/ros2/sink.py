@@ -199,9 +199,10 @@ class Ros2Sink:
 
     def _odometry(self, msg: DesiredSlip, sample: dict, header: Header) -> Odometry | None:
         """Slip-aware odometry from the wheels whose speed is valid on this tick (all of them:
-        the full solution; some: theirs, with the larger covariance that fewer wheels give, and
-        ``odometry_note`` naming the others; none but a valid IMU: zero speed with an unknown
-        variance and the IMU's yaw rate). None when neither is valid."""
+        the full solution; some, at least one per side or any with a valid IMU yaw rate: theirs,
+        with the larger covariance that fewer wheels give, and ``odometry_note`` naming the
+        others; none but a valid IMU: zero speed with an unknown variance and the IMU's yaw
+        rate). None without the IMU and without valid wheels on both sides."""
         n = self.robot.n_wheels
         omega = [_num(sample.get(wheel_col("omega", i))) for i in range(1, n + 1)]
         steer = [_num(sample.get(wheel_col("steer", i)), 0.0) for i in range(1, n + 1)]
@@ -217,7 +218,9 @@ class Ros2Sink:
             self.odometry_note = ""
             est = self.odometry.step(msg.t_s, omega, steer, slip, r)
             twist_cov = est.twist_cov
-        elif any(ok) and self._sides_covered(ok):
+        elif any(ok) and (self._sides_covered(ok) or r is not None):
+            # one side's wheels give the speed once the IMU gives the yaw rate (skid steering
+            # makes the yaw rate of one side's wheels alone unknowable)
             keep = [i for i in range(n) if ok[i]]
             bad = [self.robot.wheels[i].name for i in range(n) if not ok[i]]
             self.odometry_note = (f"from {len(keep)} of {n} wheels ({', '.join(bad)} invalid)" if bad else
@@ -234,7 +237,8 @@ class Ros2Sink:
             est = self.odometry.integrate(msg.t_s, np.array([0.0, 0.0, r]), cov)
             twist_cov = cov
         else:
-            self.odometry_note = "no valid wheel or IMU: not published"
+            self.odometry_note = ("no valid wheel or IMU: not published" if not any(ok) else
+                                  f"{sum(ok)} of {n} wheels valid, on one side, and no IMU: not published")
             return None
         half = 0.5 * est.yaw_rad
         pose = Pose(position=Point(est.x_m, est.y_m, 0.0),
