@@ -1,34 +1,54 @@
-"""An independent ROS 2 peer for the interop tests: replays an MCAP onto DDS, or records terrainml's output.
+"""An independent ROS 2 peer for the interop tests: replays a log onto DDS, or records terrainml's output.
 
-Run as its own process (``python ros2_peer.py publish|listen ...``). It never imports terrainml:
-message types are defined here with cyclonedds' own IDL classes (the rmw_cyclonedds_cpp names,
-``pkg::msg::dds_::Type_``, topics ``rt/...``), the log is read with the ``mcap`` / ``mcap_ros2``
-libraries, and the recorder writes what it receives as JSON lines.
+Run as its own process (``python ros2_peer.py publish|listen|write ...``). It never imports
+terrainml: message types are defined here with cyclonedds' own IDL classes (the rmw_cyclonedds_cpp
+names, ``pkg::msg::dds_::Type_``, topics ``rt/...``), an MCAP is read with the ``mcap`` /
+``mcap_ros2`` libraries, a BorealTC run with the csv module, and the recorder writes what it
+receives as JSON lines.
 
-publish: every message of the mapped topics, in log order, at ``--speed`` x real time (source
+Two message sources, each with its own topic set (and writers):
+
+* ``--mcap LOG``: the default topic map's inputs (:data:`INPUTS`, the reference robot) of a log;
+* ``--borealtc CLASS_DIR:ID`` (e.g. ``.../borealtc/ASPHALT:04``): one BorealTC run (``pro_ID.csv``,
+  ``imu_ID.csv``) as a Husky publishes it (:data:`HUSKY`, the ``husky_ros2`` map): ``/joint_states``
+  (the four ``*_wheel_joint`` names, velocity = the side's speed / 0.1651 m in rad/s, left to
+  front_left and rear_left; position and effort empty) and ``/imu/data`` (gyro and accelerometer as
+  recorded, orientation identity with ``orientation_covariance[0] = -1``: REP 145's "no
+  orientation"), header stamp = 1_700_000_000 s + the csv time, over the time both files cover.
+
+publish: every message of the source's topics, in stamp order, at ``--speed`` x real time (source
 timestamp = the log time), after every topic has a matched subscriber (or ``--match-timeout-s``).
 Fault injections: ``--stop-topic T --stop-at-s S`` (T goes silent S s into the log),
 ``--pause-topic T|all --pause-at-s S --pause-s D`` (T's messages of [S, S + D) not sent),
 ``--restart-at-s S --restart-s D`` (the publisher leaves the domain at S and joins again as a new
 participant D s later), ``--late-wrong-type-topic T --late-at-s S`` (a second publisher of T with
 type std_msgs/Float64 appears at S), ``--nan-joint J1,J2 --nan-at-s S --nan-s D`` (those joints'
-velocities NaN for D s),
+velocities NaN for D s: the source's JointState topic),
 ``--wrong-type-topic T`` (T published as std_msgs/Float64 instead), ``--jump-at-s S --jump-s J``
 (every stamp after S s shifted by J s), ``--swap-every K`` (every K-th pair of IMU messages
 published in reverse order), ``--burst-every K`` (K ticks held, then sent at once).
+Every fault applies the same way to either source, the IMU swap to its IMU topic.
 ``--wheel-array T``: each JointState of ``/wheels/joint_states`` also published on T as a
 std_msgs/Float64MultiArray of the ``wheel{i}_drive`` velocities (wheel order), source timestamp = its
 header stamp (the array has no header).
 
-listen: subscribes to the four terrainml topics, writes one JSON line per message to ``--out``,
-exits after ``--idle-s`` without a message (or ``--max-s``).
+listen: subscribes to the four terrainml topics, writes one JSON line per message to ``--out``
+(with ``wall_s``, this machine's monotonic clock when it was taken), exits after ``--idle-s``
+without a message (or ``--max-s``).
+
+write: the source's messages without any fault (``--loop`` times, stamps continuing) to the MCAP
+``--out`` (CDR, message definitions from rosbags' ROS 2 Humble type store, log time = the
+stamp): the same run as a log file, for ``terrainml predict --source LOG``.
 """
 
 import argparse
+import csv
 import gc
+import heapq
 import json
 import sys
 import time
+from pathlib import Path
 from dataclasses import dataclass, field
 
 import cyclonedds.idl.types as t
@@ -187,6 +207,8 @@ class DiagnosticArray(IdlStruct, typename="diagnostic_msgs::msg::dds_::Diagnosti
 # the default topic map's inputs (what the simulator's MCAP carries)
 INPUTS = {"/imu": Imu, "/camera/odom/sample": Odometry, "/wheels/joint_states": JointState,
           "/wheels/motor_current": JointState, "/cmd_vel": Twist}
+# a Husky's topics (the husky_ros2 map), what the BorealTC source publishes
+HUSKY = {"/joint_states": JointState, "/imu/data": Imu}
 OUTPUTS = {"/terrainml/desired_slip": Float64MultiArray, "/terrainml/terrain": Classification,
            "/diagnostics": DiagnosticArray, "/terrainml/odometry": Odometry}
 
@@ -206,14 +228,14 @@ def _vec(cls, v):
     return cls(v.x, v.y, v.z)
 
 
-def _convert(topic: str, m, shift_ns: int):
-    """A decoded mcap_ros2 message -> this file's IDL object."""
-    if topic == "/imu":
+def _convert(cls, m, shift_ns: int):
+    """A decoded message (mcap_ros2's, or this file's) -> this file's IDL object ``cls``, stamps shifted."""
+    if cls is Imu:
         return Imu(_header(m.header, shift_ns), Quaternion(m.orientation.x, m.orientation.y, m.orientation.z,
                                                            m.orientation.w), list(m.orientation_covariance),
                    _vec(Vector3, m.angular_velocity), list(m.angular_velocity_covariance),
                    _vec(Vector3, m.linear_acceleration), list(m.linear_acceleration_covariance))
-    if topic == "/camera/odom/sample":
+    if cls is Odometry:
         p, tw = m.pose.pose, m.twist.twist
         q = p.orientation
         return Odometry(_header(m.header, shift_ns), m.child_frame_id,
@@ -221,10 +243,95 @@ def _convert(topic: str, m, shift_ns: int):
                                            list(m.pose.covariance)),
                         TwistWithCovariance(Twist(_vec(Vector3, tw.linear), _vec(Vector3, tw.angular)),
                                             list(m.twist.covariance)))
-    if topic in ("/wheels/joint_states", "/wheels/motor_current"):
+    if cls is JointState:
         return JointState(_header(m.header, shift_ns), list(m.name), list(m.position), list(m.velocity),
                           list(m.effort))
     return Twist(_vec(Vector3, m.linear), _vec(Vector3, m.angular))
+
+
+class McapSource:
+    """The default topic map's inputs of an MCAP log, decoded by mcap_ros2 one at a time."""
+
+    topics = INPUTS
+    imu_topic = "/imu"
+    joint_topic = "/wheels/joint_states"
+
+    def __init__(self, path: str):
+        from mcap.reader import make_reader
+
+        self.path = path
+        with open(path, "rb") as fh:
+            stats = make_reader(fh).get_summary().statistics
+        # one loop of the log; the next starts a period after its last message
+        self.span_ns = stats.message_end_time - stats.message_start_time + 10_000_000
+
+    def messages(self):
+        """(topic, log time ns, message) in log time order (a long log starts at once)."""
+        from mcap.reader import make_reader
+        from mcap_ros2.decoder import DecoderFactory
+
+        with open(self.path, "rb") as fh:
+            reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+            for _, ch, rec, m in reader.iter_decoded_messages(topics=list(INPUTS), log_time_order=True):
+                yield ch.topic, rec.log_time, m
+
+
+#: header stamp of a BorealTC run's csv time 0
+BOREAL_EPOCH_NS = 1_700_000_000 * 1_000_000_000
+HUSKY_WHEEL_RADIUS_M = 0.1651
+HUSKY_LEFT = ("front_left_wheel_joint", "rear_left_wheel_joint")
+HUSKY_RIGHT = ("front_right_wheel_joint", "rear_right_wheel_joint")
+
+
+def _csv_rows(path: Path) -> list[dict]:
+    with open(path, newline="") as fh:
+        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(fh)]
+
+
+class BorealSource:
+    """One BorealTC run (``CLASS_DIR:ID``) as a Husky's ``/joint_states`` and ``/imu/data``."""
+
+    topics = HUSKY
+    imu_topic = "/imu/data"
+    joint_topic = "/joint_states"
+
+    def __init__(self, run: str):
+        folder, run_id = run.rsplit(":", 1)
+        pro = _csv_rows(Path(folder) / f"pro_{run_id}.csv")
+        imu = _csv_rows(Path(folder) / f"imu_{run_id}.csv")
+        # the time both files cover (as the dataset spec's span: overlap)
+        t0, t1 = max(pro[0]["time"], imu[0]["time"]), min(pro[-1]["time"], imu[-1]["time"])
+        names = [HUSKY_LEFT[0], HUSKY_RIGHT[0], HUSKY_LEFT[1], HUSKY_RIGHT[1]]
+        r = HUSKY_WHEEL_RADIUS_M
+        joints = [(self._ns(p["time"]), 1, "/joint_states", JointState(
+            self._header(p["time"], ""), list(names), [],
+            [p["velL"] / r, p["velR"] / r, p["velL"] / r, p["velR"] / r], [])) for p in pro if t0 <= p["time"] <= t1]
+        imus = [(self._ns(i["time"]), 0, "/imu/data", Imu(
+            self._header(i["time"], "base_link"), Quaternion(0.0, 0.0, 0.0, 1.0), [-1.0] + [0.0] * 8,
+            Vector3(i["wx"], i["wy"], i["wz"]), [0.0] * 9, Vector3(i["ax"], i["ay"], i["az"]), [0.0] * 9))
+            for i in imu if t0 <= i["time"] <= t1]
+        self._msgs = list(heapq.merge(imus, joints, key=lambda x: (x[0], x[1])))
+        # one loop of the run; the next starts an IMU period after its last message
+        self.span_ns = self._msgs[-1][0] - self._msgs[0][0] + 10_000_000
+
+    @staticmethod
+    def _ns(t_s: float) -> int:
+        return BOREAL_EPOCH_NS + round(t_s * 1e9)
+
+    @classmethod
+    def _header(cls, t_s: float, frame: str) -> Header:
+        ns = cls._ns(t_s)
+        return Header(Time(ns // 1_000_000_000, ns % 1_000_000_000), frame)
+
+    def messages(self):
+        for ns, _, topic, m in self._msgs:
+            yield topic, ns, m
+
+
+def _source(a):
+    if bool(a.mcap) == bool(a.borealtc):
+        raise SystemExit("peer: give one of --mcap LOG or --borealtc CLASS_DIR:ID")
+    return McapSource(a.mcap) if a.mcap else BorealSource(a.borealtc)
 
 
 class _Msg:
@@ -277,11 +384,9 @@ def _wait_matched(writers: dict, timeout_s: float) -> None:
 
 
 def publish(a) -> None:
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
-
+    src = _source(a)
     dp = DomainParticipant(a.domain)
-    types = dict(INPUTS)
+    types = dict(src.topics)
     if a.wrong_type_topic:
         types[a.wrong_type_topic] = Float64
     if a.wheel_array:
@@ -293,18 +398,8 @@ def publish(a) -> None:
     held: list = []
     imu_prev = None
     n = 0
-    with open(a.mcap, "rb") as fh:
-        stats = make_reader(fh).get_summary().statistics
-    # one loop of the log; the next starts a period after its last message
-    span_ns = stats.message_end_time - stats.message_start_time + 10_000_000
-
-    def log_messages():
-        """The log's mapped messages, decoded one at a time (a long log starts at once)."""
-        with open(a.mcap, "rb") as fh:
-            reader = make_reader(fh, decoder_factories=[DecoderFactory()])
-            for _, ch, rec, m in reader.iter_decoded_messages(topics=list(INPUTS), log_time_order=True):
-                yield ch.topic, rec.log_time, m
-
+    span_ns = src.span_ns
+    log_messages = src.messages
     t0_log = next(log_messages())[1]
     faults = _faults(a)
     late_writer = None
@@ -342,16 +437,16 @@ def publish(a) -> None:
             late_writer.write(Float64(1.0))
             print("peer: wrong type up", file=sys.stderr, flush=True)
         nan = [f["joint"] for f in active if f["kind"] == "nan"]
-        if nan and topic == "/wheels/joint_states":
+        if nan and topic == src.joint_topic:
             ros_msg = _nan_joint(ros_msg, ",".join(nan))
         shift = int(a.jump_s * 1e9) if a.jump_at_s is not None and rel_s >= a.jump_at_s else 0
         shift += loop * span_ns
         if a.wrong_type_topic == topic:
             msg = Float64(1.0)
         else:
-            msg = _convert(topic, ros_msg, shift)
+            msg = _convert(src.topics[topic], ros_msg, shift)
         item = (writers[topic], msg, log_time - loop * span_ns + shift)
-        if a.swap_every and topic == "/imu":
+        if a.swap_every and topic == src.imu_topic:
             n_imu = getattr(publish, "_n_imu", 0) + 1
             publish._n_imu = n_imu
             if imu_prev is None and n_imu % a.swap_every == 0:
@@ -381,6 +476,30 @@ def publish(a) -> None:
         w.write(m, timestamp=ts)
     time.sleep(a.linger_s)
     print(f"peer: published {n} messages", file=sys.stderr, flush=True)
+
+
+def write(a) -> None:
+    """The source's messages, no fault, ``--loop`` times (stamps continuing), to the MCAP ``--out``."""
+    from mcap_ros2.writer import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    src = _source(a)
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    ros_type = {cls: cls.__idl_typename__.replace("::dds_::", "::").replace("::", "/").rstrip("_")
+                for cls in set(src.topics.values())}
+    with open(a.out, "wb") as fh:
+        w = Writer(fh)
+        schemas = {cls: w.register_msgdef(name, store.generate_msgdef(name, ros_version=2)[0])
+                   for cls, name in ros_type.items()}
+        n = 0
+        for loop in range(a.loop):
+            for topic, log_time, m in src.messages():
+                shift = loop * src.span_ns
+                cls = src.topics[topic]
+                w.write_message(topic, schemas[cls], _convert(cls, m, shift), log_time + shift, log_time + shift)
+                n += 1
+        w.finish()
+    print(f"peer: wrote {n} messages", file=sys.stderr, flush=True)
 
 
 def _out_row(topic: str, m) -> dict:
@@ -414,7 +533,7 @@ def listen(a) -> None:
                 for m in r.take(500):
                     if not getattr(getattr(m, "sample_info", None), "valid_data", True):
                         continue   # a writer going away (dispose / unregister)
-                    fh.write(json.dumps({"topic": tp, **_out_row(tp, m)}) + "\n")
+                    fh.write(json.dumps({"topic": tp, "wall_s": time.monotonic(), **_out_row(tp, m)}) + "\n")
                     n += 1
             now = time.monotonic()
             if n:
@@ -427,9 +546,10 @@ def listen(a) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("mode", choices=["publish", "listen"])
-    ap.add_argument("--domain", type=int, required=True)
+    ap.add_argument("mode", choices=["publish", "listen", "write"])
+    ap.add_argument("--domain", type=int, help="DDS domain id (publish, listen)")
     ap.add_argument("--mcap")
+    ap.add_argument("--borealtc", help="CLASS_DIR:ID, a BorealTC run (pro_ID.csv, imu_ID.csv) on Husky topics")
     ap.add_argument("--out")
     ap.add_argument("--reliable", action="store_true")
     ap.add_argument("--speed", type=float, default=1.0)
@@ -459,7 +579,9 @@ def main() -> None:
     ap.add_argument("--idle-s", type=float, default=5.0)
     ap.add_argument("--max-s", type=float, default=300.0)
     a = ap.parse_args()
-    publish(a) if a.mode == "publish" else listen(a)
+    if a.mode != "write" and a.domain is None:
+        ap.error("--domain is required to publish or listen")
+    {"publish": publish, "listen": listen, "write": write}[a.mode](a)
 
 
 if __name__ == "__main__":

@@ -48,13 +48,19 @@ def _offline(model_dir, log):
 
 
 class Run:
-    """predict (ros2 source and sink + stdout), a listener and the peer, all to their end."""
+    """predict (ros2 source and sink + stdout), a listener and the peer, all to their end.
+
+    ``log``: what the peer publishes (an MCAP path, or its source options, see ``_publish``);
+    ``listen_idle_s``: the listener ends that long after predict's last message (default
+    ``idle_s + 6``)."""
 
     def __init__(self, model_dir, log, tmp, *peer_args, idle_s=8.0, source_opts="qos=reliable", hogs=0,
-                 predict_args=()):
+                 predict_args=(), listen_idle_s=None):
         domain = _domain()
+        listen_idle_s = idle_s + 6 if listen_idle_s is None else listen_idle_s
         self.listener = _Proc([sys.executable, PEER, "listen", "--domain", str(domain), "--out",
-                               str(tmp / "rx.jsonl"), "--idle-s", str(idle_s + 6), "--max-s", "900"], tmp, "listener")
+                               str(tmp / "rx.jsonl"), "--idle-s", str(listen_idle_s), "--max-s", "900"], tmp,
+                              "listener")
         self.listener.wait_for("listener: up")
         self.pred = _Proc(PREDICT + ["--model", str(model_dir), "--source", f"ros2://{domain}?{source_opts}",
                                      "--idle-timeout-s", str(idle_s), "--sink", f"ros2://{domain}", "--sink", "stdout",

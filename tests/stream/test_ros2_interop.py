@@ -112,9 +112,10 @@ def _predict(model_dir, domain: int, tmp: Path, source_opts: str = "qos=reliable
     return _Proc(args, tmp, "predict")
 
 
-def _publish(domain: int, log: Path, tmp: Path, *extra: str) -> _Proc:
-    return _Proc([sys.executable, PEER, "publish", "--domain", str(domain), "--mcap", str(log), "--reliable",
-                  *extra], tmp, "peer")
+def _publish(domain: int, log: Path | tuple[str, ...], tmp: Path, *extra: str) -> _Proc:
+    """The peer publishing ``log``: an MCAP path, or the peer's source options (``("--borealtc", RUN)``)."""
+    src = ["--mcap", str(log)] if isinstance(log, (str, Path)) else list(log)
+    return _Proc([sys.executable, PEER, "publish", "--domain", str(domain), *src, "--reliable", *extra], tmp, "peer")
 
 
 def _serve(model_dir, sand_log, tmp, *peer_args, source_opts="qos=reliable", sinks=("stdout",), topics=None):
