@@ -65,6 +65,7 @@ __all__ = [
     "SIDE_CHANNELS", "ChunkSet", "make_chunks", "windows_per_chunk", "chunk_windows", "robot_track_m",
     "AuthorsSVM", "protocol_models", "MODELS", "PROTOCOL_SEEDS", "ProtocolData",
     "load_protocol_data", "protocol_folds", "run_protocol", "course_runs", "make_course", "course_score",
+    "runs_with_imu",
 ]
 
 #: model names of :func:`protocol_models`
@@ -245,6 +246,18 @@ def runs_by_class(tables: Sequence[pd.DataFrame]) -> dict[int, list[str]]:
     for df in tables:
         by.setdefault(int(df["terrain"].iloc[0]), []).append(str(df["run_id"].iloc[0]))
     return {c: sorted(by[c]) for c in sorted(by)}
+
+
+def runs_with_imu(tables: Sequence[pd.DataFrame], per_class: int,
+                  exclude: Sequence[str] = ()) -> list[pd.DataFrame]:
+    """The first ``per_class`` runs (by id) of every class that have an IMU file, the run ids
+    ``exclude`` left out; in class order (the training runs of the DDS fault tests on a BorealTC
+    run, ``tests/stream/test_ros2_borealtc.py``, and of the real-data fault soak)."""
+    by: dict[int, list[pd.DataFrame]] = {}
+    for df in sorted(tables, key=lambda d: str(d["run_id"].iloc[0])):
+        if str(df["run_id"].iloc[0]) not in exclude and "imu_valid" in df.columns and bool(df["imu_valid"].any()):
+            by.setdefault(int(df["terrain"].iloc[0]), []).append(df)
+    return [df for c in sorted(by) for df in by[c][:per_class]]
 
 
 def course_runs(tables: Sequence[pd.DataFrame], k: int = -1) -> list[str]:
