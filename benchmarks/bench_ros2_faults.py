@@ -1,18 +1,30 @@
 """Fault soak of `terrainml predict` over ROS 2: random input faults for many minutes (docs/ros2.md).
 
 The independent peer (``tests/stream/ros2_peer.py``: its own cyclonedds IDL classes, no terrainml
-code) replays a simulated 60-s drive (dry sand, straight) onto loopback DDS in a loop, stamps
-continuing, with a fault plan drawn from a seeded generator: every 20-40 s one of
+code) replays a drive onto loopback DDS in a loop, stamps continuing, with a fault plan drawn from
+a seeded generator: every 20-40 s one of
 
-* ``pause``: one topic silent for 0.1-10 s (``/imu`` or ``/wheels/joint_states``);
+* ``pause``: one topic silent for 0.1-10 s (the IMU or the wheel JointState topic);
 * ``pause_all``: every topic silent for 2-10 s;
 * ``restart``: the publisher leaves the domain and joins as a new participant 1-3 s later;
 * ``nan``: NaN velocities on one wheel joint for 2-10 s;
 * ``hogs``: CPU hogs on every core (this process starts ``2 x cores`` busy loops) for 10-20 s.
 
+The drive (``--data``):
+
+* ``sim`` (default): a simulated 60-s drive (dry sand, straight) on the reference robot's topics
+  (the default topic map), served by a small SVM from the ``make demo`` chain;
+* ``borealtc``: the real BorealTC run ASPHALT_04 (49.5 s) as a Husky publishes it
+  (``ros2_peer.py --borealtc``: ``/joint_states``, ``/imu/data``), served with ``--robot husky
+  --topics husky_ros2`` by the Husky model of ``tests/stream/test_ros2_borealtc.py`` (an SVM on
+  chunks windows of wheels and IMU, three runs with IMU per class, the replayed run left out); the
+  paused topic is ``/imu/data`` or ``/joint_states``, the NaN joint a left wheel's.
+
 ``terrainml predict --source ros2://D --sink ros2://D --sink stdout`` serves it (the ROS 2 sink
 with its diagnostics timer runs; what it publishes is checked by the interop tests). Truth is
-``predict --source LOG`` on the same 60-s log (the class it serves at each log time). Per fault
+``predict --source LOG`` on one pass of the same drive as a log file (the simulator's MCAP; for
+BorealTC the MCAP that ``ros2_peer.py write`` makes of the same messages, which a fault-free DDS
+pass serves identically, tick for tick): the class it serves at each log time. Per fault
 kind:
 
 * **recovery**: from the end of the fault (the topic's first message after a pause) to the first
@@ -35,32 +47,49 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from benchmarks.bench_ros2 import LOOPBACK, PREDICT, _model
 
-PEER = str(Path(__file__).resolve().parents[1] / "tests" / "stream" / "ros2_peer.py")
+ROOT = Path(__file__).resolve().parents[1]
+PEER = str(ROOT / "tests" / "stream" / "ros2_peer.py")
+BOREAL = ROOT.parent / "shared" / "datasets" / "borealtc"
+BOREAL_RUN = ("ASPHALT", "04")
 LOG_S = 60.0
 KINDS = ("pause", "pause_all", "restart", "nan", "hogs")
 
 
-def fault_plan(total_s: float, seed: int) -> list[dict]:
+@dataclass
+class Drive:
+    """What the soak replays: the peer's source options, predict's robot options, its topics."""
+
+    describe: str
+    log_s: float
+    source: list[str]
+    predict: list[str] = field(default_factory=list)
+    pause_topics: tuple[str, ...] = ("/imu", "/wheels/joint_states")
+    nan_joints: tuple[str, ...] = ("wheel1_drive", "wheel2_drive", "wheel3_drive")
+
+
+def fault_plan(total_s: float, seed: int, pause_topics=("/imu", "/wheels/joint_states"),
+               nan_joints=("wheel1_drive", "wheel2_drive", "wheel3_drive")) -> list[dict]:
     """Faults every 20-40 s of log time, kinds in turn from a seeded shuffle (log seconds)."""
     rng = np.random.default_rng(seed)
     out, t = [], 15.0
     while t < total_s - 25.0:
         kind = KINDS[len(out) % len(KINDS)] if len(out) < len(KINDS) else str(rng.choice(KINDS))
         if kind == "pause":
-            f = {"kind": "pause", "topic": str(rng.choice(["/imu", "/wheels/joint_states"])),
+            f = {"kind": "pause", "topic": str(rng.choice(list(pause_topics))),
                  "dur_s": float(np.round(10 ** rng.uniform(-1, 1), 2))}
         elif kind == "pause_all":
             f = {"kind": "pause", "topic": "all", "dur_s": float(np.round(rng.uniform(2, 10), 1))}
         elif kind == "restart":
             f = {"kind": "restart", "dur_s": float(np.round(rng.uniform(1, 3), 1))}
         elif kind == "nan":
-            f = {"kind": "nan", "joint": f"wheel{int(rng.integers(1, 4))}_drive",
+            f = {"kind": "nan", "joint": nan_joints[int(rng.integers(0, len(nan_joints)))],
                  "dur_s": float(np.round(rng.uniform(2, 10), 1))}
         else:
             f = {"kind": "hogs", "dur_s": float(np.round(rng.uniform(10, 20), 1))}
@@ -90,15 +119,16 @@ def _hogs(plan: list[dict], started: threading.Event, t0: list[float], stop: thr
             h.wait()
 
 
-def soak(model: str, log: Path, tmp: Path, loops: int, seed: int, domain: int) -> dict:
+def soak(model: str, drive: Drive, tmp: Path, loops: int, seed: int, domain: int) -> dict:
     env = {**os.environ, "CYCLONEDDS_URI": os.environ.get("CYCLONEDDS_URI", LOOPBACK), "PYTHONUNBUFFERED": "1"}
-    total_s = loops * (LOG_S + 0.01)
-    plan = fault_plan(total_s, seed)
+    total_s = loops * (drive.log_s + 0.01)
+    plan = fault_plan(total_s, seed, drive.pause_topics, drive.nan_joints)
     (tmp / "faults.json").write_text(json.dumps([f for f in plan if f["kind"] != "hogs"]))
     err = tmp / "predict.err"
     out = tmp / "predict.out"
     pred = subprocess.Popen(PREDICT + ["--model", model, "--source", f"ros2://{domain}?qos=reliable&discovery_s=5",
-                                       "--sink", f"ros2://{domain}", "--sink", "stdout", "--idle-timeout-s", "30"],
+                                       "--sink", f"ros2://{domain}", "--sink", "stdout", "--idle-timeout-s", "30",
+                                       *drive.predict],
                             stdout=open(out, "w"), stderr=open(err, "w"), env=env)
     t_end = time.monotonic() + 600
     while "ready" not in err.read_text():
@@ -106,7 +136,7 @@ def soak(model: str, log: Path, tmp: Path, loops: int, seed: int, domain: int) -
             raise RuntimeError(f"predict did not start: {err.read_text()[-2000:]}")
         time.sleep(0.2)
     peer_err = tmp / "peer.err"
-    peer = subprocess.Popen([sys.executable, PEER, "publish", "--domain", str(domain), "--mcap", str(log), "--reliable",
+    peer = subprocess.Popen([sys.executable, PEER, "publish", "--domain", str(domain), *drive.source, "--reliable",
                              "--loop", str(loops), "--faults", str(tmp / "faults.json")],
                             stdout=subprocess.DEVNULL, stderr=open(peer_err, "w"), env=env)
     started, stop, t0 = threading.Event(), threading.Event(), [0.0]
@@ -132,9 +162,9 @@ def soak(model: str, log: Path, tmp: Path, loops: int, seed: int, domain: int) -
             "wall_s": time.monotonic() - t0[0]}
 
 
-def _offline(model: str, log: Path) -> dict[int, str]:
-    out = subprocess.run(PREDICT + ["--model", model, "--source", str(log), "--sink", "stdout"], capture_output=True,
-                         text=True, timeout=1200)
+def _offline(model: str, log: Path, predict_args=()) -> dict[int, str]:
+    out = subprocess.run(PREDICT + ["--model", model, "--source", str(log), "--sink", "stdout", *predict_args],
+                         capture_output=True, text=True, timeout=1200)
     if out.returncode:
         raise RuntimeError(out.stderr[-2000:])
     return {int(round(m["t_s"] * 100)): m["terrain_name"] for m in map(json.loads, out.stdout.splitlines())}
@@ -187,21 +217,63 @@ def analyse(res: dict, offline: dict[int, str]) -> dict[str, dict]:
             "tracebacks": res["stderr"].count("Traceback")}
 
 
-def run(quick: bool = False, minutes: float | None = None, seed: int = 7) -> str:
-    from benchmarks.run_all import machine_description
+def _sim_drive(tmp: Path) -> tuple[str, Drive, Path]:
+    """The make-demo model and a simulated 60-s drive (its MCAP is the peer's source and the truth's log)."""
     from terrainml.sim.generate import simulate
     from terrainml.sim.output import write_mcap
 
+    log = tmp / "drive.mcap"
+    write_mcap(simulate("dry_sand", "straight", duration_s=LOG_S, seed=78), log)
+    drive = Drive(f"a simulated drive (dry sand, straight, {LOG_S:.0f} s)", LOG_S, ["--mcap", str(log)])
+    return _model(str(tmp)), drive, log
+
+
+def _boreal_drive(tmp: Path) -> tuple[str, Drive, Path]:
+    """The Husky model (trained without the replayed run) and the BorealTC run on Husky topics;
+    the truth's log is the MCAP the peer writes of the same messages."""
+    from terrainml.experiments.borealtc import runs_with_imu
+    from terrainml.features.windows import window_spec
+    from terrainml.io.ingest import load_dataset
+    from terrainml.pipeline.dataset import build_from_tables
+    from terrainml.pipeline.train import train
+    from terrainml.pipeline.train_options import TrainOptions
+    from terrainml.robot import load_robot
+
+    label, run_id = BOREAL_RUN
+    husky = load_robot("husky")
+    tables, _ = load_dataset("borealtc", BOREAL)
+    ds = build_from_tables(runs_with_imu(tables, 3, exclude=[f"{label}_{run_id}"]), husky,
+                           spec=window_spec("chunks").resolve(husky, ["wheels", "imu"]))
+    model = tmp / "husky"
+    train(ds, model, ["svm"], TrainOptions(folds=2, seed=0, ablation=False,
+                                           model_params={"svm": {"C_grid": (10.0,), "gamma_grid": ("scale",)}}))
+    source = ["--borealtc", f"{BOREAL / label}:{run_id}"]
+    log = tmp / "boreal.mcap"
+    subprocess.run([sys.executable, PEER, "write", *source, "--out", str(log)], check=True, capture_output=True,
+                   timeout=300)
+    from mcap.reader import make_reader
+
+    with open(log, "rb") as fh:
+        st = make_reader(fh).get_summary().statistics
+    # the stamps' span up to the next 10-ms tick: the peer loops every log_s + 10 ms, as on the simulated log
+    log_s = -(-(st.message_end_time - st.message_start_time) // 10_000_000) / 100
+    drive = Drive(f"the real BorealTC run {label}_{run_id} ({log_s:.1f} s) on a Husky's topics (husky_ros2)",
+                  log_s, source, ["--robot", "husky", "--topics", "husky_ros2"], ("/imu/data", "/joint_states"),
+                  ("front_left_wheel_joint", "rear_left_wheel_joint"))
+    return str(model), drive, log
+
+
+def run(quick: bool = False, minutes: float | None = None, seed: int = 7, data: str = "sim") -> str:
+    from benchmarks.run_all import machine_description
+
     os.environ.setdefault("CYCLONEDDS_URI", LOOPBACK)
     minutes = minutes if minutes is not None else float(os.environ.get("TERRAINML_SOAK_MIN", 3 if quick else 20))
-    loops = max(1, int(round(minutes * 60 / LOG_S)))
     with tempfile.TemporaryDirectory() as tmp_s:
         tmp = Path(tmp_s)
-        model = _model(tmp_s)
-        log = tmp / "drive.mcap"
-        write_mcap(simulate("dry_sand", "straight", duration_s=LOG_S, seed=78), log)
-        offline = _offline(model, log)
-        res = soak(model, log, tmp, loops, seed, domain=60 + os.getpid() % 40)
+        model, drive, log = (_boreal_drive if data == "borealtc" else _sim_drive)(tmp)
+        loops = max(1, int(round(minutes * 60 / drive.log_s)))
+        offline = _offline(model, log, drive.predict)
+        res = soak(model, drive, tmp, loops, seed, domain=60 + os.getpid() % 40)
         a = analyse(res, offline)
         keep = os.environ.get("TERRAINML_SOAK_KEEP")
         if keep:   # predict's stderr and the plan, to read the episodes
@@ -221,7 +293,7 @@ def run(quick: bool = False, minutes: float | None = None, seed: int = 7) -> str
     return "\n".join([
         "## ROS 2 fault soak: random input faults over DDS",
         "",
-        f"Machine: {machine_description()}. {loops} x {LOG_S:.0f} s of a simulated drive (dry sand, straight) "
+        f"Machine: {machine_description()}. {loops} x {drive.describe} "
         f"replayed by the independent peer at real time ({res['wall_s'] / 60:.1f} min of wall time), fault plan "
         f"seed {seed}; method in `benchmarks/bench_ros2_faults.py`. predict exit code {res['code']}.",
         "",
@@ -239,5 +311,7 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser()
     ap.add_argument("--minutes", type=float, default=20.0)
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--data", choices=["sim", "borealtc"], default="sim",
+                    help="sim: a simulated drive on the reference robot; borealtc: a real BorealTC run on Husky topics")
     args = ap.parse_args()
-    print(run(minutes=args.minutes, seed=args.seed))
+    print(run(minutes=args.minutes, seed=args.seed, data=args.data))

@@ -311,8 +311,9 @@ class BorealSource:
             Vector3(i["wx"], i["wy"], i["wz"]), [0.0] * 9, Vector3(i["ax"], i["ay"], i["az"]), [0.0] * 9))
             for i in imu if t0 <= i["time"] <= t1]
         self._msgs = list(heapq.merge(imus, joints, key=lambda x: (x[0], x[1])))
-        # one loop of the run; the next starts an IMU period after its last message
-        self.span_ns = self._msgs[-1][0] - self._msgs[0][0] + 10_000_000
+        # one loop of the run, a whole number of 10-ms ticks (the stamps of its wheel service are
+        # not on that grid): the next loop starts within 10 ms after its last message
+        self.span_ns = (-(-(self._msgs[-1][0] - self._msgs[0][0]) // 10_000_000) + 1) * 10_000_000
 
     @staticmethod
     def _ns(t_s: float) -> int:
