@@ -360,6 +360,24 @@ def test_a_missing_group_is_named_live_at_start_and_when_it_goes(robot, fake_pre
     assert not any(m.estimator_ok for m in out if 0.21 <= m.t_s < 1.0)
 
 
+def test_a_group_its_source_flags_invalid_is_said_flagged_not_silent(robot, fake_predictor, caplog):
+    """Tracking-camera values that arrive finite with ``cam_valid`` false (a T265 confidence below
+    the map's ``min_confidence``) make the estimator unhealthy as any invalid group does, but the
+    log says the source flagged them: the topic is publishing, it is not silent."""
+    samples = make_samples(robot, 2.0)
+    for s in samples:
+        s["cam_valid"] = not (0.5 <= s["t_s"] < 1.2)
+    pred = fake_predictor()
+    with caplog.at_level(logging.WARNING, logger="terrainml.stream"):
+        out = _run(pred, samples)
+    said = [r.getMessage() for r in caplog.records if "sensor group" in r.getMessage()]
+    assert len(said) == 2, said
+    assert "'cam' flagged invalid by its source at t=0.700 s" in said[0] and "silent" not in said[0]
+    assert "'cam' valid again at t=1.200 s" in said[1]
+    assert not any(m.estimator_ok for m in out if 0.71 <= m.t_s < 1.2)
+    assert all(m.estimator_ok for m in out if m.t_s >= 1.2)
+
+
 def test_predict_on_a_log_without_imu_names_the_missing_topic(tmp_path, model_dir, capsys):
     """A log with wheels but no IMU was served as 3,001 estimator_unhealthy
     ticks with nothing on stderr naming /imu."""

@@ -189,6 +189,41 @@ def test_no_silence_while_the_process_did_not_run():
     assert sorted(t for t, _ in w.update()) == ["/imu", "/wheels"]
 
 
+def test_a_delivery_stall_caught_between_two_topics_is_no_topics_silence():
+    """Delivery stalls for 0.7 s right after /wheels and /current but before /imu of one tick
+    (a starved publisher writes its topics in turn): /imu is then 10 ms older than the others
+    when every topic is late. Each topic's age is counted from the least overdue topic, so none is
+    singled out; a real pause of /imu alone is still said at its 0.5 s timeout."""
+    clock = Clock()
+    w = InputWatch(clock)
+    for topic in ("/imu", "/wheels", "/current"):
+        w.add_topic(topic, "sensor_msgs/msg/JointState")
+    for k in range(200):
+        clock.t += 0.01
+        w.loop(0.01)
+        if k < 199:
+            w.on_message("/imu")          # the stall comes before /imu's message of the last tick
+        w.on_message("/wheels")
+        w.on_message("/current")
+    for _ in range(70):                   # 0.7 s with no message of any topic
+        clock.t += 0.01
+        w.loop(0.01)
+        assert w.update() == []
+    for _ in range(100):                  # all back; then /imu alone pauses
+        clock.t += 0.01
+        w.loop(0.01)
+        for topic in ("/imu", "/wheels", "/current"):
+            w.on_message(topic)
+    said = []
+    for k in range(60):
+        clock.t += 0.01
+        w.loop(0.01)
+        w.on_message("/wheels")
+        w.on_message("/current")
+        said += [(k, t) for t, _ in w.update()]
+    assert said and said[0][1] == "/imu" and 49 <= said[0][0] <= 51   # after its own 0.5 s
+
+
 def test_invalid_values_are_counted_per_topic_and_field_and_are_not_silence():
     clock = Clock()
     w = InputWatch(clock)

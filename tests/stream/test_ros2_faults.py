@@ -185,9 +185,11 @@ def test_idle_timeout_names_the_silent_topics_and_exits_3(model_dir, short_log, 
 
 @pytest.mark.acceptance
 @pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="needs two cores to hog")
-@pytest.mark.xfail(strict=False, reason="not met on 2 cores: with a busy loop per core, DDS delivery to predict "
-                   "stalled for up to 9 s while the peer published (BENCHMARKS, ROS 2 fault soak)")
 def test_no_false_silence_when_both_cores_are_busy(model_dir, long_log, tmp_path):
+    """A busy loop per core beside predict and the peer: no sensor group is called silent (the log's
+    T265 confidence dip at 6.4-7.4 s is said as flagged by its source, as offline), and
+    serving reaches the end of the run. Ten 60-s runs: ``benchmarks/bench_ros2_busy.py``."""
     r = Run(model_dir, long_log, tmp_path, hogs=os.cpu_count() or 2)     # one busy loop per core
     assert "silent at" not in r.err, r.err
+    assert "sensor group 'cam' flagged invalid by its source at t=6.600 s" in r.err
     assert r.served[-1]["t_s"] > 23.0

@@ -28,7 +28,9 @@ Rules
   :data:`WARN_EPISODES` episodes of a group are warned, then every 100th. When the source knows
   that the group's topic publishes NaN or infinite values (``invalid_hint``, a live ROS 2
   source's :meth:`~terrainml.stream.tick.inputs.InputWatch.group_invalid`), the episode is said as
-  *invalid values* ("... valid again"), not as a silence. A group the source does not map is
+  *invalid values* ("... valid again"), not as a silence. A group whose values arrive finite with
+  its ``{group}_valid`` flag false (ingest's rule judged them: a tracking camera's confidence below
+  the topic map's ``min_confidence``) is said as *flagged invalid by its source*. A group the source does not map is
   removed from ``monitored`` by the predictor (:meth:`Predictor.set_mapped_groups`).
 """
 
@@ -158,11 +160,15 @@ class HealthMonitor:
         #: (a live source's :meth:`~terrainml.stream.tick.inputs.InputWatch.group_invalid`); None: unknown
         self.invalid_hint: Callable[[str], bool] | None = None
         self._invalid_now: set[str] = set()  # groups said invalid (not silent) and not yet back
+        #: groups whose values arrived finite on the last tick with their ``{group}_valid`` flag
+        #: false: the source judged them (a tracking camera's low confidence), they are not silent
+        self.flagged: set[str] = set()
 
     def reset(self) -> None:
         self.last_fresh_t.clear()
         self._t0 = None
         self._silent_now.clear()
+        self.flagged.clear()
 
     def sanitise(self, sample: dict) -> tuple[dict, dict[str, bool]]:
         """Return (clean sample, fresh flag per group). The input dict is not modified.
@@ -176,7 +182,12 @@ class HealthMonitor:
         for g, cols in self.group_cols.items():
             present = [c for c in cols if c in sample]
             key = f"{g}_valid"
-            ok = bool(present) and len(present) == len(cols) and _flag_true(sample.get(key, True))
+            whole = bool(present) and len(present) == len(cols)
+            ok = whole and _flag_true(sample.get(key, True))
+            if whole and not ok and all(_is_finite_number(sample[c]) for c in cols):
+                self.flagged.add(g)          # values arrive, its source marks them invalid
+            else:
+                self.flagged.discard(g)
             if ok:
                 for c in cols:
                     v = sample[c]
@@ -272,12 +283,18 @@ class HealthMonitor:
         if self.counters is not None:
             self.counters.silent_episodes[g] = n
         invalid = self.invalid_hint is not None and self.invalid_hint(g)
-        if invalid:
+        flagged = g in self.flagged and not invalid
+        if invalid or flagged:
             self._invalid_now.add(g)
         if n <= WARN_EPISODES or n % 100 == 0:
             since = (f"last fresh at t={self.last_fresh_t[g]:.3f} s" if g in self.last_fresh_t
                      else "never seen since the start")
-            if invalid:   # its topic publishes, with NaN or infinite values: not a silence
+            if flagged:   # finite values its source marks invalid (e.g. low tracking confidence)
+                log.warning("sensor group %r flagged invalid by its source at t=%.3f s (%s; columns %s; "
+                            "%s_valid false, e.g. a tracking confidence below the topic map's "
+                            "min_confidence): serving estimator_unhealthy until it is valid (episode %d)",
+                            g, t_s, since, ", ".join(self.group_cols[g]), g, n)
+            elif invalid:   # its topic publishes, with NaN or infinite values: not a silence
                 log.warning("sensor group %r has invalid values (NaN or infinite) at t=%.3f s (%s; columns %s): "
                             "serving estimator_unhealthy until they are valid (episode %d)", g, t_s, since,
                             ", ".join(self.group_cols[g]), n)

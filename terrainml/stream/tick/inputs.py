@@ -19,6 +19,13 @@ health monitor judge ticks by:
 * **invalid values**: NaN or infinite numbers, counted per topic and field (``velocity[left]``,
   ``gyro``); a message with them is not a silence.
 
+A topic is silent alone when its age exceeds its timeout, counted from the moment the *least
+overdue* topic should have had its next message (each topic's age less its own period): when
+delivery stalls as a whole (the publisher starved, or this process's receive path), every topic
+ages together, and none is singled out, whatever the phase each stalled at; a slow topic between
+two of its messages is not overdue and delays nothing. Once every topic has been silent for
+:data:`NO_INPUT_S`, each is (total silence).
+
 A topic's silence is logged once when it exceeds the timeout, and again when the topic is back
 ("fresh again after N s"); :meth:`InputWatch.idle_s` is how long every topic has been silent.
 The clock is injectable (tests drive it by hand).
@@ -74,6 +81,10 @@ class TopicWatch:
     @property
     def invalid_values(self) -> int:
         return sum(self.invalid.values())
+
+    def period_s(self) -> float:
+        """Its expected time between messages (s), from the rate it had while it published."""
+        return 1.0 / self.rate_hz_seen if self.rate_hz_seen > 0 else 0.0
 
     def timeout_s(self) -> float:
         r = self.rate_hz_seen
@@ -200,16 +211,19 @@ class InputWatch:
         with self.lock:
             ages = {tw.topic: now - max(self.started_s if tw.last_rx_s is None else tw.last_rx_s, self._resume_s)
                     for tw in self.topics.values() if not tw.optional}
-            # every topic late together for less than NO_INPUT_S: a stall of delivery, the
-            # publisher's or this process's, not one topic's silence (total silence is said at 1 s)
-            collective = bool(ages) and all(ages[t] > self.topics[t].timeout_s() for t in ages) \
-                and min(ages.values()) <= NO_INPUT_S
+            # a topic is silent alone when it is late beyond its timeout *behind the freshest
+            # topic*: a stall of delivery as a whole (the publisher's or this process's) ages every
+            # topic together, whatever the phase each stalled at, and is no topic's silence;
+            # total silence is every topic's once it passes NO_INPUT_S
+            total = min(ages.values(), default=0.0) > NO_INPUT_S
+            freshest = min((max(ages[t] - self.topics[t].period_s(), 0.0) for t in ages), default=0.0)
             for tw in self.topics.values():
                 if tw.optional:
                     continue
                 ref = self.started_s if tw.last_rx_s is None else tw.last_rx_s
                 age = ages[tw.topic]
-                if age > tw.timeout_s() and not collective:
+                behind = age if total else age - freshest
+                if age > tw.timeout_s() and behind > tw.timeout_s():
                     out.append((tw.topic, now - ref))
                     if not tw.silent and tw.last_rx_s is not None:   # (never seen: the source warns)
                         tw.silent, tw.silent_since_s = True, ref
