@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from shared_cache import shared_dir
 from stream_fakes import CLASS_IDS, FakeClassifier, FakeEstimator, FakeTable, _synthetic_windows
 
 from terrainml.classes import TERRAIN_CLASSES as TERRAIN
@@ -29,7 +30,12 @@ def fake_predictor(robot):
 
 @pytest.fixture(scope="session")
 def model_dir(tmp_path_factory):
-    """A tiny verified model folder (SVM on synthetic windows), built with the artifact API."""
+    """A tiny verified model folder (SVM on synthetic windows), built with the artifact API once
+    for every xdist worker (:func:`shared_cache.shared_dir`)."""
+    return shared_dir(tmp_path_factory, "stream-model", _build_tiny_model) / "tiny"
+
+
+def _build_tiny_model(folder):
     from terrainml.features.sets import FeatureSet
     from terrainml.features.windows import WindowSpec
     from terrainml.lookup.table import DesiredSlipTable
@@ -40,11 +46,10 @@ def model_dir(tmp_path_factory):
     wins = _synthetic_windows(robot)
     clf = SVMClassifier(FeatureSet.for_robot(robot), C_grid=[10.0], gamma_grid=["scale"],
                         inner_folds=2).fit(wins, wins.y)
-    out = tmp_path_factory.mktemp("model") / "tiny"
+    out = folder / "tiny"
     save_artifact(out, {"svm": clf}, TrainingProvenance(
                       classes=list(CLASS_IDS), class_names=[TERRAIN[c] for c in CLASS_IDS],
                       channels=list(wins.channels), window_spec=WindowSpec(), robot=robot,
                       training_fingerprint="test"),
                   attachments={"desired_slip_table.json": DesiredSlipTable.build(robot).to_json()})
-    return out
 

@@ -60,6 +60,33 @@ def test_a_topic_paused_longer_than_the_clock_gap_rejoins_the_timeline(sand_msgs
     assert f"topic {topic} publishes again after 5.0 s" in caplog.text
 
 
+def test_a_flush_decides_the_ticks_up_to_the_latest_stamp_and_the_grid_goes_on(sand_msgs):
+    """Every topic silent (the source flushes after 1.5 s of wall time): the ticks up to the latest
+    stamp come out at once instead of waiting for the return; when the messages come back on the
+    timeline the grid goes on, every tick once, in order."""
+    al = LiveAligner(load_topic_map(None), load_robot(), name="t", warmup_wait_s=0.0)
+    t0 = min(int(p["t_ns"][0]) for _, p in sand_msgs)
+    before = [(tp, p) for tp, p in sand_msgs if (int(p["t_ns"][0]) - t0) * 1e-9 <= 5.0]
+    out = []
+    for topic, part in before:
+        al.add(topic, part)
+        out += al.poll()
+    latest = max(int(p["t_ns"][0]) for _, p in before)
+    waiting = (latest - al.t0_ns) * 1e-9 - out[-1]["t_s"]
+    assert waiting > 0.005                               # the last ticks wait for their next messages
+    flushed = al.flush()
+    assert flushed and abs(flushed[-1]["t_s"] - (latest - al.t0_ns) * 1e-9) < 0.0101
+    assert al.flush() == []                              # nothing left to decide
+    out += flushed
+    for topic, part in sand_msgs[len(before):]:          # the topics return (a stalled publisher's backlog)
+        al.add(topic, part)
+        out += al.poll()
+    out += al.finish()
+    steps = np.diff([m["t_s"] for m in out])
+    assert np.allclose(steps, 0.01) and al.stats()["timelines"] == 1
+    assert out[-1]["t_s"] > 11.9
+
+
 def test_the_clock_options_reach_the_aligner(sand_msgs):
     """With G = 30 s a 5-s step of every clock is no jump (one timeline); with G = 1 s it is."""
     def shifted(al):

@@ -135,6 +135,24 @@ def test_one_topic_paused_for_10_s_serves_the_class_again(model_dir, long_log, t
 
 
 @pytest.mark.acceptance
+def test_one_topic_paused_for_120_s_is_taken_back_within_2_s(model_dir, long_log, tmp_path):
+    """/imu silent for 120 s of a 144-s drive (the 24-s log six times, stamps continuing): the
+    group is back within 2 s of the topic's first message, and from 3 s after the return the
+    class is served again on at least 80% of ticks, the class predict serves offline on the log."""
+    offline = _offline(model_dir, long_log)
+    names = [m["terrain_name"] for m in offline.values() if not m["fallback"]]
+    usual = max(set(names), key=names.count)
+    r = Run(model_dir, long_log, tmp_path, "--loop", "6", "--pause-topic", "/imu", "--pause-at-s", "10",
+            "--pause-s", "120")
+    assert "topic /imu publishes again after 120.0 s" in r.err
+    back = [m for m in r.served if m["t_s"] >= 130.0 and m["estimator_ok"]]
+    assert back and back[0]["t_s"] < 132.0
+    late = [m for m in r.served if 133.0 <= m["t_s"]]
+    assert len(late) > 500
+    assert sum(m["terrain_name"] == usual and not m["fallback"] for m in late) >= 0.8 * len(late)
+
+
+@pytest.mark.acceptance
 def test_all_topics_paused_for_10_s_diagnostics_say_no_input(model_dir, long_log, tmp_path):
     r = Run(model_dir, long_log, tmp_path, "--pause-topic", "all", "--pause-at-s", "4", "--pause-s", "10",
             idle_s=30.0)

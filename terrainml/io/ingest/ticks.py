@@ -215,8 +215,13 @@ class TickProducer:
         return {topic: max(self.topic_max[topic] - ts.lateness_ns, every) if topic in self.topic_max else every
                 for topic, ts in self.scan.topics.items()}
 
-    def drain(self, final: bool) -> int:
-        """Emit every settled tick (``final``: every tick up to ``plan.n_ticks``); returns how many."""
+    def drain(self, final: bool, settle: bool = True) -> int:
+        """Emit every settled tick (``final``: every tick up to ``plan.n_ticks``); returns how many.
+
+        ``settle=False`` (live, every source silent): every tick up to the latest stamp now,
+        without waiting for the messages that would settle it -- a source without a message after
+        a tick has it as at the end of a log -- and the grid goes on.
+        """
         if self.all_max is None and not final:
             return 0
         n_ticks = self.plan.n_ticks
@@ -227,7 +232,7 @@ class TickProducer:
             hi = min(int(math.floor((self.all_max - self.t0) * 1e-9 * self.rate_hz + 1e-6)) + 1, n_ticks)
             if hi <= self._next_tick:
                 return 0
-            fronts = self._frontiers_ns()
+            fronts = self._frontiers_ns() if settle else None
         a = self._next_tick
         while self._next_tick < hi:
             g = self._next_tick / self.rate_hz

@@ -29,7 +29,10 @@ What a whole log tells ingest and a live stream cannot know, and how the aligner
   emitted is *late*: counted per topic and, as on the UDP source, not served retroactively (it
   still brackets the ticks after it);
 * **end**: :meth:`LiveAligner.finish` ends the grid at the last stamp, as ingest ends it at the
-  log's last message.
+  log's last message;
+* **total silence**: once every topic has been silent for :data:`FLUSH_AFTER_S` of wall time, the
+  source calls :meth:`LiveAligner.flush`: the ticks up to the latest stamp are decided as at the
+  end of a log (a topic without a message after a tick has it as there), and the grid goes on.
 
 Pauses and clock jumps: a message stamped within ``max_gap_s`` (the clock policy's G, 1 s) of its
 own topic's last stamp, or of the stream's latest stamp, is on the timeline -- so one topic's
@@ -76,6 +79,10 @@ WARMUP_S = 0.5
 RESUME_WALL_S = 0.5
 WARMUP_WAIT_S = 2.0
 REORDER_S = 0.05
+#: every topic silent this long on the wall clock (s): the ticks up to the latest stamp are decided.
+#: Later than ``/diagnostics`` says "no input" (1 s), so those stale ticks are published while the
+#: diagnostics already say ERROR, never beside a status of the time before the silence
+FLUSH_AFTER_S = 1.5
 #: grid length of a live timeline until it ends
 _UNBOUNDED = 2**62
 
@@ -195,6 +202,16 @@ class LiveAligner:
                 self._prod.drain(final=False)
         else:
             self._prod.drain(final=False)
+        out, self._out[:] = self._out[:], []
+        return out
+
+    def flush(self) -> list[dict]:
+        """Every topic silent (on the wall clock, :data:`FLUSH_AFTER_S`): the ticks up to the latest
+        stamp now, without the messages that would settle them (as at the end of a stream); the
+        timeline goes on. Without it those ticks would wait for the return, however late."""
+        if self._prod is None:
+            return []
+        self._prod.drain(final=False, settle=False)
         out, self._out[:] = self._out[:], []
         return out
 

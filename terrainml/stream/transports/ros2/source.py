@@ -34,6 +34,8 @@ Faults (documented behaviour, tested in ``tests/stream/test_ros2_interop.py``):
   a message stamped before a tick already served is counted late (as the UDP source's late samples);
 * a clock jump: handled by the aligner and then the predictor's clock policy (:mod:`.align`).
 
+When every topic has been silent for :data:`~.align.FLUSH_AFTER_S` (1.5 s) of wall time, the ticks
+up to the latest stamp are served then (:meth:`LiveAligner.flush`), not when the topics return.
 The stream ends after ``idle_timeout_s`` without a message (``predict --idle-timeout-s``) or on
 SIGINT/SIGTERM; at the end the remaining ticks up to the last stamp are served. Each sample
 carries ``stamp_origin_ns`` (int): its ROS time is ``stamp_origin_ns + t_s`` (what the ROS 2 sink
@@ -61,7 +63,7 @@ from terrainml.schema import DEFAULT_RATE_HZ
 from terrainml.stream.tick.clock import MAX_GAP_S, REANCHOR_AFTER
 from terrainml.stream.tick.inputs import InputWatch
 from terrainml.stream.tick.sample import Sample, typed_samples
-from terrainml.stream.transports.ros2.align import REORDER_S, WARMUP_S, LiveAligner
+from terrainml.stream.transports.ros2.align import FLUSH_AFTER_S, REORDER_S, WARMUP_S, LiveAligner
 from terrainml.stream.transports.ros2.names import (
     QOS_PROFILES, Ros2NameError, dds_topic_name, dds_type_name, parse_url, qos_for, ros_topic_name,
     ros_type_name,
@@ -304,6 +306,7 @@ def _serve(dp: DomainParticipant, subs: list[_Sub], disc: _Discovery, aligner: L
         ws.attach(ReadCondition(sub.reader, SampleState.NotRead))
     use_header = tmap.stamp == "header"
     last_warn = last_disc = watch.started_s = time.monotonic()    # silence counts from here, not discovery
+    flushed = False
     try:
         while True:
             ws.wait(duration(seconds=WAIT_S))
@@ -318,8 +321,14 @@ def _serve(dp: DomainParticipant, subs: list[_Sub], disc: _Discovery, aligner: L
                 found = disc.poll()
                 if found:
                     log.error("%s", _mismatch_text(spec, disc.by_topic, found))
+            flushed = flushed and not n
             if not n:
                 idle = watch.idle_s(now)
+                if idle >= FLUSH_AFTER_S and not flushed:    # every topic silent: no tick waits for them
+                    flushed = True
+                    for s in aligner.flush():
+                        s[STAMP_ORIGIN_KEY] = aligner.t0_ns
+                        yield from typed_samples((s,), count)
                 if idle_timeout_s and idle >= idle_timeout_s:
                     line = (f"{spec}: idle timeout: no message for {idle:.1f} s (--idle-timeout-s "
                             f"{idle_timeout_s:g}); silent: {watch.silent_text(now)}")
