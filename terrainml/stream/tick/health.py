@@ -160,8 +160,9 @@ class HealthMonitor:
         #: (a live source's :meth:`~terrainml.stream.tick.inputs.InputWatch.group_invalid`); None: unknown
         self.invalid_hint: Callable[[str], bool] | None = None
         self._invalid_now: set[str] = set()  # groups said invalid (not silent) and not yet back
-        #: groups whose values arrived finite on the last tick with their ``{group}_valid`` flag
-        #: false: the source judged them (a tracking camera's low confidence), they are not silent
+        #: groups whose values arrived finite with their ``{group}_valid`` flag false on their last
+        #: tick that was not fresh: the source judged them (a tracking camera's low confidence),
+        #: they are not silent
         self.flagged: set[str] = set()
 
     def reset(self) -> None:
@@ -183,11 +184,8 @@ class HealthMonitor:
             present = [c for c in cols if c in sample]
             key = f"{g}_valid"
             whole = bool(present) and len(present) == len(cols)
-            ok = whole and _flag_true(sample.get(key, True))
-            if whole and not ok and all(_is_finite_number(sample[c]) for c in cols):
-                self.flagged.add(g)          # values arrive, its source marks them invalid
-            else:
-                self.flagged.discard(g)
+            flag_ok = _flag_true(sample.get(key, True))
+            ok = whole and flag_ok
             if ok:
                 for c in cols:
                     v = sample[c]
@@ -204,6 +202,11 @@ class HealthMonitor:
                 for c in cols:
                     out[c] = float(sample[c])
             else:
+                # (read only on a tick the group is not fresh: a fresh tick leaves it as is)
+                if whole and not flag_ok and all(_is_finite_number(sample[c]) for c in cols):
+                    self.flagged.add(g)      # values arrive, its source marks them invalid
+                else:
+                    self.flagged.discard(g)
                 for c in present:
                     out[c] = nan
                 if (present or g in self.monitored) and self.counters is not None:
