@@ -24,7 +24,7 @@ from terrainml.models.calibration import CalibratedModel, Temperature
 from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.models.novelty import NoveltyError, fit_model_novelty, model_features, proba_and_features
 from terrainml.models.svm import SVMClassifier
-from terrainml.models.trees import BoostedTrees
+from terrainml.models.trees import BoostedTrees, to_bins
 from terrainml.robot import load_robot
 from terrainml.stream.tick.classify import WindowClassifier
 from terrainml.testing import kinematic_run, trapezoid_speed
@@ -89,7 +89,7 @@ def _sklearn_proba(model, wins):
         return sum(_sklearn_proba(m, wins) for m in model.members_) / len(model.members_)
     if isinstance(model, SVMClassifier):
         return model.model_.predict_proba(model.transform_features(wins))
-    return model.model_.predict_proba(model.features_.transform(wins))
+    return model.model_.predict_proba(to_bins(model.features_.transform(wins), model.bin_thresholds_))
 
 
 # the fast tier checks the SVM alone and the calibrated average of both models (the boosted trees
