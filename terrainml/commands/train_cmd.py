@@ -103,7 +103,8 @@ def train(
                                           "The served model checks health only on these."),
     folds: int = typer.Option(5, "--folds", help="Outer grouped CV folds (by run)."),
     seed: int = typer.Option(0, "--seed", help="Seed of folds and models."),
-    n_jobs: int = typer.Option(1, "--n-jobs", "-j", help="Parallel jobs (folds; logs when building)."),
+    n_jobs: int = typer.Option(-1, "--n-jobs", "-j", envvar="TERRAINML_N_JOBS",
+                               help="Parallel jobs (fits; logs when building); -1: every core."),
     dask_address: Optional[str] = typer.Option(None, "--dask-address", help="Dask scheduler "
                                                "(tcp://HOST:PORT): the fits (and the dataset build from "
                                                "logs) run on its cluster, whose threads set the "

@@ -124,12 +124,6 @@ def _save(out: Path, ds: Dataset, fitted: dict, served: str, temperature: float,
                          novelty=novelty)
 
 
-def _texts_only(say: ProgressFn) -> ProgressFn:
-    """``say`` for one fold's :func:`~terrainml.pipeline.train.replay_folds` call: its notes pass,
-    its steps (of one fold) do not: the caller reports the folds' steps."""
-    return lambda msg: say(msg) if isinstance(msg, str) else None
-
-
 def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, opt: TrainOptions,
                   say) -> list[dict]:
     """Replay of every outer fold's held-out runs through its calibrated model and its novelty score
@@ -148,14 +142,9 @@ def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, o
                                    & np.isin(W.y, sel.class_ids))
         folds.append((spec, FoldModel(list(o["runs"]), fitted, name, W.subset(train_idx), o["temperature"],
                                       o["chosen"])))
-    out = []
-    for k, (spec, f) in enumerate(folds):  # a fold's spec may differ from another's (chosen per fold)
-        report(say, "served replay", k, len(folds), "folds", f"fold {k + 1}: {len(f.runs)} held-out runs")
-        (res,) = replay_folds([f], data[spec], tables, table, segment_s, opt.seed, _texts_only(say),
-                              opt.novelty_false_alarm)
-        out.append({**res, "fold": k})
-    report(say, "served replay", len(folds), len(folds), "folds")
-    return out
+    # a fold's spec may differ from another's (chosen per fold)
+    return replay_folds([f for _, f in folds], [data[spec] for spec, _ in folds], tables, table, segment_s,
+                        opt.seed, say, opt.novelty_false_alarm, n_jobs=opt.n_jobs)
 
 
 def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str | Path,

@@ -41,6 +41,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
+from joblib import Parallel, delayed, effective_n_jobs
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.evaluation.cv import Scoring, average_results, cross_validate
@@ -216,43 +217,64 @@ def provenance_of(ds: Dataset, classes: Sequence[int],
                               sensors=ds.sensors, feature_family=feature_family(W.channels))
 
 
-def replay_folds(folds: Sequence[FoldModel], ds: Dataset, tables: Sequence[pd.DataFrame], table: Any,
-                 segment_s: float, seed: int, say: Callable[[str], None],
-                 novelty_false_alarm: float = DEFAULT_FALSE_ALARM) -> list[dict]:
+def replay_folds(folds: Sequence[FoldModel], ds: Dataset | Sequence[Dataset], tables: Sequence[pd.DataFrame],
+                 table: Any, segment_s: float, seed: int, say: Callable[[str], None],
+                 novelty_false_alarm: float = DEFAULT_FALSE_ALARM, n_jobs: int = 1) -> list[dict]:
     """Replay of every fold's held-out runs through its model and its novelty score (fitted on the
     fold's training windows only), saved and loaded as ``terrainml predict`` loads them.
 
     A fold model is saved with the classes it was fitted on (a class left out of the folds, e.g.
-    one with a single run, is neither known to it nor among its held-out runs).
+    one with a single run, is neither known to it nor among its held-out runs). ``ds``: the
+    dataset the folds were fitted on, or one per fold (folds of different window specs).
+    ``n_jobs``: folds replayed at once (joblib; each fold's replay is one process's serial tick
+    loop, so folds are the unit of parallel work); the notes of a fold are said when it is done.
 
     Returns
     -------
-    list of dicts per fold: ``fold``, ``chosen``, ``runs`` and :func:`~terrainml.pipeline.replay.
-    replay_course`'s figures, ``replay_s``.
+    list of dicts per fold, in fold order: ``fold``, ``chosen``, ``runs`` and
+    :func:`~terrainml.pipeline.replay.replay_course`'s figures, ``replay_s``.
     """
-    out = []
+    per_fold = [ds] * len(folds) if isinstance(ds, Dataset) else list(ds)
     by_id = {str(t["run_id"].iloc[0]): t for t in tables if len(t)}
-    for k, f in enumerate(folds):
-        runs = [r for r in f.runs if r in by_id]
-        report(say, "served replay", k, len(folds), "folds",
-               f"fold {k + 1}: {len(runs)} held-out runs through the online predictor")
-        if not runs:
-            out.append({"fold": k, "runs": 0, "moving_ticks": 0, "chosen": f.label or f.served})
-            continue
-        model = f.fitted[f.served]
-        novelty = served_novelty(model, f.served, f.train_windows, seed, say, novelty_false_alarm)
-        classes = sorted(int(c) for c in np.asarray(model.classes_).tolist())
-        with TemporaryDirectory() as tmp:
-            save_artifact(Path(tmp) / "m", f.fitted, provenance_of(ds, classes), default_model=f.served,
-                          attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
-                          calibration={f.served: Temperature(f.temperature).to_dict()}, novelty=novelty)
-            course = make_course([by_id[r] for r in runs], runs, segment_s=segment_s)
-            t0 = time.perf_counter()
-            res = replay_course(Path(tmp) / "m", course)
-        out.append({"fold": k, "chosen": f.label or f.served, "runs": len(runs), **res,
-                    "replay_s": time.perf_counter() - t0})
-    report(say, "served replay", len(folds), len(folds), "folds")
+    calls = [delayed(_replay_fold)(k, f, provenance_of(d, _fold_classes(f)),
+                                   [by_id[r] for r in f.runs if r in by_id], table, segment_s, seed,
+                                   novelty_false_alarm)
+             for k, (f, d) in enumerate(zip(folds, per_fold))]
+    at_once = max(1, min(len(folds), effective_n_jobs(n_jobs)))
+    report(say, "served replay", 0, len(folds), "folds",
+           f"{len(folds)} folds' held-out runs through the online predictor, {at_once} at once")
+    out = []
+    for res, notes in Parallel(n_jobs=n_jobs, return_as="generator")(calls):
+        for note in notes:
+            say(note)
+        out.append(res)
+        report(say, "served replay", len(out), len(folds), "folds",
+               f"fold {res['fold'] + 1}: {res['runs']} held-out runs")
     return out
+
+
+def _fold_classes(f: FoldModel) -> list[int]:
+    return sorted(int(c) for c in np.asarray(f.fitted[f.served].classes_).tolist())
+
+
+def _replay_fold(k: int, f: FoldModel, provenance: TrainingProvenance, tables: list, table: Any, segment_s: float,
+                 seed: int, novelty_false_alarm: float) -> tuple[dict, list[str]]:
+    """(figures, notes) of one fold's replay (:func:`replay_folds`); runs in a joblib worker."""
+    notes: list[str] = []
+    runs = [str(t["run_id"].iloc[0]) for t in tables]
+    if not runs:
+        return {"fold": k, "runs": 0, "moving_ticks": 0, "chosen": f.label or f.served}, notes
+    model = f.fitted[f.served]
+    novelty = served_novelty(model, f.served, f.train_windows, seed, notes.append, novelty_false_alarm)
+    with TemporaryDirectory() as tmp:
+        save_artifact(Path(tmp) / "m", f.fitted, provenance, default_model=f.served,
+                      attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
+                      calibration={f.served: Temperature(f.temperature).to_dict()}, novelty=novelty)
+        course = make_course(tables, runs, segment_s=segment_s)
+        t0 = time.perf_counter()
+        res = replay_course(Path(tmp) / "m", course)
+    return {"fold": k, "chosen": f.label or f.served, "runs": len(runs), **res,
+            "replay_s": time.perf_counter() - t0}, notes
 
 
 def _ablation(ds: Dataset, plan: _CVPlan, opt: TrainOptions, table: Any, cv_all: Any) -> pd.DataFrame:
@@ -467,7 +489,8 @@ def _served_replay(ds: Dataset, plan: _CVPlan, default: str, results: dict, tabl
         if len(parts) > 1:
             fitted[default] = ProbabilityAverage.from_fitted(fold_models)
         folds.append(FoldModel(sorted(set(groups[te].tolist())), fitted, default, Wcv.subset(tr)))
-    per_fold = replay_folds(folds, ds, tables, table, serve.segment_s, opt.seed, say, opt.novelty_false_alarm)
+    per_fold = replay_folds(folds, ds, tables, table, serve.segment_s, opt.seed, say, opt.novelty_false_alarm,
+                            n_jobs=opt.n_jobs)
     pooled = pooled_replay([f for f in per_fold if f.get("moving_ticks")])
     refusal = replay_refusal(pooled, serve.min_classified_share)
     return {"folds": per_fold, "pooled": pooled, "refusal": refusal,

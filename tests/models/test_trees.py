@@ -36,3 +36,15 @@ def test_a_value_on_an_edge_falls_in_the_lower_bin_and_nan_stays_missing():
     b = to_bins(np.array([[0.5], [0.6], [-9.0], [9.0], [np.nan]]), edges)
     np.testing.assert_array_equal(b[:4, 0], [0, 1, 0, 3])
     assert np.isnan(b[4, 0])
+
+
+def test_few_windows_are_predicted_as_sklearn_predicts_them():
+    F, y = _features(5)
+    Ftest, _ = _features(6, 200)
+    ours = BoostedTrees(FunctionTransformer(), max_iter=25, learning_rate=0.2).fit_features(
+        F, y, None, FunctionTransformer())
+    ref = ours.model_.predict_proba(to_bins(Ftest, ours.bin_thresholds_))  # sklearn's predictor
+    few = np.concatenate([ours.predict_proba_from_features(Ftest[i:i + 1]) for i in range(len(Ftest))])
+    np.testing.assert_allclose(few, ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ours.predict_proba_from_features(Ftest), ref, rtol=0, atol=1e-12)
+    assert "_forest" not in ours.__getstate__()  # a cache, never saved with the model
