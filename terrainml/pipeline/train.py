@@ -244,7 +244,9 @@ def replay_folds(folds: Sequence[FoldModel], ds: Dataset | Sequence[Dataset], ta
     report(say, "served replay", 0, len(folds), "folds",
            f"{len(folds)} folds' held-out runs through the online predictor, {at_once} at once")
     out = []
-    for res, notes in Parallel(n_jobs=n_jobs, return_as="generator")(calls):
+    # max_nbytes=None: no memmapped arrays in the workers (a model holding one would be saved with
+    # a numpy.memmap, a type loading refuses)
+    for res, notes in Parallel(n_jobs=n_jobs, return_as="generator", max_nbytes=None)(calls):
         for note in notes:
             say(note)
         out.append(res)
