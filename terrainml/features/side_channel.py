@@ -37,10 +37,12 @@ HUSKY_TRACK_M = 0.5708
 
 
 def track_of(robot: RobotSpec) -> float:
-    """Left-right wheel distance B (m): |y| of wheel 1 minus wheel 2 (the Husky's when the robot
-    has a single wheel)."""
-    wheels = robot.wheels
-    return float(abs(wheels[0].y_m - wheels[1].y_m)) if len(wheels) > 1 else HUSKY_TRACK_M
+    """Left-right wheel distance B (m): the spread of the wheels' lateral positions y, the track of
+    a skid-steer robot (the Husky's when the robot's wheels all sit on its centre line, e.g. one
+    wheel: a zero track would divide the yaw rate by zero)."""
+    ys = [w.y_m for w in robot.wheels]
+    spread = float(max(ys) - min(ys)) if ys else 0.0
+    return spread if spread > 0 else HUSKY_TRACK_M
 
 
 def side_channel_features(X: np.ndarray, channels: Sequence[str], rate_hz: float = 100.0,

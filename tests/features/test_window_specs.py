@@ -96,3 +96,13 @@ def test_label_at_end_keeps_a_straddling_window_with_the_newest_terrain():
     assert "label_at" not in window_spec("steady").to_dict()
     with pytest.raises(ValueError, match="label_at"):
         WindowSpec(label_at="start")
+
+
+def test_the_track_is_the_spread_of_the_wheels_lateral_positions():
+    from terrainml.features.side_channel import track_of
+    from terrainml.robot import load_robot
+
+    assert track_of(load_robot("husky")) == pytest.approx(2 * 0.2854)  # wheels at y = +-0.2854 m
+    # the reference robot: two wheels on the centre line (y = 0) and one at y = -0.756 m; the
+    # first two wheels' distance would be 0 and the yaw residual a division by zero
+    assert track_of(load_robot("agrimaro")) == pytest.approx(0.756)
