@@ -506,3 +506,29 @@ def test_a_return_after_total_silence_starts_a_new_timeline_at_once(sand_msgs, m
     assert al.stats()["timelines"] == 2 and not al.stats()["off_timeline"]
     late = [s for s in out if s["t_s"] > 10.0]
     assert late and all(s["imu_valid"] and s["wheels_valid"] for s in late if s["t_s"] < 11.9)
+
+
+def test_a_loop_lag_never_makes_a_silent_topic_look_fresh():
+    """/imu pauses while /wheels goes on, and the process lags 0.3 s every 0.5 s (a busy machine).
+    /imu, overdue when the first lag begins, is silent within its 0.5-s timeout and a lag, and
+    stays silent through every later lag. /wheels, on time at every lag, is never silent."""
+    clock = Clock()
+    w = InputWatch(clock)
+    for topic in ("/imu", "/wheels"):
+        w.add_topic(topic, "sensor_msgs/msg/JointState")
+    for _ in range(200):
+        clock.t += 0.01
+        w.loop(0.01)
+        w.on_message("/imu")
+        w.on_message("/wheels")
+    paused_at, seen = clock.t, []
+    for k in range(400):                      # 4 s of /imu paused
+        clock.t += 0.31 if k % 50 == 49 else 0.01
+        w.loop(0.01)                          # a 0.3-s lag every 0.5 s
+        w.on_message("/wheels")
+        st = {s["name"]: s for s in w.statuses()}
+        seen.append((clock.t - paused_at, st["terrainml: input /imu"]["level"]))
+        assert st["terrainml: input /wheels"]["level"] == 0
+    first = next(i for i, (_, level) in enumerate(seen) if level == 1)
+    assert seen[first][0] <= 0.5 + 0.31 + 0.02               # its timeout, and a lag at most
+    assert all(level == 1 for _, level in seen[first:])

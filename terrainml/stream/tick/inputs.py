@@ -11,8 +11,9 @@ health monitor judge ticks by:
   100 Hz IMU: 0.5 s; a 2 Hz topic: 5 s);
 * **loop lag**: the source reports each pass of its loop (:meth:`InputWatch.loop`). A pass that
   comes later than its wait allows (the process did not run: another process held the CPU, or
-  the predictor worked through a backlog) is a lag; every topic's silence then restarts from
-  the pass after it, and for a grace of twice the lag (at least :data:`MIN_GRACE_S`, at most
+  the predictor worked through a backlog) is a lag; the silence of every topic that was on time
+  when the lag began (within half its timeout) then restarts from the pass after it (a topic
+  overdue then was going silent before the lag, and counts on from its last message), and for a grace of twice the lag (at least :data:`MIN_GRACE_S`, at most
   :data:`MAX_GRACE_S`) the source waits for every topic before a tick is decided without one
   (:meth:`InputWatch.in_grace`). Messages that waited in a reader's queue, or that the process
   could not take, are thus never a silence;
@@ -77,6 +78,7 @@ class TopicWatch:
     silent_since_s: float | None = None
     episodes: int = 0
     last_invalid_s: float | None = None
+    resume_s: float = -math.inf        # the end of the last loop lag that found it on time
 
     @property
     def invalid_values(self) -> int:
@@ -132,6 +134,14 @@ class InputWatch:
                 self.lags += 1
                 self.max_lag_s = max(self.max_lag_s, lag)
                 self._resume_s = now
+                # the lag hides what the process could not take: a topic on time when it began
+                # (within half its timeout) counts its age from now; one overdue then was going
+                # silent before the lag, and goes on counting from its last message (lags every
+                # half second on a busy machine would otherwise never let a paused topic be
+                # silent, and made a silent one look fresh after each)
+                for tw in self.topics.values():
+                    if last is None or self._topic_age(tw, last) <= 0.5 * tw.timeout_s():
+                        tw.resume_s = now
                 self._grace_until_s = now + min(max(2.0 * lag, MIN_GRACE_S), MAX_GRACE_S)
             return lag
         return 0.0
@@ -202,15 +212,19 @@ class InputWatch:
         tw = self.topics[topic]
         if tw.last_rx_s is None:
             return None
-        return now - max(tw.last_rx_s, self._resume_s)
+        return self._topic_age(tw, now)
+
+    def _topic_age(self, tw: TopicWatch, now: float) -> float:
+        """Seconds since the topic's last message (since the start: none yet), from the end of the
+        last loop lag that found it on time."""
+        return now - max(self.started_s if tw.last_rx_s is None else tw.last_rx_s, tw.resume_s)
 
     def update(self, now: float | None = None) -> list[tuple[str, float]]:
         """Judge every topic now: log the new silences; returns the silent ``(topic, age_s)``."""
         now = self.clock() if now is None else now
         out = []
         with self.lock:
-            ages = {tw.topic: now - max(self.started_s if tw.last_rx_s is None else tw.last_rx_s, self._resume_s)
-                    for tw in self.topics.values() if not tw.optional}
+            ages = {tw.topic: self._topic_age(tw, now) for tw in self.topics.values() if not tw.optional}
             # a topic is silent alone when it is late beyond its timeout *behind the freshest
             # topic*: a stall of delivery as a whole (the publisher's or this process's) ages every
             # topic together, whatever the phase each stalled at, and is no topic's silence;
