@@ -13,8 +13,9 @@ health monitor judge ticks by:
   comes later than its wait allows (the process did not run: another process held the CPU, or
   the predictor worked through a backlog) is a lag; the silence of every topic that was on time
   when the lag began (within half its timeout) then restarts from the pass after it (a topic
-  overdue then was going silent before the lag, and counts on from its last message), and for a grace of twice the lag (at least :data:`MIN_GRACE_S`, at most
-  :data:`MAX_GRACE_S`) the source waits for every topic before a tick is decided without one
+  overdue then was going silent before the lag, and counts on from its last message), and for
+  a grace of twice the lag (at least :data:`MIN_GRACE_S`, at most :data:`MAX_GRACE_S`) the
+  source waits for every topic before a tick is decided without one
   (:meth:`InputWatch.in_grace`). Messages that waited in a reader's queue, or that the process
   could not take, are thus never a silence;
 * **invalid values**: NaN or infinite numbers, counted per topic and field (``velocity[left]``,
