@@ -10,7 +10,7 @@ The features are binned here, before the trees see them (:func:`weighted_bin_thr
 weighted percentile, and on BorealTC's 280 side-channel features x 4,500 windows that took 47 of
 the 53 s of a 40-tree fit (cProfile). Computing every edge of a feature in one pass gives the
 same edges, so the trees, probabilities and choice are those of the plain sklearn model (test:
-``test_binned_trees_give_sklearns_probabilities``), at a fraction of the time (BENCHMARKS "Time
+``test_binned_trees_give_sklearns_edges_and_probabilities``), at a fraction of the time (BENCHMARKS "Time
 to an answer").
 """
 
