@@ -105,6 +105,7 @@ def test_cli_train_auto_selects_replays_and_saves_a_calibrated_model(tmp_path):
     assert all(s.classifier.novelty is not None for s in served.members)
 
 
+@pytest.mark.acceptance  # 15 s on the quiet 2-core machine: four replays and two worker processes
 def test_folds_replayed_in_parallel_give_the_serial_figures_in_fold_order(log_dir):
     from terrainml.io.ingest import load_run
     from terrainml.pipeline.dataset import build_from_tables, find_logs

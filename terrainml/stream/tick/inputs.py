@@ -12,7 +12,7 @@ health monitor judge ticks by:
 * **loop lag**: the source reports each pass of its loop (:meth:`InputWatch.loop`). A pass that
   comes later than its wait allows (the process did not run: another process held the CPU, or
   the predictor worked through a backlog) is a lag; the silence of every topic that was on time
-  when the lag began (within half its timeout) then restarts from the pass after it (a topic
+  when the lag began (within :data:`ON_TIME_SHARE` of its timeout) then restarts from the pass after it (a topic
   overdue then was going silent before the lag, and counts on from its last message), and for
   a grace of twice the lag (at least :data:`MIN_GRACE_S`, at most :data:`MAX_GRACE_S`) the
   source waits for every topic before a tick is decided without one
@@ -54,6 +54,9 @@ TIMEOUT_PERIODS = 5.0
 LAG_S = 0.05
 MIN_GRACE_S = 0.2
 MAX_GRACE_S = 2.0
+#: a topic whose age is within this share of its timeout when a loop lag begins is on time: the
+#: lag restarts its silence count (module docstring)
+ON_TIME_SHARE = 0.5
 #: a group whose topic brought invalid values this recently is "invalid values", not "silent", s
 INVALID_RECENT_S = 0.5
 #: arrivals the publishing rate is measured over
@@ -140,8 +143,8 @@ class InputWatch:
                 # silent before the lag, and goes on counting from its last message (lags every
                 # half second on a busy machine would otherwise never let a paused topic be
                 # silent, and made a silent one look fresh after each)
-                for tw in self.topics.values():
-                    if last is None or self._topic_age(tw, last) <= 0.5 * tw.timeout_s():
+                for tw in self.topics.values():   # (a lag needs a pass before: last is set)
+                    if self._topic_age(tw, last) <= ON_TIME_SHARE * tw.timeout_s():
                         tw.resume_s = now
                 self._grace_until_s = now + min(max(2.0 * lag, MIN_GRACE_S), MAX_GRACE_S)
             return lag
