@@ -41,9 +41,9 @@ def load_data(data: Path, *, robot, preset: str, n_jobs: int, dask_address, fmt:
     return ds
 
 
-def load_tables(data: Path, *, robot, fmt: str, quiet: bool, progress=None):
+def load_tables(data: Path, *, robot, fmt: str, quiet: bool, progress=None, n_jobs: int = 1):
     """(ingested run tables, RobotSpec) of a folder of logs or a BorealTC folder; ``progress``
-    gets the stage ``logs`` (per log; BorealTC: the folder at once)."""
+    gets the stage ``logs`` (per log; BorealTC: the folder at once); ``n_jobs``: logs read at once."""
     from terrainml.commands._common import open_robot
     from terrainml.pipeline.progress import report
 
@@ -56,20 +56,13 @@ def load_tables(data: Path, *, robot, fmt: str, quiet: bool, progress=None):
         return borealtc_tables(data, rb, say), rb
     if fmt != "auto":
         fail(f"unknown --format {fmt!r}; expected auto or borealtc")
-    from terrainml.io.ingest import load_run
-    from terrainml.pipeline.dataset import find_logs
+    from terrainml.pipeline.dataset import find_logs, ingest_logs
 
     rb = open_robot(robot)
-    tables, bad = [], []
     logs = find_logs(data)
-    for i, p in enumerate(logs):
-        report(progress, "logs", i, len(logs), "logs", p.name)
-        res = load_run(p, robot=rb)
-        if res.report.usable and len(res.table):
-            tables.append(res.table)
-        else:
-            bad.append(f"{p.name}: {'; '.join(res.report.errors) or 'no usable rows'}")
-    report(progress, "logs", len(logs), len(logs), "logs")
+    report(progress, "logs", 0, len(logs), "logs", f"reading {len(logs)} logs of {data}")
+    tables, bad = ingest_logs(logs, rb, n_jobs=n_jobs,
+                              progress=lambda k, n, name: report(progress, "logs", k, n, "logs", name))
     if bad:
         console.print(f"[yellow]warning:[/] {len(bad)} log(s) unusable, left out: {'; '.join(bad[:5])}"
                       + (" ..." if len(bad) > 5 else ""), highlight=False)

@@ -113,7 +113,10 @@ def train(
     robot: Optional[str] = typer.Option(None, "--robot", help="When building from logs: " + robot_help(
         "the dataset format's robot (husky for borealtc), else the reference robot")),
     fmt: str = typer.Option("auto", "--format", help="auto or borealtc (when --data is a folder)."),
-    ablation: bool = typer.Option(True, "--ablation/--no-ablation", help="SVM feature-set ablation."),
+    ablation: bool = typer.Option(False, "--ablation/--no-ablation", help="Also the SVM feature-set ablation "
+                                  "(kinematic, currents, imu, all on the same folds; report.md, ablation.csv) "
+                                  "with a named svm: 12 more fits. The members already give the figure of the "
+                                  "model without IMU and without currents."),
     members: bool = typer.Option(True, "--members/--no-members", help="Also train, the same way, members "
                                  "for the sensor subsets without IMU and without currents (members/NAME in "
                                  "the folder); serving uses the best one whose sensors are healthy."),
@@ -247,12 +250,13 @@ def _train_fixed(req: TrainRequest) -> None:
                       "of every fold's held-out runs, then fitted on every window; no selection, so no time budget "
                       "(--budget-min is the selection's)", highlight=False)
     try:
-        tables, ds, pre = _fixed_data(req)
-        with StageReporter(console, quiet=req.quiet) as say, _fits_on(src.dask_address, req.quiet):
-            res = do_train(ds, out, req.kinds, opt, req.serve, tables=tables, preflight=pre.doc(), progress=say)
-            names = []
-            if req.members and src.sensors is None:
-                names = _train_members(req, ds, tables, say)
+        with StageReporter(console, quiet=req.quiet) as say:
+            tables, ds, pre = _fixed_data(req, say)
+            with _fits_on(src.dask_address, req.quiet):
+                res = do_train(ds, out, req.kinds, opt, req.serve, tables=tables, preflight=pre.doc(), progress=say)
+                names = []
+                if req.members and src.sensors is None:
+                    names = _train_members(req, ds, tables, say)
     except (typer.Exit, ReplayRefused):
         raise
     except Exception as exc:  # noqa: BLE001 - a message, never a traceback; the folder as the user named it
@@ -262,10 +266,12 @@ def _train_fixed(req: TrainRequest) -> None:
         _print_members(out, names, req.shown)
 
 
-def _fixed_data(req: TrainRequest):
+def _fixed_data(req: TrainRequest, say):
     """(run tables or None, Dataset, Preflight) of the single-spec path: the checks that can refuse
-    run on the runs' labels and names before the windows are cut (once, with every sensor group asked)."""
+    run on the runs' labels and names before the windows are cut (once, with every sensor group
+    asked); ``say``: the stages ``logs`` and ``windows``."""
     from terrainml.pipeline.preflight import check_dataset, check_tables
+    from terrainml.pipeline.progress import report
 
     src, quiet, catalogue = req.source, req.quiet, req.serve.catalogue
     groups = None if src.sensors is None else list(src.sensors)
@@ -274,22 +280,23 @@ def _fixed_data(req: TrainRequest):
         if groups is not None:
             check_sensors(ds, groups)
         return None, ds, check_dataset(ds, catalogue=catalogue, say=_warn(quiet))
-    tables, rb = load_tables(src.data, robot=src.robot, fmt=src.fmt, quiet=quiet)
+    tables, rb = load_tables(src.data, robot=src.robot, fmt=src.fmt, quiet=quiet, progress=say,
+                             n_jobs=req.options.n_jobs)
     if not tables:
         fail(f"{src.data}: no usable run")
     pre = check_tables(tables, rb, catalogue=catalogue, specs=[req.spec], sensors=groups, say=_warn(quiet))
+    report(say, "windows", 0, 1, "specs", f"cutting {len(tables)} runs with the {req.spec.name!r} spec")
     if src.dask_address is not None:  # the build on the cluster, from the logs
         ds = load_data(src.data, robot=src.robot, preset=src.preset, n_jobs=req.options.n_jobs,
-                       dask_address=src.dask_address, fmt=src.fmt, quiet=quiet, spec=req.spec, sensors=groups)
-        return tables, ds, pre
-    from contextlib import nullcontext
+                       dask_address=src.dask_address, fmt=src.fmt, quiet=True, spec=req.spec, sensors=groups)
+    else:
+        from terrainml.pipeline.dataset import build_from_tables
 
-    from terrainml.commands.dataset_cmds import print_class_report, rejection_table
-    from terrainml.pipeline.dataset import build_from_tables
-
-    with console.status("[bold]windows[/] cutting the runs", spinner="dots") if not quiet else nullcontext():
         ds = build_from_tables(tables, rb, src.preset, req.spec, n_jobs=req.options.n_jobs, sensors=groups)
+    report(say, "windows", 1, 1, "specs", f"{len(ds.windows)} windows")
     if not quiet:
+        from terrainml.commands.dataset_cmds import print_class_report, rejection_table
+
         console.print(rejection_table(ds))
         print_class_report(ds)
     return tables, ds, pre
@@ -303,6 +310,17 @@ def _reuses_windows(ds) -> bool:
     return ds.spec.chunk_s is None and not ds.counts.get("channel_valid", 0)
 
 
+def _member_jobs(req: TrainRequest, sensors) -> tuple[int, int]:
+    """(members trained at once, jobs of each): side by side on this machine
+    (:func:`~terrainml.pipeline.members.member_jobs`); one at a time with ``--dask-address``,
+    their fits on the cluster."""
+    from terrainml.pipeline.members import member_jobs, member_subsets
+
+    if req.source.dask_address is not None:
+        return 1, req.options.n_jobs
+    return member_jobs(req.options.n_jobs, len(member_subsets(sensors)))
+
+
 def _train_members(req: TrainRequest, ds, tables, say) -> list[str]:
     """The folder's sensor members, each trained like its model (grouped CV, served replay); a
     member's windows are the model's subset (:func:`_reuses_windows`) or cut again from the run
@@ -313,18 +331,20 @@ def _train_members(req: TrainRequest, ds, tables, say) -> list[str]:
     from terrainml.pipeline.train import train as do_train
 
     exact = _reuses_windows(ds)
-    options = replace(req.options, ablation=False, open_set=False)
+    at_once, jobs = _member_jobs(req, ds.sensors)
+    options = replace(req.options, ablation=False, open_set=False, n_jobs=jobs)
+    inner = say.nested() if at_once == 1 else None  # a worker process has no console
 
     def fit(subset, folder):
         sub = (subset_dataset(ds, subset) if exact or tables is None else
                build_from_tables(tables, ds.robot, ds.preset, replace(ds.spec, channels=None),
-                                 n_jobs=req.options.n_jobs, sensors=subset))
+                                 n_jobs=jobs, sensors=subset))
         try:
-            do_train(sub, folder, req.kinds, options, req.serve, tables=tables, progress=say.nested())
+            do_train(sub, folder, req.kinds, options, req.serve, tables=tables, progress=inner)
         except ReplayRefused as exc:
             raise ValueError(f"its served replay refuses it: {exc}") from None
 
-    return train_members(req.out, ds.sensors, fit, progress=say)
+    return train_members(req.out, ds.sensors, fit, progress=say, n_jobs=at_once)
 
 
 def _print_fixed(res, shown: Path) -> None:
@@ -387,7 +407,8 @@ def _train_auto(req: TrainRequest) -> None:
                 tables, rb, datasets = None, ds.robot, {ds.spec.name: ds}
                 pre = check_dataset(ds, catalogue=catalogue, say=_warn(quiet))
             else:
-                tables, rb = load_tables(src.data, robot=src.robot, fmt=src.fmt, quiet=quiet, progress=say)
+                tables, rb = load_tables(src.data, robot=src.robot, fmt=src.fmt, quiet=quiet, progress=say,
+                                         n_jobs=opt.n_jobs)
                 datasets = None
                 if not tables:
                     fail(f"{src.data}: no usable run")
@@ -422,19 +443,22 @@ def _auto_members(req: TrainRequest, res, tables, rb, say) -> list[str]:
     chosen, ds = res.selection.chosen, res.dataset
     exact = _reuses_windows(ds)
     spec = next(s for s in req.selection.specs if s.name == chosen.spec)
-    options = replace(req.options, open_set=False)
+    sensors = res.train.dataset_summary["sensors"]
+    at_once, jobs = _member_jobs(req, sensors)
+    options = replace(req.options, open_set=False, n_jobs=jobs)
     serve = replace(req.serve, allow_unproven=False)
+    inner = say.nested() if at_once == 1 else None  # a worker process has no console
 
     def fit(subset, folder):
         choice = replace(req.selection, specs=(spec,), models=(chosen.model,), budget_min=None, nested=False,
                          sensors=tuple(subset))
         try:
-            train_auto(tables, rb, folder, options, choice, serve, progress=say.nested(),
+            train_auto(tables, rb, folder, options, choice, serve, progress=inner,
                        datasets={chosen.spec: subset_dataset(ds, subset)} if exact else None)
         except ReplayRefused as exc:
             raise ValueError(f"its served replay refuses it: {exc}") from None
 
-    return train_members(req.out, res.train.dataset_summary["sensors"], fit, progress=say)
+    return train_members(req.out, sensors, fit, progress=say, n_jobs=at_once)
 
 
 def _print_selection(res, out: Path) -> None:

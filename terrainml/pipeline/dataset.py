@@ -42,7 +42,7 @@ from terrainml.io.damage import damage_summary
 from terrainml.io.ingest import load_dataset, load_run
 from terrainml.robot import REFERENCE_ROBOT, RobotSpec, load_robot
 
-__all__ = ["find_logs", "process_log", "build_dataset", "build_from_tables", "Dataset", "RunResult",
+__all__ = ["find_logs", "ingest_logs", "process_log", "build_dataset", "build_from_tables", "Dataset", "RunResult",
            "write_windows", "read_windows", "fingerprint", "DatasetError", "LOG_SUFFIXES", "SENSOR_GROUPS",
            "sensors_of", "class_report", "LOSS_HINT_FRACTION", "DEFAULT_WINDOWS", "FORMAT_ROBOTS",
            "dataset_robot", "resolve_spec", "run_class"]
@@ -210,6 +210,42 @@ def process_log(path: str | Path, robot: RobotSpec, spec: WindowSpec, preset: st
     except Exception as exc:  # noqa: BLE001 - one bad log must not stop a fleet's build
         res.status, res.message = "error", f"{type(exc).__name__}: {exc}"
     return res
+
+
+def ingest_logs(paths: Sequence[str | Path], robot: RobotSpec, n_jobs: int = 1,
+                progress: Callable[[int, int, str], None] | None = None) -> tuple[list[pd.DataFrame], list[str]]:
+    """The ingested run tables of logs (:func:`terrainml.io.ingest.load_run`), in path order.
+
+    Parameters
+    ----------
+    paths : the logs (e.g. :func:`find_logs` of a folder).
+    robot : RobotSpec they are read with.
+    n_jobs : joblib jobs over the logs (-1: every core); the tables are the same for any value.
+    progress : callback ``(done, total, log name)`` after each log, in path order.
+
+    Returns
+    -------
+    (tables of the usable logs, ``"NAME: why"`` of every log left out): a log that cannot be
+    read, or holds no usable row, is named with its ingest errors and never stops the others.
+    """
+    paths = [Path(p) for p in paths]
+    tables, bad = [], []
+    calls = (delayed(_ingest_one)(p, robot) for p in paths)
+    for k, (p, (table, why)) in enumerate(zip(paths, Parallel(n_jobs=n_jobs, return_as="generator")(calls))):
+        if table is None:
+            bad.append(f"{p.name}: {why}")
+        else:
+            tables.append(table)
+        if progress is not None:
+            progress(k + 1, len(paths), p.name)
+    return tables, bad
+
+
+def _ingest_one(path: Path, robot: RobotSpec) -> tuple[pd.DataFrame | None, str]:
+    res = load_run(path, robot=robot)
+    if res.report.usable and len(res.table):
+        return res.table, ""
+    return None, "; ".join(res.report.errors) or "no usable rows"
 
 
 def _describe_run(table: pd.DataFrame, res: RunResult) -> None:

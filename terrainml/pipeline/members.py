@@ -17,12 +17,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
+from joblib import Parallel, delayed, effective_n_jobs
+
 from terrainml.features.windows import channel_sensor_group
 from terrainml.models.artifacts import MEMBERS_DIR, attach_members, write_manifest
 from terrainml.pipeline.dataset import Dataset
 from terrainml.pipeline.progress import report
 
-__all__ = ["MEMBER_DROPS", "member_subsets", "subset_dataset", "train_members"]
+__all__ = ["MEMBER_DROPS", "member_subsets", "member_jobs", "subset_dataset", "train_members"]
 
 #: member name -> the sensor group it does without
 MEMBER_DROPS = {"no_imu": "imu", "no_currents": "currents"}
@@ -45,8 +47,20 @@ def member_subsets(sensors: Sequence[str]) -> dict[str, list[str]]:
     return out
 
 
+def member_jobs(n_jobs: int | None, n_members: int) -> tuple[int, int]:
+    """(members trained at once, joblib jobs of each) for ``n_jobs`` (joblib's, -1: every core).
+
+    A member's own training (grouped CV over a few folds, a final fit, a replay of a few folds)
+    keeps only part of the cores busy: the last round of folds and the final fit run alone. So
+    with several cores the members train side by side, and share out the cores among them.
+    """
+    cores = max(1, effective_n_jobs(n_jobs))
+    at_once = max(1, min(n_members, cores))
+    return at_once, max(1, cores // at_once)
+
+
 def train_members(out: str | Path, sensors: Sequence[str], fit: Callable[[list[str], Path], Any],
-                  progress: Callable[[str], None] | None = None) -> list[str]:
+                  progress: Callable[[str], None] | None = None, n_jobs: int = 1) -> list[str]:
     """Train the members of the model folder ``out`` and list them in its manifest.
 
     Parameters
@@ -59,6 +73,10 @@ def train_members(out: str | Path, sensors: Sequence[str], fit: Callable[[list[s
         through ``progress``.
     progress : callback with a short message and a :class:`~terrainml.pipeline.progress.Step`
         (stage ``members``) per member.
+    n_jobs : members trained at once (joblib worker processes; see :func:`member_jobs`). Above 1,
+        ``fit`` is sent to the workers (it must pickle with cloudpickle: no console, no open
+        file) and should use its share of the cores; the members and the manifest are the same
+        as one at a time.
 
     Returns
     -------
@@ -66,24 +84,36 @@ def train_members(out: str | Path, sensors: Sequence[str], fit: Callable[[list[s
     """
     say = progress or (lambda msg: None)
     out = Path(out)
-    names = []
     subsets = member_subsets(sensors)
-    for i, (name, subset) in enumerate(subsets.items()):
-        report(say, "members", i, len(subsets), "members", f"{name}: training on {','.join(subset)}")
-        folder = out / MEMBERS_DIR / name
-        try:
-            fit(subset, folder)
-        except ValueError as exc:
-            shutil.rmtree(folder, ignore_errors=True)  # nothing half-written stays in the folder
-            say(f"warning: member {name} ({','.join(subset)}) not trained: {exc}")
-            continue
-        names.append(name)
-    report(say, "members", len(subsets), len(subsets), "members")
+    folders = {name: out / MEMBERS_DIR / name for name in subsets}
+    calls = [delayed(_fit_member)(fit, subset, folders[name]) for name, subset in subsets.items()]
+    report(say, "members", 0, len(subsets), "members",
+           f"{', '.join(subsets)}: training on {'; '.join(','.join(s) for s in subsets.values())}")
+    names = []
+    # max_nbytes=None: no memmapped arrays in the workers (a model holding one would be saved with
+    # a numpy.memmap, a type loading refuses)
+    done = Parallel(n_jobs=n_jobs, return_as="generator", max_nbytes=None)(calls) if calls else []
+    for i, ((name, subset), why) in enumerate(zip(subsets.items(), done)):
+        if why:
+            shutil.rmtree(folders[name], ignore_errors=True)  # nothing half-written stays in the folder
+            say(f"warning: member {name} ({','.join(subset)}) not trained: {why}")
+        else:
+            names.append(name)
+        report(say, "members", i + 1, len(subsets), "members", name)
     if names:
         attach_members(out, names)
     else:
         write_manifest(out)  # nothing listed; the folder's file list stays exact
     return names
+
+
+def _fit_member(fit: Callable[[list[str], Path], Any], subset: list[str], folder: Path) -> str:
+    """"" when ``fit`` trained the member, else why not (its ValueError); runs in a joblib worker."""
+    try:
+        fit(subset, folder)
+    except ValueError as exc:
+        return str(exc) or type(exc).__name__
+    return ""
 
 
 def subset_dataset(ds: Dataset, sensors: Sequence[str]) -> Dataset:

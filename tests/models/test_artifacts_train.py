@@ -22,7 +22,8 @@ SMALL = {"svm": {"C_grid": (10.0,), "gamma_grid": ("scale",)},
 @pytest.fixture(scope="module")
 def trained(dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("runs") / "both"
-    res = train(dataset, out, models=("svm", "cnn"), options=TrainOptions(folds=3, seed=0, model_params=SMALL))
+    res = train(dataset, out, models=("svm", "cnn"), options=TrainOptions(folds=3, seed=0, ablation=True,
+                                                                             model_params=SMALL))
     return out, res
 
 

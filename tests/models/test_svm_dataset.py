@@ -8,8 +8,10 @@ import pytest
 
 from terrainml.evaluation.cv import cross_validate
 from terrainml.evaluation.folds import grouped_folds
-from terrainml.pipeline.dataset import (DatasetError, build_dataset, find_logs, read_windows,
+from terrainml.io.ingest import load_run
+from terrainml.pipeline.dataset import (DatasetError, build_dataset, find_logs, ingest_logs, read_windows,
                                       write_windows)
+from terrainml.robot import load_robot
 from terrainml.models.svm import SVMClassifier
 from terrainml.pipeline.train import make_factory
 
@@ -55,6 +57,22 @@ def test_find_logs_ignores_index_and_bad_log_is_counted(log_dir, tmp_path):
     ds = build_dataset(d, "agrimaro")
     st = ds.runs.set_index("source")["status"]
     assert st["zz_broken.parquet"] != "ok" and (st.drop("zz_broken.parquet") == "ok").all()
+
+
+def test_logs_read_in_parallel_are_each_logs_own_table_in_path_order_and_a_bad_log_is_named(log_dir, tmp_path):
+    d = tmp_path / "mixed"
+    d.mkdir()
+    for p in sorted(log_dir.glob("*.parquet"))[:3]:
+        (d / p.name).write_bytes(p.read_bytes())
+    (d / "m_broken.parquet").write_bytes(b"PAR1 this is not parquet")
+    robot, logs = load_robot("agrimaro"), find_logs(d)
+    seen = []
+    tables, bad = ingest_logs(logs, robot, n_jobs=2, progress=lambda k, n, name: seen.append((k, n, name)))
+    good = [p for p in logs if p.name != "m_broken.parquet"]
+    assert len(tables) == 3 and len(bad) == 1 and bad[0].startswith("m_broken.parquet: ")
+    for p, t in zip(good, tables):  # each log's own table, as the ingest engine reads it alone
+        pd.testing.assert_frame_equal(t, load_run(p, robot=robot).table)
+    assert seen == [(k + 1, 4, p.name) for k, p in enumerate(logs)]
 
 
 def test_parallel_and_dask_builds_equal_sequential(log_dir, dataset):

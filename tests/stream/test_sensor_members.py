@@ -70,6 +70,34 @@ def with_member(tmp_path_factory):
     return out
 
 
+def _save_or_refuse(subset, folder):
+    """The ``no_imu`` member, saved; the ``no_currents`` member refused (a ValueError)."""
+    if "currents" not in subset:
+        raise ValueError("no window for this subset")
+    _save(folder, WHEEL_CHANNELS, subset)
+
+
+def test_members_trained_side_by_side_are_those_trained_one_at_a_time(tmp_path):
+    sensors = ["wheels", "currents", "imu"]
+    said = {1: [], 2: []}
+    for n_jobs in (1, 2):
+        out = tmp_path / f"m{n_jobs}"
+        _save(out, SIDE_CHANNEL_NAMES, sensors)
+        assert train_members(out, sensors, _save_or_refuse, progress=lambda m: said[n_jobs].append(str(m)),
+                             n_jobs=n_jobs) == ["no_imu"]
+        assert not (out / "members" / "no_currents").exists()
+    one, two = (json.loads((tmp_path / f"m{k}" / "manifest.json").read_text()) for k in (1, 2))
+    hashless = lambda doc: [{k: v for k, v in m.items() if k != "manifest_sha256"}  # noqa: E731
+                            for m in doc["sensor_members"]]  # (saved files carry their save time)
+    assert hashless(one) == hashless(two)
+    W, _ = _windows(list(WHEEL_CHANNELS), seed=3)
+    probs = [load_artifact(tmp_path / f"m{k}" / "members" / "no_imu").model.predict_proba(W) for k in (1, 2)]
+    np.testing.assert_array_equal(*probs)
+    for lines in said.values():
+        assert "warning: member no_currents (wheels,imu) not trained: no window for this subset" in lines
+        assert lines[-1] == "members 2/2 members (no_currents)"
+
+
 def _drive(duration_s=15.0, current_a=6.0, imu=True, imu_gone_s=None):
     table = kinematic_run(HUSKY, duration_s=duration_s, seed=5, vx=lambda t: trapezoid_speed(t, 1.0, 0.5, 0.5),
                           run_id="drive")
