@@ -179,6 +179,8 @@ def train(
 def _run(req: TrainRequest) -> None:
     """The training of ``req`` into a staging folder published at ``req.shown`` once complete; a
     model the served replay refuses leaves its report beside it (``NAME.refused``)."""
+    if not req.quiet:  # before the pipelines' imports (seconds), so the command answers at once
+        console.print(_first_line(req), highlight=False)
     from terrainml.atomic import publish_folder, staged_folder
     from terrainml.pipeline.replay import ReplayRefused
 
@@ -192,6 +194,21 @@ def _run(req: TrainRequest) -> None:
                 fail(f"{data}: refused: {exc} (report: {refused / 'report.md'})")
     except OSError as exc:
         fail(failure_message(data, exc, out))
+
+
+def _first_line(req: TrainRequest) -> str:
+    """What ``train`` will do and its time budget (the selection's; the fixed path has none)."""
+    folds = req.options.folds
+    if req.selection is None:
+        return (f"train: {', '.join(req.kinds)} under grouped {folds}-fold CV by run, the served replay of every "
+                "fold's held-out runs, then fitted on every window; no selection, so no time budget "
+                "(--budget-min is the selection's)")
+    choice = req.selection
+    return (f"train: choosing the window spec ({','.join(s.name for s in choice.specs)}) and the model "
+            f"({','.join(choice.models)}) under nested run-grouped {folds}-fold CV; time budget "
+            f"{choice.budget_min:g} min (--budget-min): when screening the window specs takes more than half of "
+            "it, only the best spec gets its models (the budget does not stop the run: every kept candidate is "
+            "still scored)")
 
 
 def _train_mode(data: Path, model: str, windows: str) -> tuple[bool, list, list]:
@@ -245,10 +262,6 @@ def _train_fixed(req: TrainRequest) -> None:
     from terrainml.pipeline.train import train as do_train
 
     src, opt, out = req.source, req.options, req.out
-    if not req.quiet:
-        console.print(f"train: {', '.join(req.kinds)} under grouped {opt.folds}-fold CV by run, the served replay "
-                      "of every fold's held-out runs, then fitted on every window; no selection, so no time budget "
-                      "(--budget-min is the selection's)", highlight=False)
     try:
         with StageReporter(console, quiet=req.quiet) as say:
             tables, ds, pre = _fixed_data(req, say)
@@ -393,12 +406,6 @@ def _train_auto(req: TrainRequest) -> None:
     from terrainml.pipeline.preflight import check_dataset, check_tables
 
     src, choice, opt, out, quiet = req.source, req.selection, req.options, req.out, req.quiet
-    if not quiet:
-        console.print(f"train: choosing the window spec ({','.join(s.name for s in choice.specs)}) and the model "
-                      f"({','.join(choice.models)}) under nested run-grouped {opt.folds}-fold CV; time budget "
-                      f"{choice.budget_min:g} min (--budget-min): when screening the window specs takes more than "
-                      "half of it, only the best spec gets its models (the budget does not stop the run: every "
-                      "kept candidate is still scored)", highlight=False)
     catalogue, groups = req.serve.catalogue, None if src.sensors is None else list(src.sensors)
     try:
         with StageReporter(console, quiet=quiet) as say:
