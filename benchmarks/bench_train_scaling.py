@@ -2,7 +2,7 @@
 
 Simulated datasets of 1x, 4x and 16x the runs (``terrainml sim generate --runs-per-class 6/24/96
 --duration-s 20 --format parquet --seed 0``: 48, 192 and 768 runs of the 8 classes; runs of 20 s
-instead of the default 60-120 s, to keep the 16x point within hours on 2 cores) are cut into
+instead of the default 60-120 s, to keep the 16x point within minutes on 2 cores) are cut into
 ``short`` windows once (``terrainml dataset build``, not timed), then the nested run-grouped
 selection of ``train`` (:func:`terrainml.pipeline.autotrain.train_auto` on the windows, as
 ``terrainml train --data W.parquet --model auto`` runs it: no served replay, no members) runs
@@ -21,9 +21,11 @@ With one worker of one thread joblib's Dask backend has one job and runs the fit
 calling process (sequentially), so the 1-worker point is the one-machine, one-core baseline.
 Every point runs with ``OMP_NUM_THREADS=1`` (and the BLAS libraries' equivalents), as Dask's
 worker processes do by default, so that N workers use N cores (the boosted trees' OpenMP threads
-would otherwise take every core in the 1-worker point, and spin on a loaded machine).
+would otherwise take every core in the 1-worker point, and spin on a loaded machine). The
+workers are started without ``MALLOC_TRIM_THRESHOLD_`` (Dask's nanny sets it by default; the
+fits then run about 1.6x slower, docs/models.md), unless ``--dask-env``.
 
-``python -m benchmarks.bench_train_scaling [--scales 1,4,16] [--workers 1,2] [--models auto]``
+``python -m benchmarks.bench_train_scaling [--scales 1,4,16] [--workers 1,2] [--models auto] [--dask-env]``
 prints a Markdown table and writes ``runs/bench_train_scaling/results_x1_4_16.json`` (after
 ``--scales``); the datasets are
 cached in ``runs/bench_train_scaling/`` (``--data-dir``).
@@ -44,6 +46,8 @@ OUT = Path("runs") / "bench_train_scaling"
 RUNS_PER_CLASS_1X = 6
 DURATION_S = 20.0
 FOLDS = 5
+#: the Dask setting of the workers' glibc trim threshold (unset: ``None``)
+WORKER_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 #: one thread per process in every point (what Dask's nanny sets in its workers)
 ONE_THREAD = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
 
@@ -105,11 +109,13 @@ class _PeakRSS:
         self._sample()
 
 
-def point(windows: Path, workers: int, models: str, folds: int) -> dict:
-    """One measurement (run in a fresh process by :func:`main`)."""
+def point(windows: Path, workers: int, models: str, folds: int, dask_env: bool = False) -> dict:
+    """One measurement (run in a fresh process by :func:`main`); ``dask_env``: the workers keep
+    Dask's environment (``MALLOC_TRIM_THRESHOLD_`` set), else it is unset as docs/models.md advises."""
     import resource
     import tempfile
 
+    import dask
     from distributed import LocalCluster
 
     from terrainml.pipeline.autotrain import train_auto
@@ -119,6 +125,8 @@ def point(windows: Path, workers: int, models: str, folds: int) -> dict:
     from terrainml.pipeline.train_options import SelectionOptions, TrainOptions
 
     ds = read_windows(windows)
+    if not dask_env:
+        dask.config.set({WORKER_MALLOC_TRIM: None})
     with _PeakRSS() as rss, tempfile.TemporaryDirectory() as tmp, \
             LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster:
         with dask_jobs(cluster.scheduler_address):
@@ -131,9 +139,11 @@ def point(windows: Path, workers: int, models: str, folds: int) -> dict:
     sel = res.selection
     return {"runs": int(len(set(ds.windows.groups.tolist()))), "windows": int(len(ds.windows)), "workers": workers,
             "models": models, "folds": folds, "wall_s": wall, "select_s": sel.timing_s["total_s"],
+            "fit_s": sel.timing_s["fit_s"],
             "fits": sel.timing_s["fits"], "fits_per_s": sel.timing_s["fits"] / sel.timing_s["total_s"],
             "cpu_s": sum(u.ru_utime + u.ru_stime for u in use), "peak_rss_mb": rss.peak / 2**20,
-            "chosen": sel.chosen.name, "nested_balanced_accuracy": sel.honest["mean"]}
+            "chosen": sel.chosen.name, "nested_balanced_accuracy": sel.honest["mean"],
+            "worker_env": "dask" if dask_env else "no MALLOC_TRIM_THRESHOLD_"}
 
 
 def markdown(rows: list[dict]) -> str:
@@ -154,12 +164,14 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--workers", default="1,2", help="Dask worker processes per point (comma-separated)")
     ap.add_argument("--models", default="auto", help="the selection's models (train --model)")
     ap.add_argument("--folds", type=int, default=FOLDS)
+    ap.add_argument("--dask-env", action="store_true", help="keep Dask's worker environment (MALLOC_TRIM_THRESHOLD_ "
+                    "set; the fits run about 1.6x slower)")
     ap.add_argument("--data-dir", type=Path, default=OUT)
     ap.add_argument("-j", "--n-jobs", type=int, default=2, help="jobs for generating and cutting the data")
     ap.add_argument("--point", type=Path, help=argparse.SUPPRESS)  # internal: one point, JSON on stdout
     a = ap.parse_args(argv)
     if a.point is not None:
-        print(json.dumps(point(a.point, int(a.workers), a.models, a.folds)))
+        print(json.dumps(point(a.point, int(a.workers), a.models, a.folds, a.dask_env)))
         return
     a.data_dir.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -168,7 +180,8 @@ def main(argv: list[str] | None = None) -> None:
         for w in [int(x) for x in a.workers.split(",")]:
             _log(f"{scale}x runs, {w} worker(s), models {a.models}")
             r = subprocess.run([sys.executable, "-m", "benchmarks.bench_train_scaling", "--point", str(windows),
-                                "--workers", str(w), "--models", a.models, "--folds", str(a.folds)],
+                                "--workers", str(w), "--models", a.models, "--folds", str(a.folds),
+                                *(["--dask-env"] if a.dask_env else [])],
                                check=True, capture_output=True, text=True, env={**os.environ, **ONE_THREAD})
             rows.append({"scale": scale, **json.loads(r.stdout.strip().splitlines()[-1])})
             _log(json.dumps(rows[-1]))

@@ -241,13 +241,16 @@ def _warn(quiet: bool):
 def _fits_on(dask_address: Optional[str], quiet: bool) -> Iterator[None]:
     """The fits inside run on the Dask cluster at ``dask_address`` (None: here); exits 2 naming the
     option when the scheduler cannot be reached."""
-    from terrainml.pipeline.cluster import ClusterError, cluster_summary, dask_jobs
+    from terrainml.pipeline.cluster import ClusterError, cluster_summary, dask_jobs, worker_env_note
 
     try:
         with dask_jobs(dask_address) as client:
             if client is not None and not quiet:
                 console.print(f"train: fits run on the Dask cluster at {dask_address} ({cluster_summary(client)})",
                               highlight=False)
+                note = worker_env_note(client)
+                if note:
+                    console.print(f"[cyan]note:[/]{note[len('note:'):]}", highlight=False)
             yield
     except ClusterError as exc:  # only the connection raises it
         fail(f"--dask-address: {exc}")

@@ -11,15 +11,21 @@ back in order, so the figures are the same as on one machine with the same seed.
 
 from __future__ import annotations
 
+import os
 from contextlib import contextmanager
 from typing import Any, Iterator
 
 from joblib import parallel_config
 
-__all__ = ["dask_jobs", "ClusterError", "cluster_summary", "CONNECT_TIMEOUT_S"]
+__all__ = ["dask_jobs", "ClusterError", "cluster_summary", "worker_env_note", "CONNECT_TIMEOUT_S", "MALLOC_TRIM_VAR"]
 
 #: s to wait for the scheduler (distributed retries a refused connection until then)
 CONNECT_TIMEOUT_S = 30.0
+#: glibc's trim threshold, which Dask's nanny sets in every worker it starts (64 KiB by default,
+#: config ``distributed.nanny.pre-spawn-environ``). Setting it at all also fixes glibc's mmap
+#: threshold, so every large temporary array of a fit is mapped and unmapped anew: the boosted
+#: trees' fits ran 1.6x slower in such workers (BENCHMARKS.md "Scaling on Dask").
+MALLOC_TRIM_VAR = "MALLOC_TRIM_THRESHOLD_"
 
 
 class ClusterError(RuntimeError):
@@ -57,3 +63,19 @@ def cluster_summary(client: Any) -> str:
     """``"N workers, M threads"`` of a connected client."""
     cores = client.ncores()
     return f"{len(cores)} worker(s), {sum(cores.values())} thread(s)"
+
+
+def _malloc_trim_setting() -> str | None:
+    return os.environ.get(MALLOC_TRIM_VAR)
+
+
+def worker_env_note(client: Any) -> str:
+    """A ``note:`` naming how many workers set :data:`MALLOC_TRIM_VAR` and how to unset it, or ""."""
+    settings = client.run(_malloc_trim_setting)
+    slow = sorted(w for w, v in settings.items() if v is not None)
+    if not slow:
+        return ""
+    return (f"note: {len(slow)} of {len(settings)} Dask workers run with {MALLOC_TRIM_VAR} set (Dask's default), "
+            "which makes the boosted trees' fits about 1.6x slower; start them with "
+            f"distributed.nanny.pre-spawn-environ.{MALLOC_TRIM_VAR} set to null in their Dask config "
+            "(docs/models.md)")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import re
 
 import pytest
@@ -144,6 +145,32 @@ def test_train_on_a_dask_cluster_gives_the_same_selection(windows_file, plain_ru
     assert sel_d["candidates"] == sel_p["candidates"] and sel_d["outer"] == sel_p["outer"]
     assert sel_d["temperature"] == sel_p["temperature"]
     assert sel_d["timing_s"]["fits"] == sel_p["timing_s"]["fits"]
+
+
+def test_workers_that_set_dasks_trim_threshold_are_named_with_the_setting_that_unsets_it():
+    import dask
+    from distributed import Client, LocalCluster
+
+    from terrainml.pipeline.cluster import MALLOC_TRIM_VAR, worker_env_note
+
+    def note_of_a_fresh_worker() -> str:
+        with LocalCluster(n_workers=1, processes=True, threads_per_worker=1, dashboard_address=":0") as cluster, \
+                Client(cluster) as client:
+            return worker_env_note(client)
+
+    before = os.environ.get(MALLOC_TRIM_VAR)
+    try:
+        with dask.config.set({f"distributed.nanny.pre-spawn-environ.{MALLOC_TRIM_VAR}": None}):
+            assert note_of_a_fresh_worker() == ""
+        # Dask's nanny sets it by default (in its own process too, so this case comes second)
+        note = note_of_a_fresh_worker()
+        assert note.startswith(f"note: 1 of 1 Dask workers run with {MALLOC_TRIM_VAR} set")
+        assert f"distributed.nanny.pre-spawn-environ.{MALLOC_TRIM_VAR} set to null" in note
+    finally:  # the processes this test process starts later keep glibc's default
+        if before is None:
+            os.environ.pop(MALLOC_TRIM_VAR, None)
+        else:
+            os.environ[MALLOC_TRIM_VAR] = before
 
 
 def test_an_unreachable_scheduler_is_named(windows_file, tmp_path, monkeypatch):
