@@ -16,7 +16,7 @@ from terrainml.io.topicmap import load_topic_map
 from terrainml.robot import load_robot
 from terrainml.sim.generate import simulate
 from terrainml.sim.output import write_mcap
-from terrainml.stream.tick.inputs import MIN_TIMEOUT_S, NO_INPUT_S, InputWatch
+from terrainml.stream.tick.inputs import MIN_TIMEOUT_S, InputWatch
 from terrainml.stream.tick.message import DesiredSlip
 from terrainml.stream.transports.ros2.align import LiveAligner
 
@@ -506,36 +506,6 @@ def test_a_return_after_total_silence_starts_a_new_timeline_at_once(sand_msgs, m
     assert al.stats()["timelines"] == 2 and not al.stats()["off_timeline"]
     late = [s for s in out if s["t_s"] > 10.0]
     assert late and all(s["imu_valid"] and s["wheels_valid"] for s in late if s["t_s"] < 11.9)
-
-
-def test_a_loop_lag_never_ends_the_silence_of_every_topic():
-    """Every topic pauses and the process lags 0.3 s every 0.5 s (a busy machine): the total
-    silence (``idle_s``, "no input for N s" in /diagnostics) passes 1 s within a lag of it and
-    grows through every later lag. A lag while the topics are on time restarts it (the process
-    could not take what came)."""
-    clock = Clock()
-    w = InputWatch(clock)
-    for topic in ("/imu", "/wheels"):
-        w.add_topic(topic, "sensor_msgs/msg/JointState")
-    for _ in range(200):
-        clock.t += 0.01
-        w.loop(0.01)
-        w.on_message("/imu")
-        w.on_message("/wheels")
-    clock.t += 0.31
-    w.loop(0.01)                               # a lag with every topic on time: restarts the count
-    assert w.idle_s() == 0.0
-    w.on_message("/imu")
-    w.on_message("/wheels")
-    paused_at, idle = clock.t, []
-    for k in range(400):                       # 4 s of every topic paused
-        clock.t += 0.31 if k % 50 == 49 else 0.01
-        w.loop(0.01)
-        idle.append((clock.t - paused_at, w.idle_s()))
-    first = next(i for i, (_, s) in enumerate(idle) if s > NO_INPUT_S)
-    assert idle[first][0] <= NO_INPUT_S + 0.31 + 0.02
-    assert all(s > NO_INPUT_S for _, s in idle[first:])
-    assert idle[-1][1] == pytest.approx(idle[-1][0], abs=0.32)  # counted from the pause, less a lag at most
 
 
 def test_a_loop_lag_never_makes_a_silent_topic_look_fresh():

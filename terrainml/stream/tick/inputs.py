@@ -29,8 +29,7 @@ two of its messages is not overdue and delays nothing. Once every topic has been
 :data:`NO_INPUT_S`, each is (total silence).
 
 A topic's silence is logged once when it exceeds the timeout, and again when the topic is back
-("fresh again after N s"); :meth:`InputWatch.idle_s` is how long every topic has been silent (a
-loop lag restarts it only when some topic was on time as the lag began).
+("fresh again after N s"); :meth:`InputWatch.idle_s` is how long every topic has been silent.
 The clock is injectable (tests drive it by hand).
 """
 
@@ -138,17 +137,15 @@ class InputWatch:
             with self.lock:
                 self.lags += 1
                 self.max_lag_s = max(self.max_lag_s, lag)
+                self._resume_s = now
                 # the lag hides what the process could not take: a topic on time when it began
                 # (within half its timeout) counts its age from now; one overdue then was going
                 # silent before the lag, and goes on counting from its last message (lags every
                 # half second on a busy machine would otherwise never let a paused topic be
                 # silent, and made a silent one look fresh after each)
-                on_time = [tw for tw in self.topics.values()   # (a lag needs a pass before: last is set)
-                           if self._topic_age(tw, last) <= ON_TIME_SHARE * tw.timeout_s()]
-                for tw in on_time:
-                    tw.resume_s = now
-                if on_time or not self.topics:  # the total silence: the same rule
-                    self._resume_s = now
+                for tw in self.topics.values():   # (a lag needs a pass before: last is set)
+                    if self._topic_age(tw, last) <= ON_TIME_SHARE * tw.timeout_s():
+                        tw.resume_s = now
                 self._grace_until_s = now + min(max(2.0 * lag, MIN_GRACE_S), MAX_GRACE_S)
             return lag
         return 0.0
