@@ -113,10 +113,10 @@ def train(
     robot: Optional[str] = typer.Option(None, "--robot", help="When building from logs: " + robot_help(
         "the dataset format's robot (husky for borealtc), else the reference robot")),
     fmt: str = typer.Option("auto", "--format", help="auto or borealtc (when --data is a folder)."),
-    ablation: bool = typer.Option(False, "--ablation/--no-ablation", help="Also the SVM feature-set ablation "
-                                  "(kinematic, currents, imu, all on the same folds; report.md, ablation.csv) "
-                                  "with a named svm: 12 more fits. The members already give the figure of the "
-                                  "model without IMU and without currents."),
+    ablation: bool = typer.Option(False, "--ablation/--no-ablation", help="With --model svm and one window spec, "
+                                  "also the SVM feature-set ablation: kinematic, currents, imu and all on the same "
+                                  "folds (report.md, ablation.csv; 12 more fits). The members already give the "
+                                  "figure without IMU and without currents."),
     members: bool = typer.Option(True, "--members/--no-members", help="Also train, the same way, members "
                                  "for the sensor subsets without IMU and without currents (members/NAME in "
                                  "the folder); serving uses the best one whose sensors are healthy."),

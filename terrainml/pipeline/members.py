@@ -108,7 +108,7 @@ def train_members(out: str | Path, sensors: Sequence[str], fit: Callable[[list[s
 
 
 def _fit_member(fit: Callable[[list[str], Path], Any], subset: list[str], folder: Path) -> str:
-    """"" when ``fit`` trained the member, else why not (its ValueError); runs in a joblib worker."""
+    """Why ``fit`` did not train the member (its ValueError), or an empty text; runs in a joblib worker."""
     try:
         fit(subset, folder)
     except ValueError as exc:
