@@ -194,11 +194,10 @@ def process_log(path: str | Path, robot: RobotSpec, spec: WindowSpec, preset: st
     res = RunResult(source=path.name, run_id=path.stem)
     try:
         if table is None:
-            ing = load_run(path, robot=robot, rate_hz=spec.rate_hz)
-            if not ing.report.usable or len(ing.table) == 0:
-                res.status, res.message = "unusable", "; ".join(ing.report.errors) or "no usable rows"
+            table, why = _ingest_one(path, robot, spec.rate_hz)
+            if table is None:
+                res.status, res.message = "unusable", why
                 return res
-            table = ing.table
         _describe_run(table, res)
         channels = spec.channels_for(robot)
         if spec.chunk_s is not None:  # fixed chunks: cut over the whole dataset (class balancing)
@@ -241,8 +240,9 @@ def ingest_logs(paths: Sequence[str | Path], robot: RobotSpec, n_jobs: int = 1,
     return tables, bad
 
 
-def _ingest_one(path: Path, robot: RobotSpec) -> tuple[pd.DataFrame | None, str]:
-    res = load_run(path, robot=robot)
+def _ingest_one(path: Path, robot: RobotSpec, rate_hz: float | None = None) -> tuple[pd.DataFrame | None, str]:
+    """(the run table, "") of a usable log, else (None, why not: its ingest errors)."""
+    res = load_run(path, robot=robot) if rate_hz is None else load_run(path, robot=robot, rate_hz=rate_hz)
     if res.report.usable and len(res.table):
         return res.table, ""
     return None, "; ".join(res.report.errors) or "no usable rows"
