@@ -251,6 +251,73 @@ def held_out_seeds(default=EVAL_SEEDS) -> tuple[int, ...]:
         raise ValueError(f"{SEEDS_ENV} must be comma-separated integers, got {text!r}") from None
 
 
+#: the user's model: ``sim generate --runs-per-class 6`` with this seed, then ``train --model svm
+#: --folds 3`` on the logs (windows chosen by ``train``), as a team trains on its first logs
+USER_LOGS_SEED = 101
+USER_RUNS_PER_CLASS = 6
+
+
+def _cli(*args: str) -> None:
+    """``terrainml ARGS`` in a child process, as a user runs it; raises with its stderr's tail."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    exe = Path(sys.executable).with_name("terrainml")
+    res = subprocess.run([str(exe), *args], capture_output=True, text=True)
+    if res.returncode:
+        raise RuntimeError(f"terrainml {' '.join(args)} failed (exit {res.returncode}): {res.stderr[-2000:]}")
+
+
+def user_model(out, runs_per_class: int = USER_RUNS_PER_CLASS, seed: int = USER_LOGS_SEED) -> tuple:
+    """(model folder, wall s): the model a team trains on its first simulated logs, through the
+    CLI: ``sim generate --runs-per-class R --seed S`` then ``train --model svm --folds 3``
+    (``--no-members``: the courses carry every sensor, so no member serves)."""
+    from pathlib import Path
+
+    out = Path(out)
+    t0 = time.perf_counter()
+    _cli("sim", "generate", "--runs-per-class", str(runs_per_class), "--seed", str(seed), "--out", str(out / "logs"))
+    _cli("train", "--data", str(out / "logs"), "--model", "svm", "--folds", "3", "--no-members",
+         "--out", str(out / "model"))
+    return out / "model", time.perf_counter() - t0
+
+
+def replay_courses(model_dir, seeds, duration_s: float = 120.0) -> dict:
+    """Each course of ``seeds`` served through the replay engine of ``train``
+    (:func:`terrainml.pipeline.replay.replay_course`, ``predict``'s settings), pooled per scenario
+    (:func:`terrainml.pipeline.replay.pooled_replay`)."""
+    from terrainml.pipeline.replay import pooled_replay, replay_course
+
+    return {sc: pooled_replay([replay_course(model_dir, _course(sc, seed, duration_s)) for seed in seeds])
+            for sc in ("course_stop_and_go", "mixed")}
+
+
+def user_model_section(seeds, out, duration_s: float = 120.0) -> list[str]:
+    """Markdown: where the ticks of the held-out courses went, served by :func:`user_model`."""
+    from terrainml.evaluation.report import tick_losses_markdown
+
+    model_dir, wall_s = user_model(out)
+    pooled = replay_courses(model_dir, seeds, duration_s)
+    rows = []
+    for sc, p in pooled.items():
+        los = p["losses"]
+        unknown = los["fallback_reasons"].get("unknown_terrain", 0) / max(los["moving_ticks"], 1)
+        rows.append(f"| {sc} | {p['moving_ticks']} | **{p['right_share']:.1%}** | {p['fallback_share']:.1%} | "
+                    f"{unknown:.2%} | {p['median_change_m']:.2f} | {p['classifications_per_m']:.2f} |")
+    return ([f"### The model a team trains on its first logs (`sim generate --runs-per-class {USER_RUNS_PER_CLASS} "
+             f"--seed {USER_LOGS_SEED}`, `train --model svm --folds 3`)", "",
+             f"Trained through the CLI in {wall_s / 60:.1f} min (windows chosen by `train`); the same held-out "
+             f"courses, {duration_s:.0f} s each, served by `train`'s replay engine with `predict`'s settings "
+             "(moving = the predictor's odometer, as in `train`'s report; fallback counted wrong). "
+             "`unknown_terrain` here is unknown ground flagged on known ground (every course terrain is a "
+             "trained class).", "",
+             "| course | moving ticks | served right (>= 92% stop-and-go, >= 94% mixed) | fallback | "
+             "`unknown_terrain` on known ground (<= 1%) | median m to the right class after a change | "
+             "classifications per m |", "|---|---|---|---|---|---|---|", *rows, ""]
+            + tick_losses_markdown([(sc, p["losses"]) for sc, p in pooled.items()], fold_word="course"))
+
+
 def run(quick: bool = False, spec_name: str = "short", seeds=None) -> str:
     import tempfile
     from pathlib import Path
@@ -305,6 +372,8 @@ def run(quick: bool = False, spec_name: str = "short", seeds=None) -> str:
                   f"{parts['features_model']:.3f} ms (of which the model's probabilities "
                   f"{parts['model']:.3f} ms), novelty score {parts['novelty']:.3f} ms, fusion "
                   f"{parts['fusion']:.3f} ms.", ""]
+        if not quick:
+            lines += user_model_section(seeds, Path(tmp) / "user", duration)
     return "\n".join(lines)
 
 

@@ -310,6 +310,57 @@ def test_diagnostics_say_error_no_input_on_total_silence_and_name_each_silent_to
     assert stamp == 1_000_000_000 + 99 * 10_000_000 + 1_500_000_000    # the ROS time moved on with the wall
 
 
+def test_neither_a_total_silence_nor_the_warm_up_after_it_says_ok():
+    """Every topic stops; 1.5 s later the aligner's flush decides the last ticks, and that work
+    delays the loop by 0.3 s. The silence began before the lag, so the lag hides no message: the
+    serving status stays ERROR "no input" from 1 s on, through the lag and after it. When input
+    comes back, the status says WARN "no tick" until the new timeline's first tick, never the last
+    tick's OK. A lag that begins while input flows still restarts the count (a busy process's
+    input is never silent)."""
+    from terrainml.stream.transports.ros2.sink import ERROR, OK, WARN, DiagnosticsState
+
+    clock = Clock()
+    w = InputWatch(clock)
+    for topic in ("/joint_states", "/imu/data"):
+        w.add_topic(topic, "sensor_msgs/msg/Imu")
+    d = DiagnosticsState(load_robot("husky"), ["wheels", "imu"], w)
+    sample = {"wheels_valid": True, "imu_valid": True}
+
+    def flow(seconds):
+        for _ in range(int(round(seconds / 0.01))):
+            clock.t += 0.01
+            w.loop(0.01)
+            w.on_message("/joint_states")
+            w.on_message("/imu/data")
+            d.tick(_msg(clock.t), sample, int(clock.t * 1e9))
+
+    def level():
+        return d.statuses()[1][0]["level"]
+
+    flow(1.0)
+    clock.t += 0.5                        # the process stalls while input flows: a lag
+    w.loop(0.1)
+    assert w.idle_s() == 0.0 and level() == OK
+    flow(1.0)
+    stopped, levels = clock.t, []
+    for k in range(40):                   # 4 s without input; the flush's work at 1.5 s lags 0.3 s
+        clock.t += 0.4 if k == 15 else 0.1
+        assert w.loop(0.1) == pytest.approx(0.3 if k == 15 else 0.0)
+        levels.append((clock.t - stopped, level()))
+    assert w.lags == 2
+    assert all(lv == ERROR for t, lv in levels if t > 1.0 + 1e-9), levels
+    assert w.idle_s() == pytest.approx(clock.t - stopped)
+    for _ in range(50):                   # input is back; the new timeline warms up without a tick
+        clock.t += 0.01
+        w.loop(0.01)
+        w.on_message("/joint_states")
+        w.on_message("/imu/data")
+    serving = d.statuses()[1][0]
+    assert serving["level"] == WARN and serving["message"].startswith("no tick for 4.8 s while input arrives")
+    d.tick(_msg(clock.t), sample, int(clock.t * 1e9))
+    assert level() == OK
+
+
 def _predictor(robot, members=()):
     from stream_fakes import FakeClassifier, FakeEstimator, FakeTable
 

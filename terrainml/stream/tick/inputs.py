@@ -16,8 +16,11 @@ health monitor judge ticks by:
   overdue then was going silent before the lag, and counts on from its last message), and for
   a grace of twice the lag (at least :data:`MIN_GRACE_S`, at most :data:`MAX_GRACE_S`) the
   source waits for every topic before a tick is decided without one
-  (:meth:`InputWatch.in_grace`). Messages that waited in a reader's queue, or that the process
-  could not take, are thus never a silence;
+  (:meth:`InputWatch.in_grace`). The total silence (:meth:`InputWatch.idle_s`) likewise restarts
+  after a lag that began while input flowed (a message within :data:`NO_INPUT_S`); input already
+  silent for longer when the lag began counts on from its last message. Messages that waited in a
+  reader's queue, or that the process could not take, are thus never a silence, and the work a
+  silence brings (the aligner's flush and its last ticks) never hides it;
 * **invalid values**: NaN or infinite numbers, counted per topic and field (``velocity[left]``,
   ``gyro``); a message with them is not a silence.
 
@@ -137,7 +140,12 @@ class InputWatch:
             with self.lock:
                 self.lags += 1
                 self.max_lag_s = max(self.max_lag_s, lag)
-                self._resume_s = now
+                # the lag may hide messages of input that flowed when it began: the total silence
+                # restarts after it; input already silent beyond NO_INPUT_S when it began (the
+                # diagnostics said so) counts on from its last message, so the work the silence
+                # itself brings (the aligner's flush, its late ticks) never turns it back to OK
+                if self._unheard_s(last) <= NO_INPUT_S:
+                    self._resume_s = now
                 # the lag hides what the process could not take: a topic on time when it began
                 # (within half its timeout) counts its age from now; one overdue then was going
                 # silent before the lag, and goes on counting from its last message (lags every
@@ -149,6 +157,12 @@ class InputWatch:
                 self._grace_until_s = now + min(max(2.0 * lag, MIN_GRACE_S), MAX_GRACE_S)
             return lag
         return 0.0
+
+    def _unheard_s(self, now: float) -> float:
+        """Wall seconds at ``now`` since any topic's last message (since the start: none yet),
+        loop lags included."""
+        rx = [tw.last_rx_s for tw in self.topics.values() if tw.last_rx_s is not None]
+        return now - max(rx + [self.started_s])
 
     def in_grace(self, now: float | None = None) -> bool:
         """True shortly after a loop lag: a tick then waits for every topic (module docstring)."""
@@ -269,8 +283,7 @@ class InputWatch:
     def idle_s(self, now: float | None = None) -> float:
         """Wall seconds since any topic's last message (since the start when none came yet)."""
         now = self.clock() if now is None else now
-        rx = [tw.last_rx_s for tw in self.topics.values() if tw.last_rx_s is not None]
-        return now - max(rx + [self.started_s, self._resume_s])
+        return min(self._unheard_s(now), now - self._resume_s)
 
     def silent_text(self, now: float | None = None) -> str:
         """``/imu (3.2 s), /joint_states (3.1 s)``: the silent required topics and how long."""

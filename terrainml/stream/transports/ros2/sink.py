@@ -298,7 +298,10 @@ class DiagnosticsState:
     Serving status ``terrainml: predict``: when every input has been silent for more than
     :data:`~terrainml.stream.tick.inputs.NO_INPUT_S` (1 s; no input topic message, or no tick for a
     source without topics), level ERROR, "no input for N s", whatever the last tick said; else
-    the last tick's: OK "serving CLASS", WARN "fallback: REASON", ERROR "estimator unhealthy".
+    the last tick's: OK "serving CLASS", WARN "fallback: REASON", ERROR "estimator unhealthy",
+    unless that tick is more than ``NO_INPUT_S`` old while input arrives (nothing is served: a
+    new timeline warms up after a total silence, or the aligner waits for a topic), WARN "no tick
+    for N s while input arrives".
     An input topic silent beyond its timeout is its own status at WARN, naming it.
     """
 
@@ -356,6 +359,8 @@ class DiagnosticsState:
         else:
             values = {"sensors_used": ",".join(self.sensors)}
         values["input_silent_s"] = f"{silence:.1f}"
+        if self.tick_wall_s is not None:
+            values["tick_age_s"] = f"{now - self.tick_wall_s:.1f}"
         values["loop_lags"] = str(self.watch.lags)
         values["max_loop_lag_s"] = f"{self.watch.max_lag_s:.3f}"
         if silence > NO_INPUT_S:
@@ -365,6 +370,11 @@ class DiagnosticsState:
                 text += f" ({silent})"
         elif msg is None:
             level, text = WARN, "waiting for the first tick"
+        elif now - self.tick_wall_s > NO_INPUT_S:
+            # input is back but no tick came yet (a new timeline warms up, or a topic lags): the
+            # last tick's status is history, nothing is served
+            level, text = WARN, (f"no tick for {now - self.tick_wall_s:.1f} s while input arrives "
+                                 "(a new timeline warms up, or the aligner waits for a topic)")
         else:
             level = ERROR if not msg.estimator_ok else WARN if msg.fallback else OK
             text = ("estimator unhealthy" if not msg.estimator_ok else
