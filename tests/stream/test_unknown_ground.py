@@ -259,6 +259,34 @@ def test_flags_after_known_ground_enter_unknown_only_once_they_outlast_the_settl
     assert h.unknown
 
 
+def test_a_blip_of_flags_shorter_than_a_confirmation_leaves_known_ground_known():
+    """Hand-worked, 0.25 m between windows: K = 3, U = 4, settle_m = 1 m. A robot that starts
+    again after a stop has a flagged window or two (its drive settling), on ground it knows. Such a
+    blip, shorter than the K windows that confirm a class change, does not end the known ground:
+    the flags of the next terrain change must still outlast the settling. A stretch of K flags
+    does end it, as before."""
+    known, flag = np.array([0.9, 0.1]), (np.array([0.9, 0.1]), True, 2.0)
+
+    def entered_after(blip: int) -> list[bool]:
+        f = TerrainFilter(2, confirm_windows=3, unknown_windows=4, settle_m=1.0)
+        for pattern in ([False] * 8, [True] * blip, [False] * 2):   # 2 m known, a blip, 0.5 m known
+            for flagged in pattern:
+                f.predict(0.25)
+                f.update(*flag) if flagged else f.update(known, False, 0.5)
+        assert not f.unknown
+        out = []
+        for _ in range(6):                                             # the flags of a change
+            f.predict(0.25)
+            f.update(*flag)
+            out.append(f.unknown)
+        return out
+
+    # after a blip of 1 or 2 windows: the stretch lasts 1 m at its fifth window
+    assert entered_after(1) == entered_after(2) == [False, False, False, False, True, True]
+    # after 3 flagged windows, only 0.5 m of known ground: U = 4 windows suffice
+    assert entered_after(3) == [False, False, False, True, True, True]
+
+
 def test_predict_says_unknown_terrain_in_its_json_and_its_summary(folders, drive, tmp_path):
     """``terrainml predict`` end to end (stdin JSON lines in, stdout JSON lines out), recording
     the unknown stretch with ``--record-unknown``."""

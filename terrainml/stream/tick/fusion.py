@@ -49,11 +49,16 @@ forward pass) over the model's K classes whose clock is the odometer:
   ground (the currents of a wheel leaving mud take metres to settle), 0.8-3.7 m of flags on the
   tuning courses. A flagged stretch that begins after ``settle_m`` of known ground therefore
   enters unknown only once it has lasted ``settle_m`` of travel too (odometer of :meth:`predict`);
-  one that begins without known ground before it (start-up, or right after another stretch)
-  needs only its U windows. Ground whose only flags are that settling is not entered: on the
-  tuning courses steady dry_sand (held out) is rarely flagged, so its entries at settle_m = 0
-  came from the change into it, not from the sand. A window without a flag (a model
-  without a novelty scorer) changes nothing here: the filter serves exactly as before.
+  one that begins without known ground before it (start-up, or right after another stretch) needs
+  only its U windows. A blip of fewer than K flagged windows does not end the known ground (a
+  robot starting again after a stop has one or two, its drive settling: on the tuning stop-and-go
+  courses, with a model trained on its first logs, each such blip let the next terrain change
+  enter unknown in U windows; `unknown_terrain` on known ground 3.4% -> 0.9% of moving ticks); K
+  flags in a row do, as they would confirm a class change. Ground whose only flags are that
+  settling is not entered: on the tuning courses steady dry_sand (held out) is rarely flagged, so
+  its entries at settle_m = 0 came from the change into it, not from the sand. A window without a
+  flag (a model without a novelty scorer) changes nothing here: the filter serves exactly as
+  before.
 
 All numbers are finite by construction (``eps`` floors the likelihoods); K-vectors are small and
 each call costs a few microseconds.
@@ -306,7 +311,9 @@ class TerrainFilter:
                                      and self._odometer_m - self._known_since_m >= self.settle_m)
             self._flagged += 1
             return
-        if self._flagged or not math.isfinite(self._known_since_m):
+        # a blip of fewer than K flags (a restart after a stop: the drive settling) leaves the known
+        # ground known; K flags in a row end it, as they would confirm a class change
+        if self._flagged >= self.confirm_windows or not math.isfinite(self._known_since_m):
             self._known_since_m = self._odometer_m
         self._flagged = 0
 
