@@ -14,7 +14,9 @@ interleaved so the course changes terrain between pieces. :func:`replay_course` 
 
 * ``right_share``: share of moving labelled ticks served the labelled class (a fallback tick is
   never right); moving = the predictor's odometer advancing at >=
-  :data:`~terrainml.stream.app.scoring.MOVING_TICK_MPS`, as in
+  :data:`~terrainml.stream.app.scoring.MOVING_TICK_MPS`, or, on an ``estimator_unhealthy`` tick
+  (which the odometer does not count), the wheels' rim speed
+  (:func:`~terrainml.stream.app.scoring.moving_ticks`), as in
   :func:`terrainml.stream.app.scoring.replay_summary`; ``right_share_settled`` leaves out
   ``settle_s`` after each label change;
 * ``fallback_share``: share of moving labelled ticks served a fallback;
@@ -139,7 +141,7 @@ def replay_course(model_dir: str | Path, course: pd.DataFrame, settle_s: float =
     cols = list(course.columns)
     ticks = replay_served(p, (dict(zip(cols, row)) for row in course.itertuples(index=False)))
     scores = score_served(ticks.t_s, ticks.label, ticks.served, ticks.odometer_m, ticks.reasons, settle_s,
-                          ticks.stats)
+                          ticks.stats, ticks.rim_speed_mps)
     scores["losses"] = tick_losses(ticks, settle_s)
     return scores
 

@@ -65,3 +65,23 @@ def test_the_sentence_names_every_kind_that_happened_and_the_fallback_reasons():
     line = losses_sentence(tick_losses(_ticks(), settle_s=1.0))
     assert line.startswith("where the 10 moving ticks went: windows right 80.0% of 10; ticks right 50.0%")
     assert "transition 20.0%" in line and "no window" not in line and "unknown_terrain 10.0%" in line
+
+
+def test_ticks_lost_to_an_unhealthy_estimator_under_way_are_scored_as_its_fallback():
+    """Ticks 8-9 fall back with estimator_unhealthy: the odometer adds no distance there (their
+    speed is not trusted), but the wheels turn at 1 m/s, so they are moving fallbacks, not left
+    out. Tick 10 is unhealthy too with its wheels standing: not moving."""
+    odo = T * 1.0
+    odo[8:11] = odo[7]                             # the odometer holds over the unhealthy ticks
+    odo[11:] = odo[7] + 0.5
+    served = SERVED.copy()
+    served[8:11] = FALLBACK
+    reasons = [""] * 8 + ["estimator_unhealthy"] * 3 + [""]
+    rim = np.array([1.0] * 10 + [0.0, 1.0])
+    msgs = [SimpleNamespace(t_s=float(t), class_probabilities=[1.0, 0.0], classification_age_s=0.2) for t in T]
+    los = tick_losses(ServedTicks(T, LABEL, served, odo, reasons, msgs, {}, ["a", "b"], rim), settle_s=1.0)
+    # moving: ticks 1-7 (odometer), 8-9 (wheels); tick 11 gave no message: 9
+    assert los["moving_ticks"] == 9 and los["fallback_reasons"] == {"estimator_unhealthy": 2}
+    # without the wheels' speed those two would be left out of the score
+    los = tick_losses(ServedTicks(T, LABEL, served, odo, reasons, msgs, {}, ["a", "b"]), settle_s=1.0)
+    assert los["moving_ticks"] == 7 and los["fallback_reasons"] == {}

@@ -11,12 +11,17 @@ served class, fallback reason, label and odometer kept (:class:`ServedTicks`). T
   fallback reason form a segment.
 
 A tick is *moving* when the predictor's odometer advanced at >= :data:`MOVING_TICK_MPS` since the
-tick before (the EKF's body speed, integrated over healthy ticks); only moving labelled ticks
-that were served a message are scored. A fallback tick is never right.
+tick before (the EKF's body speed, integrated over healthy ticks). An unhealthy tick
+(``estimator_unhealthy``: a sensor group the model needs is silent or flagged invalid) adds no
+distance, since its speed is not trusted; it is moving when the mean rim speed of its valid
+wheels is at least that line, so the ticks a robot under way loses to an unhealthy estimator are
+scored (as fallbacks), not left out. Only moving labelled ticks that were served a message are
+scored. A fallback tick is never right.
 """
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,15 +32,16 @@ from rich.console import Console
 from rich.table import Table
 
 from terrainml.robot import RobotSpec
+from terrainml.schema import wheel_col
 from terrainml.stream.app.options import CLASSIFY_LAG_TICKS
 from terrainml.stream.tick.config import ServingConfig
-from terrainml.stream.tick.message import DesiredSlip
+from terrainml.stream.tick.message import ESTIMATOR_UNHEALTHY, DesiredSlip
 from terrainml.stream.tick.predictor import Predictor
 from terrainml.stream.tick.sample import NO_SAMPLE, InvalidSample, Sample
 from terrainml.stream.transports.sources import open_source
 
 __all__ = ["MOVING_TICK_MPS", "NO_MESSAGE", "FALLBACK", "ServedTicks", "replay_served",
-           "moving_ticks", "label_changes", "after_changes", "score_served", "replay_summary"]
+           "moving_ticks", "ticks_moving", "label_changes", "after_changes", "score_served", "replay_summary"]
 
 #: a served tick is scored when the robot's body moved at least this fast since the tick before,
 #: m/s: any tick of a robot under way counts. The novelty gate's line
@@ -62,6 +68,8 @@ class ServedTicks:
     messages : the messages, None where a sample gave none.
     stats : the predictor's end-of-replay counters (:meth:`Predictor.stats`).
     class_names : the served class names by class id.
+    rim_speed_mps : float (n,), m/s, the mean |rim speed| of the sample's valid wheels (NaN when
+        none is valid, or not recorded).
     """
 
     t_s: np.ndarray
@@ -72,6 +80,7 @@ class ServedTicks:
     messages: list[DesiredSlip | None]
     stats: dict[str, Any]
     class_names: list[str]
+    rim_speed_mps: np.ndarray | None = None
 
 
 def _label_of(sample: Sample) -> int:
@@ -89,7 +98,9 @@ def replay_served(predictor: Predictor, samples: Iterable[Any]) -> ServedTicks:
     A sample the predictor refuses (:class:`InvalidSample`, counted in its counters) is a tick
     without a message, at time NaN and without a label.
     """
-    t_s, label, served, odo, reasons, messages = [], [], [], [], [], []
+    t_s, label, served, odo, reasons, messages, rim = [], [], [], [], [], [], []
+    omega = [wheel_col("omega", i) for i in range(1, predictor.robot.n_wheels + 1)]
+    radius_m = float(predictor.robot.wheel_radius_m)
     try:
         for raw in samples:
             try:
@@ -100,6 +111,7 @@ def replay_served(predictor: Predictor, samples: Iterable[Any]) -> ServedTicks:
             t_s.append(sample.t_s)
             label.append(_label_of(sample))
             odo.append(predictor.odometer_m)
+            rim.append(_rim_speed_mps(sample, omega, radius_m))
             messages.append(msg)
             if msg is None:
                 served.append(NO_MESSAGE)
@@ -111,15 +123,35 @@ def replay_served(predictor: Predictor, samples: Iterable[Any]) -> ServedTicks:
         predictor.close()
     return ServedTicks(np.asarray(t_s, dtype=float), np.asarray(label, dtype=np.int64),
                        np.asarray(served, dtype=np.int64), np.asarray(odo, dtype=float), reasons, messages,
-                       predictor.stats(), list(predictor.class_names))
+                       predictor.stats(), list(predictor.class_names), np.asarray(rim, dtype=float))
 
 
-def moving_ticks(t_s: np.ndarray, label: np.ndarray, served: np.ndarray, odometer_m: np.ndarray) -> np.ndarray:
+def _rim_speed_mps(sample: Sample, omega: list[str], radius_m: float) -> float:
+    """Mean |omega| R over the sample's finite wheel speeds, m/s (NaN: none)."""
+    if sample is NO_SAMPLE:
+        return float("nan")
+    w = [abs(float(v)) for c in omega if isinstance(v := sample.columns.get(c), (int, float)) and math.isfinite(v)]
+    return float(np.mean(w)) * radius_m if w else float("nan")
+
+
+def moving_ticks(t_s: np.ndarray, label: np.ndarray, served: np.ndarray, odometer_m: np.ndarray,
+                 reasons: Sequence[str] | None = None, rim_speed_mps: np.ndarray | None = None) -> np.ndarray:
     """Bool (n,): labelled ticks served a message whose odometer speed since the tick before is
-    >= :data:`MOVING_TICK_MPS` (the first tick has no speed)."""
+    >= :data:`MOVING_TICK_MPS` (the first tick has no speed); given ``reasons`` and
+    ``rim_speed_mps`` (n,), also the ``estimator_unhealthy`` ticks whose rim speed is (module
+    docstring)."""
     dt = np.diff(t_s, prepend=t_s[0])
     speed = np.divide(np.diff(odometer_m, prepend=odometer_m[0]), dt, out=np.zeros_like(dt), where=dt > 0)
-    return (speed >= MOVING_TICK_MPS) & (label >= 0) & (served != NO_MESSAGE)
+    moving = speed >= MOVING_TICK_MPS
+    if reasons is not None and rim_speed_mps is not None:
+        unhealthy = np.array([r == ESTIMATOR_UNHEALTHY for r in reasons], dtype=bool)
+        moving |= unhealthy & (np.nan_to_num(rim_speed_mps, nan=0.0) >= MOVING_TICK_MPS)
+    return moving & (label >= 0) & (served != NO_MESSAGE)
+
+
+def ticks_moving(ticks: ServedTicks) -> np.ndarray:
+    """:func:`moving_ticks` of a replay's ticks."""
+    return moving_ticks(ticks.t_s, ticks.label, ticks.served, ticks.odometer_m, ticks.reasons, ticks.rim_speed_mps)
 
 
 def label_changes(label: np.ndarray) -> np.ndarray:
@@ -135,17 +167,18 @@ def after_changes(t_s: np.ndarray, label: np.ndarray, settle_s: float) -> np.nda
     return out
 
 
-def score_served(t, lab, served, odo, reasons, settle_s: float, st: dict) -> dict[str, Any]:
+def score_served(t, lab, served, odo, reasons, settle_s: float, st: dict, rim_speed_mps=None) -> dict[str, Any]:
     """The served-path figures of one replay (:func:`terrainml.pipeline.replay.replay_course`).
 
     Parameters
     ----------
     t, lab, served, odo, reasons : per tick (n,): time s, label, served class, odometer m,
         fallback reason (:class:`ServedTicks`' fields).
+    rim_speed_mps : per tick (n,) or None, m/s: which unhealthy ticks move (:func:`moving_ticks`).
     settle_s : s after each label change left out of ``right_share_settled``.
     st : the predictor's counters (``classifications``, ``distance_m``).
     """
-    moving = moving_ticks(t, lab, served, odo)
+    moving = moving_ticks(t, lab, served, odo, reasons, rim_speed_mps)
     right = served == lab
     change = label_changes(lab)
     settled = ~after_changes(t, lab, settle_s)
@@ -209,7 +242,7 @@ def replay_summary(model: str | Path, log_path: str | Path, *, console: Console 
 
 def _segments(ticks: ServedTicks) -> list[dict[str, Any]]:
     """Runs of served messages with one class and one fallback reason (:func:`replay_summary`)."""
-    moving = moving_ticks(ticks.t_s, ticks.label, ticks.served, ticks.odometer_m)
+    moving = ticks_moving(ticks)
     segments: list[dict[str, Any]] = []
     labels: list[int] = []
     for i, msg in enumerate(ticks.messages):

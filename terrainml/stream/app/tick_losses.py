@@ -30,7 +30,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from terrainml.stream.app.scoring import FALLBACK, ServedTicks, after_changes, moving_ticks
+from terrainml.stream.app.scoring import FALLBACK, ServedTicks, after_changes, ticks_moving
 
 __all__ = ["TICK_KINDS", "tick_losses", "pooled_tick_losses", "losses_sentence"]
 
@@ -78,7 +78,7 @@ def tick_losses(ticks: ServedTicks, settle_s: float) -> dict[str, Any]:
     dict: ``settle_s``; ``moving_ticks``; ``windows`` and ``windows_right`` (counts); ``kinds`` (count per
     :data:`TICK_KINDS`); ``fallback_reasons`` (count per reason, moving ticks only).
     """
-    moving = moving_ticks(ticks.t_s, ticks.label, ticks.served, ticks.odometer_m)
+    moving = ticks_moving(ticks)
     cls, t_win = window_classes(ticks.messages)
     right = ticks.served == ticks.label
     fallback = ticks.served == FALLBACK

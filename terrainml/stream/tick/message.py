@@ -58,10 +58,12 @@ from terrainml.schema import WHEEL_STATES
 
 #: the fallback reason of ground unlike the model's training windows
 UNKNOWN_TERRAIN = "unknown_terrain"
+#: the fallback reason of a tick whose estimator cannot be trusted (its speed is not counted either)
+ESTIMATOR_UNHEALTHY = "estimator_unhealthy"
 #: fallback reasons; their order is the CAN reason code (1, 2, ...) and never changes. Which one a
 #: tick serves when several apply: :data:`terrainml.stream.tick.policy.REASON_PRIORITY`.
 FALLBACK_REASONS: tuple[str, ...] = (
-    "estimator_unhealthy",   # a sensor group silent > 0.2 s, or the estimator state is not finite
+    ESTIMATOR_UNHEALTHY,     # a sensor group silent > 0.2 s, or the estimator state is not finite
     "classifier_error",      # the last classification attempt raised; no usable classification
     "no_classification",     # start-up: no window has been classified yet
     "stale_classification",  # more than stale_m (default 3 m) travelled since the last classification

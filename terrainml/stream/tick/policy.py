@@ -48,7 +48,7 @@ import numpy as np
 
 from terrainml.lookup.wheel_targets import desired_slip_per_wheel, safe_cap_per_wheel
 from terrainml.lookup.table import CLASS_FREE_DETAIL
-from terrainml.stream.tick.message import UNKNOWN_TERRAIN
+from terrainml.stream.tick.message import ESTIMATOR_UNHEALTHY, UNKNOWN_TERRAIN
 
 __all__ = ["REASON_PRIORITY", "NO_CLASS_ID", "NO_CLASS_NAME", "SERVE_P", "GenericSafeCap",
            "PolicyDecision", "ServingPolicy", "safe_cap_for"]
@@ -66,7 +66,7 @@ SOFT_REASONS = ("", "stale_classification", "uncertain_classification")
 STALE = "stale_classification"
 #: the fallback reasons (:data:`terrainml.stream.tick.message.FALLBACK_REASONS`, whose order is
 #: their CAN code), highest priority first: the first that applies is served
-REASON_PRIORITY = ("clock_jump", "estimator_unhealthy", "classifier_error", UNKNOWN_TERRAIN,
+REASON_PRIORITY = ("clock_jump", ESTIMATOR_UNHEALTHY, "classifier_error", UNKNOWN_TERRAIN,
                    "windows_rejected", "no_classification", "stale_classification",
                    "uncertain_classification")
 
@@ -215,7 +215,7 @@ class ServingPolicy:
         if clock_jump:
             return "clock_jump"
         if not estimator_ok:
-            return "estimator_unhealthy"
+            return ESTIMATOR_UNHEALTHY
         if classifier_error and fused.posterior is None:
             return "classifier_error"
         if getattr(fused, "unknown", False):
