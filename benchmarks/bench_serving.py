@@ -346,7 +346,8 @@ def user_model_section(seeds, out, duration_s: float = 120.0) -> list[str]:
              f"--seed {USER_LOGS_SEED}`, `train --model svm --folds 3`)", "",
              f"Trained through the CLI in {wall_s / 60:.1f} min (windows chosen by `train`); the same held-out "
              f"courses, {duration_s:.0f} s each, served by `train`'s replay engine with `predict`'s settings "
-             "(moving = the predictor's odometer, as in `train`'s report; fallback counted wrong). "
+             "(moving = the predictor's odometer, or on an `estimator_unhealthy` tick the wheels' rim speed, as "
+             "in `train`'s report; fallback counted wrong). "
              "`unknown_terrain` here is unknown ground flagged on known ground (every course terrain is a "
              "trained class).", "",
              f"The last column bounds any classifier of the model's {window_s:g} s windows: the share of "
