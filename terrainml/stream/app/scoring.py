@@ -174,9 +174,9 @@ def score_served(t, lab, served, odo, reasons, settle_s: float, st: dict, rim_sp
     ----------
     t, lab, served, odo, reasons : per tick (n,): time s, label, served class, odometer m,
         fallback reason (:class:`ServedTicks`' fields).
-    rim_speed_mps : per tick (n,) or None, m/s: which unhealthy ticks move (:func:`moving_ticks`).
     settle_s : s after each label change left out of ``right_share_settled``.
     st : the predictor's counters (``classifications``, ``distance_m``).
+    rim_speed_mps : per tick (n,) or None, m/s: which unhealthy ticks move (:func:`moving_ticks`).
     """
     moving = moving_ticks(t, lab, served, odo, reasons, rim_speed_mps)
     right = served == lab
