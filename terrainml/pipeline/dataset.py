@@ -40,6 +40,7 @@ from terrainml.features.windows import (RULES, SENSOR_GROUPS, Windows, WindowSpe
                                         channel_sensor_group, cut_windows, window_spec)
 from terrainml.io.damage import damage_summary
 from terrainml.io.ingest import load_dataset, load_run
+from terrainml.schema import DEFAULT_RATE_HZ
 from terrainml.robot import REFERENCE_ROBOT, RobotSpec, load_robot
 
 __all__ = ["find_logs", "ingest_logs", "process_log", "build_dataset", "build_from_tables", "Dataset", "RunResult",
@@ -240,9 +241,9 @@ def ingest_logs(paths: Sequence[str | Path], robot: RobotSpec, n_jobs: int = 1,
     return tables, bad
 
 
-def _ingest_one(path: Path, robot: RobotSpec, rate_hz: float | None = None) -> tuple[pd.DataFrame | None, str]:
+def _ingest_one(path: Path, robot: RobotSpec, rate_hz: float = DEFAULT_RATE_HZ) -> tuple[pd.DataFrame | None, str]:
     """(the run table, "") of a usable log, else (None, why not: its ingest errors)."""
-    res = load_run(path, robot=robot) if rate_hz is None else load_run(path, robot=robot, rate_hz=rate_hz)
+    res = load_run(path, robot=robot, rate_hz=rate_hz)
     if res.report.usable and len(res.table):
         return res.table, ""
     return None, "; ".join(res.report.errors) or "no usable rows"

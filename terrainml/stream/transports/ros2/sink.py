@@ -359,8 +359,9 @@ class DiagnosticsState:
         else:
             values = {"sensors_used": ",".join(self.sensors)}
         values["input_silent_s"] = f"{silence:.1f}"
-        if self.tick_wall_s is not None:
-            values["tick_age_s"] = f"{now - self.tick_wall_s:.1f}"
+        tick_age_s = None if self.tick_wall_s is None else now - self.tick_wall_s
+        if tick_age_s is not None:
+            values["tick_age_s"] = f"{tick_age_s:.1f}"
         values["loop_lags"] = str(self.watch.lags)
         values["max_loop_lag_s"] = f"{self.watch.max_lag_s:.3f}"
         if silence > NO_INPUT_S:
@@ -370,10 +371,10 @@ class DiagnosticsState:
                 text += f" ({silent})"
         elif msg is None:
             level, text = WARN, "waiting for the first tick"
-        elif now - self.tick_wall_s > NO_INPUT_S:
+        elif tick_age_s is not None and tick_age_s > NO_INPUT_S:
             # input is back but no tick came yet (a new timeline warms up, or a topic lags): the
             # last tick's status is history, nothing is served
-            level, text = WARN, (f"no tick for {now - self.tick_wall_s:.1f} s while input arrives "
+            level, text = WARN, (f"no tick for {tick_age_s:.1f} s while input arrives "
                                  "(a new timeline warms up, or the aligner waits for a topic)")
         else:
             level = ERROR if not msg.estimator_ok else WARN if msg.fallback else OK
