@@ -118,8 +118,10 @@ def train(
                                   "folds (report.md, ablation.csv; 12 more fits). The members already give the "
                                   "figure without IMU and without currents."),
     members: bool = typer.Option(True, "--members/--no-members", help="Also train, the same way, members "
-                                 "for the sensor subsets without IMU and without currents (members/NAME in "
-                                 "the folder); serving uses the best one whose sensors are healthy."),
+                                 "for the sensor subsets without IMU, without currents and without the camera "
+                                 "(members/NAME in the folder); serving uses the best one whose sensors are "
+                                 "healthy, e.g. the one without camera while a tracking camera's confidence "
+                                 "is low."),
     open_set: bool = typer.Option(False, "--open-set", help="Also evaluate unknown-ground detection: each class "
                                   "in turn held out of training and scored as the unknown by the served "
                                   "model's novelty (one more CV per class; report.md section, as "

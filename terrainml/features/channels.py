@@ -29,7 +29,8 @@ from terrainml.robot import RobotSpec
 from terrainml.schema import EST_OK, EST_VX, EST_VY, EST_YAW_RATE, est_wheel_col, wheel_col
 
 __all__ = ["BODY_CHANNELS", "IMU_CHANNELS", "SIDE_CHANNEL_NAMES", "SENSOR_GROUPS", "channel_sensor_group",
-           "is_side_channel_set", "side_wheels", "default_channels", "channel_source", "channel_column"]
+           "is_side_channel_set", "side_wheels", "default_channels", "channel_source", "channel_column",
+           "groups_read"]
 
 BODY_CHANNELS = ("vx", "vy", "r")
 IMU_CHANNELS = ("imu_ax", "imu_ay", "imu_az")
@@ -53,6 +54,18 @@ def channel_sensor_group(channel: str) -> str:
     if channel.startswith("imu_"):
         return "imu"
     return "estimator"
+
+
+def groups_read(sensors: Sequence[str], robot: RobotSpec) -> set[str]:
+    """The channel groups (:func:`channel_sensor_group`) a model on the sensor groups ``sensors``
+    reads: those, the wheels', and the estimator's body channels (``vx, vy, r``) unless the robot
+    has a camera the model does without. The camera is the EKF's velocity reference: without it
+    the body velocity is slip-compensated wheel odometry, not the signal a model trained on the
+    camera-aided estimate has seen."""
+    keep = set(sensors) | {"wheels"}
+    if "cam" in keep or robot.camera is None:
+        keep.add("estimator")
+    return keep
 
 
 def is_side_channel_set(channels: Sequence[str]) -> bool:

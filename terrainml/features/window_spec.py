@@ -27,6 +27,7 @@ from terrainml.features.channels import (
     channel_sensor_group,
     channel_source,
     default_channels,
+    groups_read,
 )
 from terrainml.features.window_presets import WINDOW_SPECS
 from terrainml.robot import RobotSpec
@@ -150,7 +151,7 @@ class WindowSpec:
             chans = default_channels(robot)
         if sensors is None:
             return chans
-        keep = set(sensors) | {"estimator", "wheels"}
+        keep = groups_read(sensors, robot)
         out = tuple(c for c in chans if channel_sensor_group(c) in keep)
         if not out:
             raise ValueError(f"no window channel left for sensors {list(sensors)} (channels {list(chans)})")

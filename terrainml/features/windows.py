@@ -21,6 +21,7 @@ from terrainml.features.channels import (BODY_CHANNELS as BODY_CHANNELS, IMU_CHA
                                          channel_column as channel_column,
                                          channel_sensor_group as channel_sensor_group,
                                          channel_source as channel_source, default_channels as default_channels,
+                                         groups_read as groups_read,
                                          is_side_channel_set as is_side_channel_set, side_wheels as side_wheels)
 from terrainml.features.window_spec import (LABEL_AT as LABEL_AT, MOVING_STATES as MOVING_STATES, RULES as RULES,
                                             STEADY_STATES as STEADY_STATES, WHEEL_STATE_MODES as WHEEL_STATE_MODES,
@@ -31,7 +32,7 @@ from terrainml.robot import RobotSpec
 __all__ = ["WindowSpec", "Windows", "cut_windows", "RULES", "WINDOW_SPECS",
            "window_spec", "default_channels", "channel_source",
            "SIDE_CHANNEL_NAMES", "WHEEL_STATE_MODES", "channel_sensor_group", "is_side_channel_set",
-           "channel_column", "side_wheels", "SENSOR_GROUPS"]
+           "channel_column", "side_wheels", "SENSOR_GROUPS", "groups_read"]
 
 
 @dataclass

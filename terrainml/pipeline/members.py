@@ -1,9 +1,10 @@
 """Sensor members of a model folder: the same training on the useful subsets of its sensor groups.
 
 A model trained on every sensor group a robot has serves nothing when one group is missing at
-serving (a robot without its IMU, a log without the currents): its windows need that group's
-channels. So ``terrainml train`` (design §9) also trains, for each useful subset of
-the model's groups (:func:`member_subsets`: without the IMU, without the currents), a member:
+serving (a robot without its IMU, a log without the currents, a tracking camera whose confidence
+drops for a second on wet ground): its windows need that group's channels. So ``terrainml train``
+(design §9) also trains, for each useful subset of the model's groups (:func:`member_subsets`:
+without the IMU, without the currents, without the camera), a member:
 a complete model folder of its own in ``members/NAME/``, made by the very training function
 that made the folder's model (the caller's ``fit``, on data built for that subset), and listed in
 the folder's manifest (:func:`terrainml.models.artifacts.attach_members`). The predictor serves
@@ -19,7 +20,7 @@ from typing import Any, Callable, Sequence
 
 from joblib import Parallel, delayed, effective_n_jobs
 
-from terrainml.features.windows import channel_sensor_group
+from terrainml.features.windows import channel_sensor_group, groups_read
 from terrainml.models.artifacts import MEMBERS_DIR, attach_members, write_manifest
 from terrainml.pipeline.dataset import Dataset
 from terrainml.pipeline.progress import report
@@ -27,7 +28,7 @@ from terrainml.pipeline.progress import report
 __all__ = ["MEMBER_DROPS", "member_subsets", "member_jobs", "subset_dataset", "train_members"]
 
 #: member name -> the sensor group it does without
-MEMBER_DROPS = {"no_imu": "imu", "no_currents": "currents"}
+MEMBER_DROPS = {"no_imu": "imu", "no_currents": "currents", "no_cam": "cam"}
 
 
 def member_subsets(sensors: Sequence[str]) -> dict[str, list[str]]:
@@ -119,13 +120,16 @@ def _fit_member(fit: Callable[[list[str], Path], Any], subset: list[str], folder
 def subset_dataset(ds: Dataset, sensors: Sequence[str]) -> Dataset:
     """The windows of ``ds`` restricted to the channels of the groups ``sensors`` (a windows file).
 
-    The windows kept are those every group of the model allowed: a run without IMU gives no
+    The channels are those the groups read (:func:`~terrainml.features.channels.groups_read`: a
+    member without the camera of a robot that has one also does without the estimator's body
+    channels, whose velocity reference the camera is). The windows kept are those every group of
+    the model allowed: a run without IMU gives no
     window to the member without IMU this way (``train --windows X`` from logs cuts a member's
     own windows instead). The selected default (``train`` with ``--windows auto``) subsets its
     chosen spec's windows, so a member shares the model's windows and run groups and its
     windows are not cut again.
     """
-    keep = set(sensors) | {"wheels", "estimator"}
+    keep = groups_read(sensors, ds.robot)
     chans = [c for c in ds.windows.channels if channel_sensor_group(c) in keep]
     if not chans:
         raise ValueError(f"no window channel left for sensors {list(sensors)}")

@@ -44,6 +44,19 @@ def test_sensor_subsets_restrict_channels():
         window_spec("chunks").channels_for(husky, ["wheels", "lidar"])
 
 
+def test_body_channels_need_the_camera_of_a_robot_that_has_one():
+    """The EKF's body velocity is camera-aided on a robot with a camera: a subset without the
+    camera drops it (the velocity would be wheel odometry at serving); without a camera the
+    body channels are odometry in training and serving alike, and stay."""
+    ref, husky = load_robot("agrimaro"), load_robot("husky")
+    assert ref.has_camera and not husky.has_camera
+    short = window_spec("short")
+    assert short.channels_for(ref, ["wheels", "currents", "imu"]) == (
+        "current_1", "current_2", "current_3", "imu_ax", "imu_ay", "imu_az")
+    assert {"vx", "vy", "r", "slip_1"} <= set(short.channels_for(ref, ["wheels", "imu", "cam"]))
+    assert short.channels_for(husky, ["wheels", "currents"])[-3:] == ("vx", "vy", "r")
+
+
 def _est(states, n=200, speed=1.0, ax=0.0):
     """An EST table of n ticks at 100 Hz, wheel states given per wheel (list of n strings each)."""
     t = np.arange(n) / 100.0

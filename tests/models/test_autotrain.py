@@ -92,13 +92,16 @@ def test_cli_train_auto_selects_replays_and_saves_a_calibrated_model(tmp_path):
     nov = json.loads((out / "manifest.json").read_text())["novelty"]
     assert nov["model"] == "hgb" and nov["threshold"] > 0
     assert served.classifier.novelty is not None
-    # the sensor members: the chosen spec and model again without the IMU and
-    # without the currents, each validated like the model, listed in the manifest, served
+    # the sensor members: the chosen spec and model again without the IMU, without the
+    # currents and without the camera, each validated like the model, listed in the manifest, served
     members = json.loads((out / "manifest.json").read_text()).get("sensor_members", [])
     assert members, "default train made no sensor member"
     for m in members:
-        dropped = {"no_imu": "imu", "no_currents": "currents"}[m["name"]]
+        dropped = {"no_imu": "imu", "no_currents": "currents", "no_cam": "cam"}[m["name"]]
         assert dropped not in m["sensors"] and "wheels" in m["sensors"]
+        chans = json.loads((out / m["path"] / "manifest.json").read_text())["channels"]
+        # without the camera, the EKF's body velocity is another signal: no body channel either
+        assert ("vx" in chans) == (m["name"] != "no_cam"), (m["name"], chans)
         mrep = json.loads((out / m["path"] / "report.json").read_text())
         assert mrep["chosen"] == "short/hgb" and mrep["replay"]["refusal"] == ""
     assert sorted(s.name for s in served.members) == sorted(m["name"] for m in members)

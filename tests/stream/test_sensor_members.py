@@ -22,7 +22,7 @@ from terrainml.models.artifacts import (ArtifactError, TrainingProvenance, attac
                                         save_artifact)
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.members import member_subsets, train_members
-from terrainml.robot import load_robot
+from terrainml.robot import CameraSpec, load_robot
 from terrainml.stream.tick.classify import ModelLoadError, load_serving_model
 from terrainml.stream.tick.predictor import Predictor
 from terrainml.stream.transports.sources import iter_table_samples
@@ -49,12 +49,12 @@ def _windows(channels, seed=0, n=120):
     return Windows(X, tuple(channels), meta, spec.rate_hz), spec
 
 
-def _save(folder, channels, sensors, seed=0):
+def _save(folder, channels, sensors, seed=0, robot=HUSKY):
     W, spec = _windows(list(channels), seed)
-    model = BoostedTrees(SideChannelFeatures(rate_hz=100.0, track_m=track_of(HUSKY)), random_state=0,
+    model = BoostedTrees(SideChannelFeatures(rate_hz=100.0, track_m=track_of(robot)), random_state=0,
                          max_iter=20).fit(W, W.y)
     save_artifact(folder, {"hgb": model}, TrainingProvenance(
-                      classes=[0, 1], class_names=NAMES, channels=channels, window_spec=spec, robot=HUSKY,
+                      classes=[0, 1], class_names=NAMES, channels=channels, window_spec=spec, robot=robot,
                       training_fingerprint="test", sensors=sensors, feature_family="side_channel"),
                   metrics_summary={"hgb": {"balanced_accuracy": {"mean": 0.9, "std": 0.0}}})
 
@@ -98,9 +98,9 @@ def test_members_trained_side_by_side_are_those_trained_one_at_a_time(tmp_path):
         assert lines[-1] == "members 2/2 members (no_currents)"
 
 
-def _drive(duration_s=15.0, current_a=6.0, imu=True, imu_gone_s=None):
-    table = kinematic_run(HUSKY, duration_s=duration_s, seed=5, vx=lambda t: trapezoid_speed(t, 1.0, 0.5, 0.5),
-                          run_id="drive")
+def _drive(duration_s=15.0, current_a=6.0, imu=True, imu_gone_s=None, robot=HUSKY, cam_dropouts=()):
+    table = kinematic_run(robot, duration_s=duration_s, seed=5, vx=lambda t: trapezoid_speed(t, 1.0, 0.5, 0.5),
+                          run_id="drive", cam_dropouts=cam_dropouts)
     rng = np.random.default_rng(1)
     for i in range(1, 5):
         table[f"wheel{i}_current_a"] = current_a + rng.normal(0, 0.1, len(table))
@@ -122,7 +122,9 @@ def _serve(folder, table):
 def test_member_subsets_drop_the_imu_or_the_currents_and_keep_a_signature():
     assert member_subsets(["wheels", "currents", "imu"]) == {"no_imu": ["wheels", "currents"],
                                                               "no_currents": ["wheels", "imu"]}
-    assert member_subsets(["wheels", "currents", "imu", "cam"])["no_imu"] == ["wheels", "currents", "cam"]
+    assert member_subsets(["wheels", "currents", "imu", "cam"]) == {
+        "no_imu": ["wheels", "currents", "cam"], "no_currents": ["wheels", "imu", "cam"],
+        "no_cam": ["wheels", "currents", "imu"]}
     assert member_subsets(["wheels", "currents"]) == {}  # wheel speeds alone: no member
     assert member_subsets(["wheels", "imu"]) == {}
 
@@ -190,6 +192,34 @@ def test_an_imu_lost_midway_hands_over_to_the_member_without_a_gap(with_member):
     # the fused class carries over the switch: no tick after it falls back
     assert all(not m.fallback and m.terrain_name == "SNOW" for m in after)
     assert p.stats()["member_switches"] == 1
+
+
+def test_a_camera_dropout_hands_over_to_the_member_without_camera(tmp_path):
+    """A tracking camera lost for 1.5 s (a confidence drop on wet ground): the model needs the
+    camera, its member ``no_cam`` does not. The EKF's own health flag needs the camera fresh, so
+    the member, which does without it, must not read that flag: it serves the class through the
+    dropout instead of ``estimator_unhealthy``, and the model serves again once the camera is back."""
+    robot = replace(HUSKY, camera=CameraSpec(x_m=0.3, y_m=0.0))
+    every = ["wheels", "currents", "imu", "cam"]
+    out = tmp_path / "m"
+    _save(out, SIDE_CHANNEL_NAMES, every, robot=robot)
+
+    def only_no_cam(subset, folder):
+        if "cam" in subset:
+            raise ValueError("only no_cam here")
+        _save(folder, SIDE_CHANNEL_NAMES, subset, robot=robot)
+
+    assert train_members(out, every, only_no_cam) == ["no_cam"]
+    p, msgs = _serve(out, _drive(duration_s=20.0, robot=robot, cam_dropouts=((10.0, 11.5),)))
+    t = np.array([m.t_s for m in msgs])
+    during = [m for m, tt in zip(msgs, t) if 10.25 <= tt < 11.5]
+    after = [m for m, tt in zip(msgs, t) if tt >= 11.75]
+    assert {tuple(m.sensors) for m in during} == {("wheels", "currents", "imu")}
+    assert all(not m.fallback and m.terrain_name == "SNOW" for m in during), \
+        {m.fallback_reason for m in during}
+    assert {tuple(m.sensors) for m in after} == {tuple(every)}
+    assert all(not m.fallback for m in after)
+    assert p.stats()["member_switches"] == 2
 
 
 def test_predict_on_a_log_without_the_imu_serves_the_member_from_the_first_tick(with_member, tmp_path, capsys):

@@ -117,8 +117,9 @@ class Predictor:
         self.counters = InputCounters()
         self.clock = ClockGate(self.counters, max_gap_s=cfg.max_clock_gap_s,
                                reanchor_after=cfg.reanchor_after)
-        # health only on the model's sensor groups (design §9): a model without IMU does not read the
-        # EKF's flag, whose freshness rule needs the IMU (a silent group still makes a tick unhealthy)
+        # health only on the model's sensor groups (design §9): a model without IMU, or without the
+        # camera of a robot that has one, does not read the EKF's flag, whose freshness rule needs
+        # both (a silent group still makes a tick unhealthy)
         self.health = HealthMonitor(robot, silent_s=cfg.silent_s, sensors=sensors)
         self.health.counters = self.counters
         self.sensors = None if sensors is None else list(sensors)
@@ -126,7 +127,10 @@ class Predictor:
         self.switch = MemberSwitch([candidate("model", classifier, self.window_spec, sensors, mon),
                                     *(candidate(m.name, m.classifier, m.window_spec, m.sensors, mon)
                                       for m in members)])
-        self._estimator_flag = "imu" in self.switch.active.groups
+        #: the health groups the EKF's own flag needs fresh (its ``fresh_ok``): the IMU, and the
+        #: camera on a robot that has one
+        self._flag_groups = frozenset({"imu", "cam"} if robot.has_camera else {"imu"})
+        self._estimator_flag = self._flag_groups <= self.switch.active.groups
         #: sensor groups of the model (or member) serving the ticks (the message's ``sensors``)
         self.served_sensors = list(self.switch.active.sensors)
         self.odometer = Odometer(robot.has_steering or self._estimator_flag)
@@ -241,8 +245,8 @@ class Predictor:
                 log.warning("estimator row unreadable at t=%.3f s: %s", t, exc)
                 est_ok = False
             if not self._estimator_flag:
-                # the EKF's own flag needs a fresh IMU; a model without it reads the body channels
-                # of its windows as valid on the ticks that are healthy on its own groups
+                # the EKF's own flag needs a fresh IMU (and camera); a model without one reads the
+                # body channels of its windows as valid on the ticks healthy on its own groups
                 row = row.with_flag(est_ok)
             self.ring.append(row)
         if wheels is None:   # no row, or one that cannot be read: every wheel idle
@@ -301,7 +305,7 @@ class Predictor:
     def _serve_with(self, c: Candidate, silent: Sequence[str], t: float, announce: bool = True) -> None:
         """Classify with the model or member ``c`` from this tick on (its groups are fresh)."""
         self.scheduler.use(c.classifier, c.window_spec.online_hop_s, c.window_spec.n_samples)
-        self._estimator_flag = "imu" in c.groups
+        self._estimator_flag = self._flag_groups <= c.groups
         self.odometer.lateral_observed = self.robot.has_steering or self._estimator_flag
         self.served_sensors = list(c.sensors)
         if announce:
