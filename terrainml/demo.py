@@ -8,7 +8,8 @@ Steps, each a small function taking and returning plain objects:
    scenarios);
 3. ``dataset build``: ingest -> 12-state EKF -> slip and wheel state -> windows of the default
    spec (``short``: 1 s windows that exist in stop-and-go, design §8);
-4. ``train``: SVM under grouped cross-validation by run, report and artifact with manifest;
+4. ``train``: SVM under grouped cross-validation by run, report and artifact with manifest, and
+   its sensor members (without IMU, without currents, without the camera) as ``train`` makes them;
 5. ``predict``: a held-out mixed-terrain course (terrain transitions, a seed never trained on)
    replayed through the online predictor; what it served is printed against the truth.
 
@@ -19,6 +20,8 @@ the acceptance-size experiments live in ``benchmarks/``.
 
 from __future__ import annotations
 
+import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +34,7 @@ from terrainml.io.ingest import load_run
 from terrainml.io.inspect import inspect_log
 from terrainml.io.mcap_writer import write_run_mcap
 from terrainml.pipeline.dataset import build_dataset, write_windows
+from terrainml.pipeline.members import fixed_fit, member_jobs, member_subsets, train_members
 from terrainml.pipeline.replay import SETTLE_S
 from terrainml.pipeline.train_options import TrainOptions
 from terrainml.pipeline.train import train
@@ -152,12 +156,18 @@ def step_build(logs: Path, out: Path, robot: RobotSpec, console: Console, n_jobs
     return ds
 
 
-def step_train(ds, out: Path, seed: int, console: Console, folds: int = 5) -> Path:
-    """4. SVM, grouped CV by run, report and artifact."""
+def step_train(ds, out: Path, seed: int, console: Console, folds: int = 5, n_jobs: int = 2) -> Path:
+    """4. SVM, grouped CV by run, report and artifact, and its sensor members (served while a
+    sensor group is missing, e.g. the tracking camera at low confidence)."""
     model_dir = out / "model"
+    options = TrainOptions(folds=folds, seed=seed, n_jobs=n_jobs, ablation=False)
+    say = lambda msg: console.log(str(msg))  # noqa: E731 - a Step reads as its text
     with console.status("training SVM (grouped cross-validation by run)..."):
-        res = train(ds, model_dir, ("svm",), TrainOptions(folds=folds, seed=seed, n_jobs=2, ablation=False),
-                    progress=lambda msg: console.log(str(msg)))  # a Step reads as its text
+        res = train(ds, model_dir, ("svm",), options, progress=say)
+    at_once, jobs = member_jobs(n_jobs, len(member_subsets(ds.sensors)))
+    with console.status("training its sensor members..."):
+        names = train_members(model_dir, ds.sensors, fixed_fit(ds, ("svm",), replace(options, n_jobs=jobs)),
+                              progress=say, n_jobs=at_once)
     summary = (res.manifest.get("metrics_summary") or {}).get("svm", {})
     console.print(f"model: {model_dir} (report: {model_dir / 'report.md'})", highlight=False)
     if summary:
@@ -165,6 +175,10 @@ def step_train(ds, out: Path, seed: int, console: Console, folds: int = 5) -> Pa
             f"{k.replace('_', ' ')} {summary[k]['mean']:.3f} ± {summary[k]['std']:.3f}"
             for k in ("balanced_accuracy", "macro_f1", "desired_slip_error_mean") if k in summary),
             highlight=False)
+    members = {m["name"]: m for m in json.loads((model_dir / "manifest.json").read_text()).get("sensor_members", [])}
+    console.print("sensor members (grouped CV balanced accuracy): " + ", ".join(
+        f"{n} on {','.join(members[n]['sensors'])} {members[n]['balanced_accuracy']:.3f}" for n in names),
+        highlight=False)
     return model_dir
 
 

@@ -320,14 +320,6 @@ def _fixed_data(req: TrainRequest, say):
     return tables, ds, pre
 
 
-def _reuses_windows(ds) -> bool:
-    """Whether a sensor member's windows are the model's with the member's channels
-    (``subset_dataset``): when cutting them again would give the same windows, i.e. no window was
-    rejected for an invalid channel (the only window rule that reads the channels) and the spec
-    is not chunked (chunks span the runs that hold its columns)."""
-    return ds.spec.chunk_s is None and not ds.counts.get("channel_valid", 0)
-
-
 def _member_jobs(req: TrainRequest, sensors) -> tuple[int, int]:
     """(members trained at once, jobs of each): side by side on this machine
     (:func:`~terrainml.pipeline.members.member_jobs`); one at a time with ``--dask-address``,
@@ -340,29 +332,15 @@ def _member_jobs(req: TrainRequest, sensors) -> tuple[int, int]:
 
 
 def _train_members(req: TrainRequest, ds, tables, say) -> list[str]:
-    """The folder's sensor members, each trained like its model (grouped CV, served replay); a
-    member's windows are the model's subset (:func:`_reuses_windows`) or cut again from the run
-    tables for the subset."""
-    from terrainml.pipeline.dataset import build_from_tables
-    from terrainml.pipeline.members import subset_dataset, train_members
-    from terrainml.pipeline.replay import ReplayRefused
-    from terrainml.pipeline.train import train as do_train
+    """The folder's sensor members, each trained like its model (grouped CV, served replay;
+    :func:`~terrainml.pipeline.members.fixed_fit`)."""
+    from terrainml.pipeline.members import fixed_fit, train_members
 
-    exact = _reuses_windows(ds)
     at_once, jobs = _member_jobs(req, ds.sensors)
     options = replace(req.options, ablation=False, open_set=False, n_jobs=jobs)
     inner = say.nested() if at_once == 1 else None  # a worker process has no console
-
-    def fit(subset, folder):
-        sub = (subset_dataset(ds, subset) if exact or tables is None else
-               build_from_tables(tables, ds.robot, ds.preset, replace(ds.spec, channels=None),
-                                 n_jobs=jobs, sensors=subset))
-        try:
-            do_train(sub, folder, req.kinds, options, req.serve, tables=tables, progress=inner)
-        except ReplayRefused as exc:
-            raise ValueError(f"its served replay refuses it: {exc}") from None
-
-    return train_members(req.out, ds.sensors, fit, progress=say, n_jobs=at_once)
+    return train_members(req.out, ds.sensors, fixed_fit(ds, req.kinds, options, req.serve, tables, inner),
+                         progress=say, n_jobs=at_once)
 
 
 def _print_fixed(res, shown: Path) -> None:
@@ -446,14 +424,14 @@ def _auto_members(req: TrainRequest, res, tables, rb, say) -> list[str]:
     each subset of its sensor groups. The choice is fixed, so a member gets one grouped CV (no
     nested selection) and reuses the model's windows and run groups (their channels of the subset:
     :func:`~terrainml.pipeline.members.subset_dataset`) where cutting them again would give the
-    same windows (:func:`_reuses_windows`), else cuts its own; then the served replay of every
-    fold's held-out runs and the final fit; a member whose replay refuses it is not saved (the
-    folder then serves without it)."""
+    same windows (:func:`~terrainml.pipeline.members.reuses_windows`), else cuts its own; then the
+    served replay of every fold's held-out runs and the final fit; a member whose replay refuses
+    it is not saved (the folder then serves without it)."""
     from terrainml.pipeline.autotrain import ReplayRefused, train_auto
-    from terrainml.pipeline.members import subset_dataset, train_members
+    from terrainml.pipeline.members import reuses_windows, subset_dataset, train_members
 
     chosen, ds = res.selection.chosen, res.dataset
-    exact = _reuses_windows(ds)
+    exact = reuses_windows(ds)
     spec = next(s for s in req.selection.specs if s.name == chosen.spec)
     sensors = res.train.dataset_summary["sensors"]
     at_once, jobs = _member_jobs(req, sensors)

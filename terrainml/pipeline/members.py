@@ -22,10 +22,13 @@ from joblib import Parallel, delayed, effective_n_jobs
 
 from terrainml.features.windows import channel_sensor_group, groups_read
 from terrainml.models.artifacts import MEMBERS_DIR, attach_members, write_manifest
-from terrainml.pipeline.dataset import Dataset
+from terrainml.pipeline.dataset import Dataset, build_from_tables
 from terrainml.pipeline.progress import report
+from terrainml.pipeline.replay import ReplayRefused
+from terrainml.pipeline.train import train
 
-__all__ = ["MEMBER_DROPS", "member_subsets", "member_jobs", "subset_dataset", "train_members"]
+__all__ = ["MEMBER_DROPS", "member_subsets", "member_jobs", "subset_dataset", "train_members", "reuses_windows",
+           "fixed_fit"]
 
 #: member name -> the sensor group it does without
 MEMBER_DROPS = {"no_imu": "imu", "no_currents": "currents", "no_cam": "cam"}
@@ -136,3 +139,37 @@ def subset_dataset(ds: Dataset, sensors: Sequence[str]) -> Dataset:
     W = ds.windows.select_channels(chans)
     return Dataset(W, ds.runs, ds.counts, ds.robot, replace(ds.spec, channels=tuple(chans)), ds.preset,
                    list(ds.class_ids), list(ds.class_names), ds.class_report)
+
+
+def reuses_windows(ds: Dataset) -> bool:
+    """Whether a member's windows are the model's with the member's channels (:func:`subset_dataset`):
+    when cutting them again would give the same windows, i.e. no window was rejected for an invalid
+    channel (the only window rule that reads the channels) and the spec is not chunked (chunks span
+    the runs that hold its columns)."""
+    return ds.spec.chunk_s is None and not ds.counts.get("channel_valid", 0)
+
+
+def fixed_fit(ds: Dataset, kinds: Sequence[str], options: Any, serve: Any = None,
+              tables: Sequence[Any] | None = None,
+              progress: Callable[[str], None] | None = None) -> Callable[[list[str], Path], None]:
+    """The ``fit(subset, folder)`` of :func:`train_members` for a model that
+    :func:`~terrainml.pipeline.train.train` made on ``ds`` with ``kinds``, ``options`` (its
+    ``n_jobs``: each member's share) and ``serve``.
+
+    A member's windows are the model's with its channels where cutting them again would give the
+    same (:func:`reuses_windows`) or no run ``tables`` are given, else they are cut again from
+    ``tables`` for the subset; with ``tables`` every member gets the served replay, and one that
+    its replay refuses raises ValueError (so it is not saved).
+    """
+    exact = reuses_windows(ds)
+
+    def fit(subset: list[str], folder: Path) -> None:
+        sub = (subset_dataset(ds, subset) if exact or tables is None else
+               build_from_tables(tables, ds.robot, ds.preset, replace(ds.spec, channels=None),
+                                 n_jobs=options.n_jobs, sensors=subset))
+        try:
+            train(sub, folder, kinds, options, serve, tables=tables, progress=progress)
+        except ReplayRefused as exc:
+            raise ValueError(f"its served replay refuses it: {exc}") from None
+
+    return fit
