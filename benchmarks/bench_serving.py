@@ -288,15 +288,14 @@ def _cli(*args: str) -> None:
 
 def user_model(out, runs_per_class: int = USER_RUNS_PER_CLASS, seed: int = USER_LOGS_SEED) -> tuple:
     """(model folder, wall s): the model a team trains on its first simulated logs, through the
-    CLI: ``sim generate --runs-per-class R --seed S`` then ``train --model svm --folds 3``
-    (``--no-members``: the courses carry every sensor, so no member serves)."""
+    CLI: ``sim generate --runs-per-class R --seed S`` then ``train --model svm --folds 3``, with
+    its sensor members (the one without the camera serves the courses' camera confidence drops)."""
     from pathlib import Path
 
     out = Path(out)
     t0 = time.perf_counter()
     _cli("sim", "generate", "--runs-per-class", str(runs_per_class), "--seed", str(seed), "--out", str(out / "logs"))
-    _cli("train", "--data", str(out / "logs"), "--model", "svm", "--folds", "3", "--no-members",
-         "--out", str(out / "model"))
+    _cli("train", "--data", str(out / "logs"), "--model", "svm", "--folds", "3", "--out", str(out / "model"))
     return out / "model", time.perf_counter() - t0
 
 
