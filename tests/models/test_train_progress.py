@@ -196,4 +196,4 @@ def test_train_from_logs_reports_every_stage_in_order(tmp_path, small_models):
     lines = r.output.splitlines()
     assert "--budget-min" in lines[0]
     assert _stages(lines) == ["logs", "windows", "selection", "served replay", "final fit", "members"]
-    assert any(re.match(r"^train: members 2/2 members", ln) for ln in lines)
+    assert any(re.match(r"^train: members 3/3 members", ln) for ln in lines)  # no_imu, no_currents, no_cam
