@@ -127,9 +127,9 @@ def subset_dataset(ds: Dataset, sensors: Sequence[str]) -> Dataset:
     member without the camera of a robot that has one also does without the estimator's body
     channels, whose velocity reference the camera is). The windows kept are those every group of
     the model allowed: a run without IMU gives no window to the member without IMU this way
-    (``train --windows X`` from logs cuts a member's own windows instead). The selected default (``train`` with ``--windows auto``) subsets its
-    chosen spec's windows, so a member shares the model's windows and run groups and its
-    windows are not cut again.
+    (``train --windows X`` from logs cuts a member's own windows instead). The selected default
+    (``train`` with ``--windows auto``) subsets its chosen spec's windows, so a member shares the
+    model's windows and run groups and its windows are not cut again.
     """
     keep = groups_read(sensors, ds.robot)
     chans = [c for c in ds.windows.channels if channel_sensor_group(c) in keep]
