@@ -119,7 +119,7 @@ def _serve(folder, table):
     return p, [p.step(s) for s in iter_table_samples(table)]
 
 
-def test_member_subsets_drop_the_imu_or_the_currents_and_keep_a_signature():
+def test_member_subsets_drop_the_imu_the_currents_or_the_camera_and_keep_a_signature():
     assert member_subsets(["wheels", "currents", "imu"]) == {"no_imu": ["wheels", "currents"],
                                                               "no_currents": ["wheels", "imu"]}
     assert member_subsets(["wheels", "currents", "imu", "cam"]) == {
