@@ -74,6 +74,12 @@ def passthrough_columns(n_wheels: int, available: list[str] | None = None) -> li
     return out
 
 
+def flag_groups(robot: RobotSpec) -> frozenset[str]:
+    """The health groups whose freshness ``estimator_ok`` needs (``fresh_ok`` in
+    :meth:`OnlineEstimator.core`): the wheels, the IMU and, on a robot with one, the camera."""
+    return frozenset({"wheels", "imu", "cam"} if robot.has_camera else {"wheels", "imu"})
+
+
 class OnlineEstimator:
     """EKF + slip + dynamic state, one tick at a time.
 

@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any, Callable, Protocol, Sequence
 
 from terrainml.classes import TERRAIN_CLASSES
-from terrainml.estimation.online import OnlineEstimator
+from terrainml.estimation.online import OnlineEstimator, flag_groups
 from terrainml.estimation.row import EstimatorRow
 from terrainml.features.windows import WindowSpec
 from terrainml.lookup.wheel_targets import TargetTable
@@ -127,9 +127,7 @@ class Predictor:
         self.switch = MemberSwitch([candidate("model", classifier, self.window_spec, sensors, mon),
                                     *(candidate(m.name, m.classifier, m.window_spec, m.sensors, mon)
                                       for m in members)])
-        #: the health groups the EKF's own flag needs fresh (its ``fresh_ok``): the IMU, and the
-        #: camera on a robot that has one
-        self._flag_groups = frozenset({"imu", "cam"} if robot.has_camera else {"imu"})
+        self._flag_groups = flag_groups(robot)  # what the EKF's own flag needs fresh
         self._estimator_flag = self._flag_groups <= self.switch.active.groups
         #: sensor groups of the model (or member) serving the ticks (the message's ``sensors``)
         self.served_sensors = list(self.switch.active.sensors)
