@@ -132,7 +132,9 @@ def build(
     fmt: str = typer.Option("auto", "--format", help="auto (logs) or borealtc (<CLASS>/pro_XX.csv layout)."),
     windows: str = typer.Option(DEFAULT_WINDOWS, "--windows", help=WINDOWS_HELP),
     sensors: Optional[str] = typer.Option(None, "--sensors", help="Sensor groups to use, e.g. wheels,currents "
-                                          "(of wheels, currents, imu, cam; default: all the data has)."),
+                                          "(of wheels, currents, imu, cam; default: all the data has). Without cam "
+                                          "on a robot with a camera, the EKF's body velocity (vx, vy, r) is left "
+                                          "out too: the camera is its reference."),
     window_s: Optional[float] = typer.Option(None, "--window-s", help="Window length (s); default: the spec's."),
     hop_s: Optional[float] = typer.Option(None, "--hop-s", help="Offline hop (s); default = window length."),
     channels: Optional[str] = typer.Option(None, "--channels", help="Comma-separated channels to keep, e.g. "

@@ -100,7 +100,9 @@ def train(
                                         "served replay of held-out runs classifies on too few moving ticks."),
     sensors: Optional[str] = typer.Option(None, "--sensors", help="Sensor groups the model may use, e.g. "
                                           "wheels,currents (of wheels, currents, imu, cam; default all). "
-                                          "The served model checks health only on these."),
+                                          "The served model checks health only on these. Without cam on a "
+                                          "robot with a camera, the EKF's body velocity (vx, vy, r) is left "
+                                          "out too: the camera is its reference."),
     folds: int = typer.Option(5, "--folds", help="Outer grouped CV folds (by run)."),
     seed: int = typer.Option(0, "--seed", help="Seed of folds and models."),
     n_jobs: int = typer.Option(-1, "--n-jobs", "-j", envvar="TERRAINML_N_JOBS",
