@@ -76,6 +76,19 @@ class TrainRequest:
     quiet: bool
 
 
+def _check_numbers(folds: int, budget_min: float, replay_s: float, novelty_false_alarm: float,
+                   n_jobs: int) -> None:
+    """Exit 2 naming the option whose number ``train`` cannot use."""
+    if folds < 2:
+        fail("--folds must be >= 2")
+    if not budget_min > 0:
+        fail("--budget-min must be > 0")
+    if not replay_s > 0:
+        fail("--replay-s must be > 0")
+    check_novelty_false_alarm_option(novelty_false_alarm)
+    check_n_jobs(n_jobs)
+
+
 def train(
     data: Path = typer.Option(..., "--data", "-d", help="Windows Parquet (from 'dataset build') or a folder "
                               "of logs (the dataset is built first)."),
@@ -154,14 +167,7 @@ def train(
     Example (from logs, both models): terrainml train --data data/sim --model all --out runs/all
     """
     selecting, kinds, specs = _train_mode(data, model, windows)
-    if folds < 2:
-        fail("--folds must be >= 2")
-    if not budget_min > 0:
-        fail("--budget-min must be > 0")
-    if not replay_s > 0:
-        fail("--replay-s must be > 0")
-    check_novelty_false_alarm_option(novelty_false_alarm)
-    check_n_jobs(n_jobs)
+    _check_numbers(folds, budget_min, replay_s, novelty_false_alarm, n_jobs)
     check_output_writable(out, folder=True)
     from terrainml.commands.dataset_cmds import parse_sensors
     from terrainml.pipeline.train_options import SelectionOptions, ReplayOptions, TrainOptions
