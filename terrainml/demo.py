@@ -34,7 +34,8 @@ from terrainml.io.ingest import load_run
 from terrainml.io.inspect import inspect_log
 from terrainml.io.mcap_writer import write_run_mcap
 from terrainml.pipeline.dataset import build_dataset, write_windows
-from terrainml.pipeline.members import fixed_fit, member_jobs, member_subsets, train_members
+from terrainml.pipeline.members import fixed_fit, member_jobs, train_members
+from terrainml.pipeline.sensor_subsets import member_subsets
 from terrainml.pipeline.replay import SETTLE_S
 from terrainml.pipeline.train_options import TrainOptions
 from terrainml.pipeline.train import train

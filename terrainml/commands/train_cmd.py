@@ -181,7 +181,8 @@ def train(
                                    sensors=groups) if selecting else None,
         options=TrainOptions(folds=folds, seed=seed, n_jobs=n_jobs, novelty_false_alarm=novelty_false_alarm,
                              ablation=ablation, open_set=open_set),
-        serve=ReplayOptions(segment_s=replay_s, allow_unproven=allow_unproven, catalogue=catalogue),
+        serve=ReplayOptions(segment_s=replay_s, allow_unproven=allow_unproven, catalogue=catalogue,
+                            members=members and groups is None),
         members=members, quiet=quiet)
     _run(req)
 
@@ -332,7 +333,8 @@ def _member_jobs(req: TrainRequest, sensors) -> tuple[int, int]:
     """(members trained at once, jobs of each): side by side on this machine
     (:func:`~terrainml.pipeline.members.member_jobs`); one at a time with ``--dask-address``,
     their fits on the cluster."""
-    from terrainml.pipeline.members import member_jobs, member_subsets
+    from terrainml.pipeline.members import member_jobs
+    from terrainml.pipeline.sensor_subsets import member_subsets
 
     if req.source.dask_address is not None:
         return 1, req.options.n_jobs
@@ -431,12 +433,13 @@ def _auto_members(req: TrainRequest, res, tables, rb, say) -> list[str]:
     """The sensor members of a selected model: the chosen window spec and model trained again on
     each subset of its sensor groups. The choice is fixed, so a member gets one grouped CV (no
     nested selection) and reuses the model's windows and run groups (their channels of the subset:
-    :func:`~terrainml.pipeline.members.subset_dataset`) where cutting them again would give the
+    :func:`~terrainml.pipeline.sensor_subsets.subset_dataset`) where cutting them again would give the
     same windows (:func:`~terrainml.pipeline.members.reuses_windows`), else cuts its own; then the
     served replay of every fold's held-out runs and the final fit; a member whose replay refuses
     it is not saved (the folder then serves without it)."""
     from terrainml.pipeline.autotrain import ReplayRefused, train_auto
-    from terrainml.pipeline.members import reuses_windows, subset_dataset, train_members
+    from terrainml.pipeline.members import reuses_windows, train_members
+    from terrainml.pipeline.sensor_subsets import subset_dataset
 
     chosen, ds = res.selection.chosen, res.dataset
     exact = reuses_windows(ds)
@@ -444,7 +447,7 @@ def _auto_members(req: TrainRequest, res, tables, rb, say) -> list[str]:
     sensors = res.train.dataset_summary["sensors"]
     at_once, jobs = _member_jobs(req, sensors)
     options = replace(req.options, open_set=False, n_jobs=jobs)
-    serve = replace(req.serve, allow_unproven=False)
+    serve = replace(req.serve, allow_unproven=False, members=False)  # a member has no members of its own
     inner = say.nested() if at_once == 1 else None  # a worker process has no console
 
     def fit(subset, folder):

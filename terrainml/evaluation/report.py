@@ -335,18 +335,21 @@ def replay_markdown(rep: dict, fold_word: str = "fold") -> list[str]:
     md = ["### Served replay of the held-out runs", "",
           f"Each {fold_word}'s model, saved and loaded as `terrainml predict` loads it, serves a course of "
           f"{rep['segment_s']:.0f} s of each of the fold's held-out runs (classes interleaved) tick by tick. "
-          "Right: the labelled class served on a moving tick (a fallback is never right).", "",
+          "Right: the labelled class served on a moving tick (a fallback is never right). Sensor members: "
+          "those the fold's model is served with, as the saved folder is (one for each sensor group its held-out "
+          "runs flag invalid somewhere, fitted on the fold's training windows).", "",
           markdown_table(["fold", "runs", "moving ticks", "right %", "right % (3 s after changes left out)",
                           "fallback %", "classifications / m", "median m to the right class after a change",
-                          "changes never served right"],
+                          "changes never served right", "sensor members"],
                          [[f["fold"] + 1, f["runs"], f.get("moving_ticks", 0), _f(f.get("right_share"), 1, 100),
                            _f(f.get("right_share_settled"), 1, 100), _f(f.get("fallback_share"), 1, 100),
                            _f(f.get("classifications_per_m"), 2), _f(f.get("median_change_m"), 2),
-                           f.get("changes_never_right", "n/a")] for f in fr]
+                           f.get("changes_never_right", "n/a"), ", ".join(f.get("members") or []) or "-"]
+                          for f in fr]
                          + [["all", sum(f["runs"] for f in fr), pooled.get("moving_ticks", 0),
                              _f(pooled.get("right_share"), 1, 100), "", _f(pooled.get("fallback_share"), 1, 100),
                              _f(pooled.get("classifications_per_m"), 2), _f(pooled.get("median_change_m"), 2),
-                             pooled.get("changes_never_right", "n/a")]]), ""]
+                             pooled.get("changes_never_right", "n/a"), ""]]), ""]
     md += tick_losses_markdown([(str(f["fold"] + 1), f.get("losses")) for f in fr] + [("all", pooled.get("losses"))],
                                fold_word)
     if rep.get("refusal"):

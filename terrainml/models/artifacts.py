@@ -59,11 +59,13 @@ from terrainml.models.signing import (MANIFEST_NAME, SIGNATURE_NAME, PublicKeyLi
 from terrainml.robot import RobotSpec
 
 __all__ = ["ArtifactError", "Artifact", "TrainingProvenance", "save_artifact", "load_artifact", "verify_artifact",
-           "attach_members", "load_members", "MEMBERS_DIR",
+           "TABLE_FILE", "attach_members", "load_members", "MEMBERS_DIR",
            "read_manifest", "write_manifest", "ALLOWED_SKOPS_TYPES", "MANIFEST_NAME", "SCHEMA",
            "SCHEMA_VERSION", "SIGNATURE_NAME", "SignatureError", "json_safe"]
 
 SKOPS_NAME = "model.skops"
+#: the desired-slip table served with a model (an attachment of its folder)
+TABLE_FILE = "desired_slip_table.json"
 
 #: Types skops may instantiate besides its own defaults (checked against
 #: ``skops.io.get_untrusted_types``). Anything else makes loading refuse.

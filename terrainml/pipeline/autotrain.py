@@ -37,7 +37,7 @@ from terrainml.atomic import write_text
 from terrainml.evaluation.metrics import latency_per_window_ms
 from terrainml.evaluation.report import selection_markdown, write_report
 from terrainml.features.windows import WindowSpec
-from terrainml.models.artifacts import json_safe, save_artifact, write_manifest
+from terrainml.models.artifacts import TABLE_FILE, json_safe, save_artifact, write_manifest
 from terrainml.models.calibration import CalibratedModel, Temperature
 from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.pipeline.dataset import Dataset, build_from_tables
@@ -47,9 +47,9 @@ from terrainml.pipeline.replay import ReplayRefused, pooled_replay, replay_refus
 from terrainml.pipeline import train as train_lib  # make_factory read at call time
 from terrainml.pipeline.candidates import candidate_window_specs
 from terrainml.pipeline.select import Selection, select
-from terrainml.pipeline.train import (MIN_RUNS_PER_CLASS, TABLE_FILE, FoldModel, TrainResult, class_names_of,
-                                      dataset_summary, desired_slip_table_for, provenance_of, replay_folds,
-                                      served_novelty)
+from terrainml.pipeline.fold_replay import replay_folds, served_novelty
+from terrainml.pipeline.train import (MIN_RUNS_PER_CLASS, TrainResult, class_names_of, dataset_summary,
+                                      desired_slip_table_for, fold_model, provenance_of)
 from terrainml.robot import RobotSpec
 
 __all__ = ["train_auto", "build_candidates", "AutoResult", "ReplayRefused"]
@@ -124,15 +124,16 @@ def _save(out: Path, ds: Dataset, fitted: dict, served: str, temperature: float,
                          novelty=novelty)
 
 
-def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, opt: TrainOptions,
+def _replay_folds(sel: Selection, data: dict, tables, table, serve: ReplayOptions, opt: TrainOptions,
                   say) -> list[dict]:
     """Replay of every outer fold's held-out runs through its calibrated model and its novelty score
-    (fitted on the fold's training runs only), saved and loaded as ``predict`` loads them
-    (:func:`~terrainml.pipeline.train.replay_folds`). The outer folds hold the runs of the
+    (fitted on the fold's training runs only), saved and loaded as ``predict`` loads them, with the
+    sensor members its held-out runs call on when ``serve.members``
+    (:func:`~terrainml.pipeline.fold_replay.replay_folds`). The outer folds hold the runs of the
     selection's classes only (a class with a single run is never held out, nor known to a fold model)."""
     folds = []
     for k, o in enumerate(sel.outer):
-        spec, name = o["chosen"].split("/")
+        spec, name = o["chosen"].split("/")  # a fold's spec may differ from another's (chosen per fold)
         model = sel.outer_models[k]
         fitted = {name: model}
         if isinstance(model, ProbabilityAverage):
@@ -140,11 +141,11 @@ def _replay_folds(sel: Selection, data: dict, tables, table, segment_s: float, o
         W = data[spec].windows
         train_idx = np.flatnonzero(~np.isin(np.asarray(W.groups).astype(str), o["runs"])
                                    & np.isin(W.y, sel.class_ids))
-        folds.append((spec, FoldModel(list(o["runs"]), fitted, name, W.subset(train_idx), o["temperature"],
-                                      o["chosen"])))
-    # a fold's spec may differ from another's (chosen per fold)
-    return replay_folds([f for _, f in folds], [data[spec] for spec, _ in folds], tables, table, segment_s,
-                        opt.seed, say, opt.novelty_false_alarm, n_jobs=opt.n_jobs)
+        folds.append(fold_model(data[spec], o["runs"], fitted, name, W.subset(train_idx), opt.seed,
+                                o["temperature"], o["chosen"], held=tables if serve.members else None,
+                                segment_s=serve.segment_s))
+    return replay_folds(folds, tables, table, serve.segment_s, opt.seed, say, opt.novelty_false_alarm,
+                        n_jobs=opt.n_jobs)
 
 
 def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str | Path,
@@ -193,7 +194,7 @@ def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str
     sel.infeasible = {**failed, **sel.infeasible}
     t_sel = time.perf_counter() - t0 - t_windows
     replay = tables is not None
-    folds_replay = (_replay_folds(sel, data, tables, table, serve.segment_s, opt, say) if replay else [])
+    folds_replay = (_replay_folds(sel, data, tables, table, serve, opt, say) if replay else [])
     pooled = pooled_replay([f for f in folds_replay if f.get("moving_ticks")]) if folds_replay else {}
     refusal = replay_refusal(pooled, serve.min_classified_share) if replay else ""
     t_replay = time.perf_counter() - t0 - t_windows - t_sel

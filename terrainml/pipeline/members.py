@@ -3,8 +3,9 @@
 A model trained on every sensor group a robot has serves nothing when one group is missing at
 serving (a robot without its IMU, a log without the currents, a tracking camera whose confidence
 drops for a second on wet ground): its windows need that group's channels. So ``terrainml train``
-(design §9) also trains, for each useful subset of the model's groups (:func:`member_subsets`:
-without the IMU, without the currents, without the camera), a member:
+(design §9) also trains, for each useful subset of the model's groups
+(:func:`~terrainml.pipeline.sensor_subsets.member_subsets`: without the IMU, without the
+currents, without the camera), a member:
 a complete model folder of its own in ``members/NAME/``, made by the very training function
 that made the folder's model (the caller's ``fit``, on data built for that subset), and listed in
 the folder's manifest (:func:`terrainml.models.artifacts.attach_members`). The predictor serves
@@ -20,35 +21,14 @@ from typing import Any, Callable, Sequence
 
 from joblib import Parallel, delayed, effective_n_jobs
 
-from terrainml.features.windows import channel_sensor_group, groups_read
 from terrainml.models.artifacts import MEMBERS_DIR, attach_members, write_manifest
 from terrainml.pipeline.dataset import Dataset, build_from_tables
 from terrainml.pipeline.progress import report
+from terrainml.pipeline.sensor_subsets import member_subsets, subset_dataset
 from terrainml.pipeline.replay import ReplayRefused
 from terrainml.pipeline.train import train
 
-__all__ = ["MEMBER_DROPS", "member_subsets", "member_jobs", "subset_dataset", "train_members", "reuses_windows",
-           "fixed_fit"]
-
-#: member name -> the sensor group it does without
-MEMBER_DROPS = {"no_imu": "imu", "no_currents": "currents", "no_cam": "cam"}
-
-
-def member_subsets(sensors: Sequence[str]) -> dict[str, list[str]]:
-    """{member name: its sensor groups} for a model on ``sensors`` (order kept).
-
-    A member drops one group of :data:`MEMBER_DROPS` that the model uses; it must keep another
-    group besides the wheels (wheel speeds alone are the estimator's input, not a terrain
-    signature worth a member). A model on two groups or fewer has no member.
-    """
-    out = {}
-    for name, group in MEMBER_DROPS.items():
-        if group not in sensors:
-            continue
-        rest = [g for g in sensors if g != group]
-        if any(g != "wheels" for g in rest):
-            out[name] = rest
-    return out
+__all__ = ["member_jobs", "train_members", "reuses_windows", "fixed_fit"]
 
 
 def member_jobs(n_jobs: int | None, n_members: int) -> tuple[int, int]:
@@ -84,7 +64,7 @@ def train_members(out: str | Path, sensors: Sequence[str], fit: Callable[[list[s
 
     Returns
     -------
-    The names of the members saved (in :data:`MEMBER_DROPS` order).
+    The names of the members saved (in :data:`~terrainml.pipeline.sensor_subsets.MEMBER_DROPS` order).
     """
     say = progress or (lambda msg: None)
     out = Path(out)
@@ -120,28 +100,9 @@ def _fit_member(fit: Callable[[list[str], Path], Any], subset: list[str], folder
     return ""
 
 
-def subset_dataset(ds: Dataset, sensors: Sequence[str]) -> Dataset:
-    """The windows of ``ds`` restricted to the channels of the groups ``sensors`` (a windows file).
-
-    The channels are those the groups read (:func:`~terrainml.features.channels.groups_read`: a
-    member without the camera of a robot that has one also does without the estimator's body
-    channels, whose velocity reference the camera is). The windows kept are those every group of
-    the model allowed: a run without IMU gives no window to the member without IMU this way
-    (``train --windows X`` from logs cuts a member's own windows instead). The selected default
-    (``train`` with ``--windows auto``) subsets its chosen spec's windows, so a member shares the
-    model's windows and run groups and its windows are not cut again.
-    """
-    keep = groups_read(sensors, ds.robot)
-    chans = [c for c in ds.windows.channels if channel_sensor_group(c) in keep]
-    if not chans:
-        raise ValueError(f"no window channel left for sensors {list(sensors)}")
-    W = ds.windows.select_channels(chans)
-    return Dataset(W, ds.runs, ds.counts, ds.robot, replace(ds.spec, channels=tuple(chans)), ds.preset,
-                   list(ds.class_ids), list(ds.class_names), ds.class_report)
-
-
 def reuses_windows(ds: Dataset) -> bool:
-    """Whether a member's windows are the model's with the member's channels (:func:`subset_dataset`):
+    """Whether a member's windows are the model's with the member's channels
+    (:func:`~terrainml.pipeline.sensor_subsets.subset_dataset`):
     when cutting them again would give the same windows, i.e. no window was rejected for an invalid
     channel (the only window rule that reads the channels) and the spec is not chunked (chunks span
     the runs that hold its columns)."""
@@ -161,13 +122,14 @@ def fixed_fit(ds: Dataset, kinds: Sequence[str], options: Any, serve: Any = None
     its replay refuses raises ValueError (so it is not saved).
     """
     exact = reuses_windows(ds)
+    own = None if serve is None else replace(serve, members=False)  # a member has no members of its own
 
     def fit(subset: list[str], folder: Path) -> None:
         sub = (subset_dataset(ds, subset) if exact or tables is None else
                build_from_tables(tables, ds.robot, ds.preset, replace(ds.spec, channels=None),
                                  n_jobs=options.n_jobs, sensors=subset))
         try:
-            train(sub, folder, kinds, options, serve, tables=tables, progress=progress)
+            train(sub, folder, kinds, options, own, tables=tables, progress=progress)
         except ReplayRefused as exc:
             raise ValueError(f"its served replay refuses it: {exc}") from None
 

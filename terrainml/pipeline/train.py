@@ -24,8 +24,9 @@ trained on: it is named, left out of the cross-validation and of the served repl
 Given the ingested runs (``tables``), :func:`train` also proves the served model
 on the served path before it saves it: every fold's model (fitted without the fold's runs) is
 saved and loaded as ``terrainml predict`` loads it and serves a course of the fold's held-out
-runs (:func:`replay_folds`, :mod:`terrainml.pipeline.replay`, the same replay as the selecting
-``train``); a model whose replay classifies too little is refused
+runs (:func:`~terrainml.pipeline.fold_replay.replay_folds`, the same replay as the selecting
+``train``; with the sensor members its held-out runs call on when the folder gets members,
+:func:`fold_model`); a model whose replay classifies too little is refused
 (:class:`~terrainml.pipeline.replay.ReplayRefused`, report written, no model saved) unless
 ``allow_unproven`` (:class:`~terrainml.pipeline.train_options.ReplayOptions`). The options come as
 frozen records resolved once by the command line (:mod:`terrainml.pipeline.train_options`).
@@ -34,14 +35,12 @@ frozen records resolved once by the command line (:mod:`terrainml.pipeline.train
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from tempfile import TemporaryDirectory
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed, effective_n_jobs
 
 from terrainml.classes import TERRAIN_CLASSES
 from terrainml.evaluation.cv import Scoring, average_results, cross_validate
@@ -53,31 +52,27 @@ from terrainml.features.sets import FEATURE_SUBSETS, FeatureSet
 from terrainml.features.side_channel import SideChannelFeatures, track_of
 from terrainml.features.windows import is_side_channel_set
 from terrainml.lookup.table import DesiredSlipTable
-from terrainml.models.artifacts import (Artifact, ArtifactError, TrainingProvenance, save_artifact,
+from terrainml.models.artifacts import (TABLE_FILE, Artifact, ArtifactError, TrainingProvenance, save_artifact,
                                         write_manifest)
-from terrainml.models.calibration import Temperature
 from terrainml.models.ensemble import ProbabilityAverage
-from terrainml.models.novelty import DEFAULT_FALSE_ALARM, NoveltyError, fit_model_novelty
 from terrainml.models.svm import SVMClassifier
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.candidates import MODEL_KINDS, parse_models
 from terrainml.pipeline.dataset import Dataset
+from terrainml.pipeline.fold_replay import FoldModel, FoldMember, replay_folds, served_novelty
 from terrainml.pipeline.train_options import ReplayOptions, TrainOptions
 from terrainml.pipeline.progress import report
 from terrainml.pipeline.preflight import MIN_RUNS_PER_CLASS, SINGLE_RUN_RULE, table_for_classes
-from terrainml.pipeline.replay import (ReplayRefused, make_course,
-                                       pooled_replay, replay_course, replay_refusal)
+from terrainml.pipeline.replay import ReplayRefused, make_course, pooled_replay, replay_refusal
+from terrainml.pipeline.sensor_subsets import MEMBER_DROPS, flagged_groups, member_subsets, subset_dataset
 
-__all__ = ["TABLE_FILE", "make_factory", "train", "TrainResult", "desired_slip_table_for", "served_table",
-           "feature_family", "MIN_RUNS_PER_CLASS", "served_novelty",
-           "evaluate_open_set", "FoldModel", "replay_folds", "class_names_of", "provenance_of",
-           "dataset_summary"]
+__all__ = ["make_factory", "train", "TrainResult", "desired_slip_table_for", "served_table",
+           "feature_family", "MIN_RUNS_PER_CLASS", "evaluate_open_set", "fold_model", "class_names_of",
+           "provenance_of", "dataset_summary"]
 
 #: SVM search grid of the side-channel family (the BorealTC protocols' ``svm``)
 SIDE_C_GRID = (3.0, 10.0, 30.0, 100.0)
 SIDE_GAMMA_GRID = ("scale", 0.001, 0.002)
-#: the desired-slip table's attachment in a model folder (read back by :func:`served_table`)
-TABLE_FILE = "desired_slip_table.json"
 
 
 def _cnn_class():
@@ -179,25 +174,6 @@ class TrainResult:
     preflight: dict | None = None
 
 
-@dataclass
-class FoldModel:
-    """One fold's model, to serve on the fold's held-out runs (:func:`replay_folds`).
-
-    Attributes
-    ----------
-    runs : the held-out run ids. fitted : {name: fitted model} to save (an average's members too).
-    served : the name served. train_windows : the fold's training windows (its novelty score).
-    temperature : of the served model's probabilities (1: uncalibrated). label : report label.
-    """
-
-    runs: list
-    fitted: dict
-    served: str
-    train_windows: Any
-    temperature: float = 1.0
-    label: str = ""
-
-
 def class_names_of(ds: Dataset, classes: Sequence[int]) -> list[str]:
     """Names of the class ids ``classes`` of a dataset (its full name list, else its own)."""
     all_names = ds.windows.attrs.get("all_class_names")
@@ -215,68 +191,6 @@ def provenance_of(ds: Dataset, classes: Sequence[int],
     return TrainingProvenance(classes=list(classes), class_names=names, channels=W.channels, window_spec=ds.spec,
                               robot=ds.robot, training_fingerprint=ds.fingerprint, preset=ds.preset,
                               sensors=ds.sensors, feature_family=feature_family(W.channels))
-
-
-def replay_folds(folds: Sequence[FoldModel], ds: Dataset | Sequence[Dataset], tables: Sequence[pd.DataFrame],
-                 table: Any, segment_s: float, seed: int, say: Callable[[str], None],
-                 novelty_false_alarm: float = DEFAULT_FALSE_ALARM, n_jobs: int = 1) -> list[dict]:
-    """Replay of every fold's held-out runs through its model and its novelty score (fitted on the
-    fold's training windows only), saved and loaded as ``terrainml predict`` loads them.
-
-    A fold model is saved with the classes it was fitted on (a class left out of the folds, e.g.
-    one with a single run, is neither known to it nor among its held-out runs). ``ds``: the
-    dataset the folds were fitted on, or one per fold (folds of different window specs).
-    ``n_jobs``: folds replayed at once (joblib; each fold's replay is one process's serial tick
-    loop, so folds are the unit of parallel work); the notes of a fold are said when it is done.
-
-    Returns
-    -------
-    list of dicts per fold, in fold order: ``fold``, ``chosen``, ``runs`` and
-    :func:`~terrainml.pipeline.replay.replay_course`'s figures, ``replay_s``.
-    """
-    per_fold = [ds] * len(folds) if isinstance(ds, Dataset) else list(ds)
-    by_id = {str(t["run_id"].iloc[0]): t for t in tables if len(t)}
-    calls = [delayed(_replay_fold)(k, f, provenance_of(d, _fold_classes(f)),
-                                   [by_id[r] for r in f.runs if r in by_id], table, segment_s, seed,
-                                   novelty_false_alarm)
-             for k, (f, d) in enumerate(zip(folds, per_fold))]
-    at_once = max(1, min(len(folds), effective_n_jobs(n_jobs)))
-    report(say, "served replay", 0, len(folds), "folds",
-           f"{len(folds)} folds' held-out runs through the online predictor, {at_once} at once")
-    out = []
-    # max_nbytes=None: no memmapped arrays in the workers (a model holding one would be saved with
-    # a numpy.memmap, a type loading refuses)
-    for res, notes in Parallel(n_jobs=n_jobs, return_as="generator", max_nbytes=None)(calls):
-        for note in notes:
-            say(note)
-        out.append(res)
-        report(say, "served replay", len(out), len(folds), "folds",
-               f"fold {res['fold'] + 1}: {res['runs']} held-out runs")
-    return out
-
-
-def _fold_classes(f: FoldModel) -> list[int]:
-    return sorted(int(c) for c in np.asarray(f.fitted[f.served].classes_).tolist())
-
-
-def _replay_fold(k: int, f: FoldModel, provenance: TrainingProvenance, tables: list, table: Any, segment_s: float,
-                 seed: int, novelty_false_alarm: float) -> tuple[dict, list[str]]:
-    """(figures, notes) of one fold's replay (:func:`replay_folds`); runs in a joblib worker."""
-    notes: list[str] = []
-    runs = [str(t["run_id"].iloc[0]) for t in tables]
-    if not runs:
-        return {"fold": k, "runs": 0, "moving_ticks": 0, "chosen": f.label or f.served}, notes
-    model = f.fitted[f.served]
-    novelty = served_novelty(model, f.served, f.train_windows, seed, notes.append, novelty_false_alarm)
-    with TemporaryDirectory() as tmp:
-        save_artifact(Path(tmp) / "m", f.fitted, provenance, default_model=f.served,
-                      attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
-                      calibration={f.served: Temperature(f.temperature).to_dict()}, novelty=novelty)
-        course = make_course(tables, runs, segment_s=segment_s)
-        t0 = time.perf_counter()
-        res = replay_course(Path(tmp) / "m", course)
-    return {"fold": k, "chosen": f.label or f.served, "runs": len(runs), **res,
-            "replay_s": time.perf_counter() - t0}, notes
 
 
 def _ablation(ds: Dataset, plan: _CVPlan, opt: TrainOptions, table: Any, cv_all: Any) -> pd.DataFrame:
@@ -490,14 +404,43 @@ def _served_replay(ds: Dataset, plan: _CVPlan, default: str, results: dict, tabl
         fitted = dict(zip(parts, fold_models))
         if len(parts) > 1:
             fitted[default] = ProbabilityAverage.from_fitted(fold_models)
-        folds.append(FoldModel(sorted(set(groups[te].tolist())), fitted, default, Wcv.subset(tr)))
-    per_fold = replay_folds(folds, ds, tables, table, serve.segment_s, opt.seed, say, opt.novelty_false_alarm,
+        folds.append(fold_model(ds, sorted(set(groups[te].tolist())), fitted, default, Wcv.subset(tr), opt.seed,
+                                held=tables if serve.members else None, segment_s=serve.segment_s))
+    per_fold = replay_folds(folds, tables, table, serve.segment_s, opt.seed, say, opt.novelty_false_alarm,
                             n_jobs=opt.n_jobs)
     pooled = pooled_replay([f for f in per_fold if f.get("moving_ticks")])
     refusal = replay_refusal(pooled, serve.min_classified_share)
     return {"folds": per_fold, "pooled": pooled, "refusal": refusal,
             "overridden": bool(refusal and serve.allow_unproven), "segment_s": serve.segment_s,
             "min_classified_share": serve.min_classified_share}
+
+
+def fold_model(ds: Dataset, runs: Sequence[str], fitted: dict, served: str, train_windows: Any, seed: int,
+               temperature: float = 1.0, label: str = "", held: Sequence[pd.DataFrame] | None = None,
+               segment_s: float | None = None) -> FoldModel:
+    """One fold's model for :func:`~terrainml.pipeline.fold_replay.replay_folds`: fitted on
+    ``train_windows`` (windows of ``ds``), held out ``runs``, saved with the provenance of ``ds``'s
+    windows of its classes.
+
+    ``held``: the run tables when the saved folder is served with sensor members (None: it is
+    not). The fold then gets each member of a model on ``ds``'s groups
+    (:func:`~terrainml.pipeline.sensor_subsets.member_subsets`) whose dropped group the replayed
+    pieces (``segment_s``) of its held-out runs flag invalid
+    (:func:`~terrainml.pipeline.sensor_subsets.flagged_groups`): the fold's served model kinds on
+    the fold's training windows with the member's channels (``train`` fits a saved member on
+    windows cut again for its groups where that gives more; a fold member does with the fold's).
+    """
+    classes = sorted(int(c) for c in np.asarray(fitted[served].classes_).tolist())
+    f = FoldModel(list(runs), fitted, served, train_windows, provenance_of(ds, classes), temperature, label)
+    own = [t for t in held or () if len(t) and str(t["run_id"].iloc[0]) in set(f.runs)]
+    flagged = flagged_groups([make_course(own, segment_s=segment_s)]) if own else set()
+    fold_ds = replace(ds, windows=train_windows)
+    for name, subset in member_subsets(ds.sensors).items():
+        if MEMBER_DROPS[name] in flagged:
+            sub = subset_dataset(fold_ds, subset)
+            f.members.append(FoldMember(name, {q: make_factory(q, sub, seed) for q in served.split("+")}, served,
+                                        sub.windows, provenance_of(sub, classes)))
+    return f
 
 
 def dataset_summary(ds: Dataset, name_of: Mapping[int, str], runs_per_class: Mapping[int, int],
@@ -516,20 +459,6 @@ def dataset_summary(ds: Dataset, name_of: Mapping[int, str], runs_per_class: Map
             "feature_family": feature_family(W.channels), "sensors": ds.sensors, "window_spec": ds.spec.name,
             "robot": ds.robot.name, "preset": ds.preset, "channels": list(W.channels),
             "fingerprint": ds.fingerprint, "rejections": ds.counts}
-
-
-def served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], None],
-                   novelty_false_alarm: float = DEFAULT_FALSE_ALARM):
-    """(name, scorer, info) of the served model's novelty score, or None (named) without one;
-    ``novelty_false_alarm``: the threshold's target (:func:`~terrainml.models.novelty.fit_novelty`)."""
-    say(f"{name}: novelty score (threshold at {100 * novelty_false_alarm:g} % of the training runs' moving "
-        "windows, one run held out at a time)")
-    try:
-        scorer, info = fit_model_novelty(model, W, seed=seed, novelty_false_alarm=novelty_false_alarm)
-    except NoveltyError as exc:
-        say(f"{name}: no novelty score ({exc})")
-        return None
-    return name, scorer, info
 
 
 def _open_set(default: str, factories: dict, plan: _CVPlan, opt: TrainOptions, say: Callable[[str], None]):

@@ -67,12 +67,17 @@ class ReplayOptions:
     min_classified_share : the refusal threshold, share of moving ticks classified.
     catalogue : terrain catalogue of the desired-slip table (``--catalogue``: YAML path or
         built-in name); None: the built-in one with every class, else class-free serving.
+    members : the folder is saved with sensor members, so every fold's model is replayed with the
+        members its held-out runs call on, each fitted on the fold's training windows
+        (:func:`~terrainml.pipeline.train.fold_model`), as ``predict`` serves the folder. False
+        for a folder without members (``--no-members``, ``--sensors``, a member itself).
     """
 
     segment_s: float = REPLAY_SEGMENT_S
     allow_unproven: bool = False
     min_classified_share: float = MIN_CLASSIFIED_SHARE
     catalogue: str | None = None
+    members: bool = False
 
 
 @dataclass(frozen=True)

@@ -112,7 +112,8 @@ def test_cli_train_auto_selects_replays_and_saves_a_calibrated_model(tmp_path):
 def test_folds_replayed_in_parallel_give_the_serial_figures_in_fold_order(log_dir):
     from terrainml.io.ingest import load_run
     from terrainml.pipeline.dataset import build_from_tables, find_logs
-    from terrainml.pipeline.train import FoldModel, make_factory, replay_folds
+    from terrainml.pipeline.fold_replay import replay_folds
+    from terrainml.pipeline.train import fold_model, make_factory
     from terrainml.robot import load_robot
 
     robot = load_robot("agrimaro")
@@ -124,10 +125,10 @@ def test_folds_replayed_in_parallel_give_the_serial_figures_in_fold_order(log_di
     for held in (runs[0::2], runs[1::2]):
         train = W.subset(np.flatnonzero(~np.isin(np.asarray(W.groups).astype(str), held)))
         model = make_factory("hgb", ds, 0, params={"max_iter": 20})().fit(train, train.y)
-        folds.append(FoldModel(list(held), {"hgb": model}, "hgb", train))
+        folds.append(fold_model(ds, held, {"hgb": model}, "hgb", train, 0))
     notes1, notes2 = [], []
-    serial = replay_folds(folds, ds, tables, None, 4.0, 0, notes1.append, n_jobs=1)
-    parallel = replay_folds(folds, ds, tables, None, 4.0, 0, notes2.append, n_jobs=2)
+    serial = replay_folds(folds, tables, None, 4.0, 0, notes1.append, n_jobs=1)
+    parallel = replay_folds(folds, tables, None, 4.0, 0, notes2.append, n_jobs=2)
     for a, b in zip(serial, parallel):
         assert {k: v for k, v in a.items() if k != "replay_s"} == {k: v for k, v in b.items() if k != "replay_s"}
     assert [f["fold"] for f in parallel] == [0, 1] and parallel[0]["moving_ticks"] > 0

@@ -21,7 +21,8 @@ from terrainml.features.windows import SIDE_CHANNEL_NAMES, Windows, window_spec
 from terrainml.models.artifacts import (ArtifactError, TrainingProvenance, attach_members, load_artifact,
                                         save_artifact)
 from terrainml.models.trees import BoostedTrees
-from terrainml.pipeline.members import member_subsets, train_members
+from terrainml.pipeline.members import train_members
+from terrainml.pipeline.sensor_subsets import member_subsets
 from terrainml.robot import CameraSpec, load_robot
 from terrainml.stream.tick.classify import ModelLoadError, load_serving_model
 from terrainml.stream.tick.predictor import Predictor

@@ -34,7 +34,7 @@ from terrainml.classes import TERRAIN_CLASSES
 from terrainml.features.windows import RULES, Windows, WindowSpec, channel_column, cut_windows
 from terrainml.lookup.catalogue import BUILTIN_CATALOGUES
 from terrainml.lookup.table import ClassFreeTargets, DesiredSlipTable
-from terrainml.models.artifacts import load_artifact
+from terrainml.models.artifacts import TABLE_FILE, load_artifact
 from terrainml.models.novelty import NoveltyScorer, moving_windows, proba_and_features
 from terrainml.robot import RobotSpec
 
@@ -274,7 +274,7 @@ def load_serving_model(model_dir: str | Path, robot: RobotSpec | None = None,
         if differ:  # served anyway (the user chose the robot), but never silently
             log.warning("%s: serving robot '%s' differs from the model's training robot '%s': %s",
                         model_dir, rb.name, art.robot.name, "; ".join(differ))
-    stored = art.attachments.get("desired_slip_table.json")  # written by terrainml.pipeline.train
+    stored = art.attachments.get(TABLE_FILE)  # written by terrainml.pipeline.train
     ids = [int(c) for c in art.class_ids]
     own = [str(n) for n in (art.class_names or [])]
     try:

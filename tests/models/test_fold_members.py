@@ -1,0 +1,73 @@
+"""The served replay serves a fold's held-out runs as ``predict`` serves the saved folder: with the
+sensor members those runs call on, each fitted on the fold's training windows alone.
+
+Hand-made truth: two classes told apart by the motor current alone (2 A or 6 A on every wheel),
+Husky runs cut with the ``chunks`` spec (IMU, currents, wheel speeds). One held-out run at 6 A has
+no IMU data: the fold's model cannot serve it; its member without the IMU must, and right.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from terrainml.features.windows import window_spec
+from terrainml.pipeline.dataset import build_from_tables
+from terrainml.pipeline.fold_replay import replay_folds
+from terrainml.pipeline.sensor_subsets import flagged_groups
+from terrainml.pipeline.train import fold_model, make_factory
+from terrainml.robot import load_robot
+from terrainml.testing import kinematic_run, trapezoid_speed
+
+HUSKY = load_robot("husky")
+IMU_DATA = ("imu_ax_mps2", "imu_ay_mps2", "imu_az_mps2", "imu_yaw_rate_radps", "imu_yaw_rad")
+
+
+def _run(k: int, terrain: int, imu: bool = True) -> pd.DataFrame:
+    t = kinematic_run(HUSKY, duration_s=16.0, seed=k, terrain=terrain, run_id=f"r{k}",
+                      vx=lambda tt: trapezoid_speed(tt, 1.0, 0.5, 0.5))
+    rng = np.random.default_rng(k)
+    for i in range(1, HUSKY.n_wheels + 1):
+        t[f"wheel{i}_current_a"] = (6.0 if terrain else 2.0) + rng.normal(0, 0.1, len(t))
+    t["imu_roll_rate_radps"] = 0.0
+    t["imu_pitch_rate_radps"] = 0.0
+    if not imu:  # as a log without the IMU topic is ingested: no values, flagged invalid
+        t[list(IMU_DATA)] = np.nan
+        t["imu_valid"] = False
+    return t
+
+
+@pytest.fixture(scope="module")
+def fold():
+    tables = [_run(k, k % 2, imu=k != 5) for k in range(8)]
+    ds = build_from_tables(tables, HUSKY, spec=window_spec("chunks"))
+    held = ["r4", "r5"]  # r5: 6 A, no IMU data (so no window of the model's spec)
+    groups = np.asarray(ds.windows.groups).astype(str)
+    train = ds.windows.subset(np.flatnonzero(~np.isin(groups, held)))
+    model = make_factory("hgb", ds, 0, params={"max_iter": 20})().fit(train, train.y)
+    return tables, ds, held, train, model
+
+
+def test_flagged_groups_are_those_invalid_somewhere():
+    with_imu, without = _run(0, 0), _run(1, 1, imu=False)
+    assert "imu" not in flagged_groups([with_imu]) and "imu" in flagged_groups([with_imu, without])
+    assert "currents" not in flagged_groups([with_imu, without])
+
+
+def test_a_held_out_run_without_imu_is_served_by_the_fold_member_without_it(fold):
+    tables, ds, held, train, model = fold
+    plain = fold_model(ds, held, {"hgb": model}, "hgb", train, 0)
+    served = fold_model(ds, held, {"hgb": model}, "hgb", train, 0, held=tables, segment_s=None)
+    assert plain.members == [] and [m.name for m in served.members] == ["no_imu"]
+    (member,) = served.members
+    assert len(member.windows) == len(train) and not any(c.startswith("imu_") for c in member.windows.channels)
+    notes: list = []
+    without, with_members = replay_folds([plain, served], tables, None, None, 0, notes.append)
+    assert without["members"] == [] and with_members["members"] == ["no_imu"]
+    # the run without IMU: the fold's model falls back on it, its member serves it right
+    assert without["fallback_reasons"].get("estimator_unhealthy", 0) > 0.3 * without["moving_ticks"]
+    assert with_members["fallback_reasons"].get("estimator_unhealthy", 0) == 0
+    assert with_members["right_share"] > without["right_share"] + 0.3
+    assert with_members["right_share"] > 0.8
+    assert any("member no_imu" in str(n) for n in notes)
