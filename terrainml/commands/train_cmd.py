@@ -136,7 +136,8 @@ def train(
                                  "for the sensor subsets without IMU, without currents and without the camera "
                                  "(members/NAME in the folder); serving uses the best one whose sensors are "
                                  "healthy, e.g. the one without camera while a tracking camera's confidence "
-                                 "is low."),
+                                 "is low. The served replay serves each fold's held-out runs the same way, "
+                                 "with the members they call on fitted on the fold's training runs."),
     open_set: bool = typer.Option(False, "--open-set", help="Also evaluate unknown-ground detection: each class "
                                   "in turn held out of training and scored as the unknown by the served "
                                   "model's novelty (one more CV per class; report.md section, as "

@@ -71,3 +71,34 @@ def test_a_held_out_run_without_imu_is_served_by_the_fold_member_without_it(fold
     assert with_members["right_share"] > without["right_share"] + 0.3
     assert with_members["right_share"] > 0.8
     assert any("member no_imu" in str(n) for n in notes)
+
+
+@pytest.mark.parametrize("extra, members", [((), True), (("--no-members",), False),
+                                            (("--sensors", "wheels,currents"), False)])
+def test_the_replay_serves_fold_members_exactly_when_the_folder_gets_members(tmp_path, monkeypatch, extra, members):
+    from typer.testing import CliRunner
+
+    from terrainml.cli import app
+    from terrainml.commands import train_cmd
+
+    seen = []
+    monkeypatch.setattr(train_cmd, "_run", seen.append)
+    (tmp_path / "logs").mkdir()
+    for windows in ("auto", "short"):
+        r = CliRunner().invoke(app, ["train", "--data", str(tmp_path / "logs"), "--windows", windows, "--model", "svm",
+                                     "--out", str(tmp_path / "m"), *extra])
+        assert r.exit_code == 0, r.output
+    assert [req.serve.members for req in seen] == [members, members]
+    assert [req.members and req.source.sensors is None for req in seen] == [members, members]
+
+
+def test_a_member_is_replayed_without_members_of_its_own(fold, monkeypatch, tmp_path):
+    from terrainml.pipeline import members as members_mod
+    from terrainml.pipeline.train_options import ReplayOptions, TrainOptions
+
+    tables, ds, *_ = fold
+    seen = []
+    monkeypatch.setattr(members_mod, "train", lambda sub, folder, kinds, options, serve, **kw: seen.append(serve))
+    fit = members_mod.fixed_fit(ds, ("hgb",), TrainOptions(), ReplayOptions(members=True), tables)
+    fit(["wheels", "currents"], tmp_path / "no_imu")
+    assert [s.members for s in seen] == [False]
