@@ -37,7 +37,7 @@ from terrainml.atomic import write_text
 from terrainml.evaluation.metrics import latency_per_window_ms
 from terrainml.evaluation.report import selection_markdown, write_report
 from terrainml.features.windows import WindowSpec
-from terrainml.models.artifacts import TABLE_FILE, json_safe, save_artifact, write_manifest
+from terrainml.models.artifacts import json_safe, save_artifact, write_manifest
 from terrainml.models.calibration import CalibratedModel, Temperature
 from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.pipeline.dataset import Dataset, build_from_tables
@@ -47,7 +47,7 @@ from terrainml.pipeline.replay import ReplayRefused, pooled_replay, replay_refus
 from terrainml.pipeline import train as train_lib  # make_factory read at call time
 from terrainml.pipeline.candidates import candidate_window_specs
 from terrainml.pipeline.select import Selection, select
-from terrainml.pipeline.fold_replay import replay_folds, served_novelty
+from terrainml.pipeline.fold_replay import replay_folds, served_novelty, table_attachment
 from terrainml.pipeline.train import (MIN_RUNS_PER_CLASS, TrainResult, class_names_of, dataset_summary,
                                       desired_slip_table_for, fold_model, provenance_of)
 from terrainml.robot import RobotSpec
@@ -119,7 +119,7 @@ def _save(out: Path, ds: Dataset, fitted: dict, served: str, temperature: float,
     classes = sorted(set(ds.windows.y.tolist()))
     return save_artifact(out, fitted, provenance_of(ds, classes), metrics_summary=metrics or {},
                          default_model=served,
-                         attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
+                         attachments=table_attachment(table),
                          extra=extra or {}, calibration={served: Temperature(temperature).to_dict()},
                          novelty=novelty)
 

@@ -28,7 +28,7 @@ from terrainml.models.novelty import DEFAULT_FALSE_ALARM, NoveltyError, fit_mode
 from terrainml.pipeline.progress import report
 from terrainml.pipeline.replay import make_course, replay_course
 
-__all__ = ["FoldModel", "FoldMember", "replay_folds", "served_novelty"]
+__all__ = ["FoldModel", "FoldMember", "replay_folds", "served_novelty", "table_attachment"]
 
 
 @dataclass
@@ -168,5 +168,10 @@ def _save(folder: Path, fitted: dict, served: str, provenance: TrainingProvenanc
           temperature: float, novelty: Any) -> None:
     """A fold model (or member) saved as ``predict`` loads a model folder."""
     save_artifact(folder, fitted, provenance, default_model=served,
-                  attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
-                  calibration={served: Temperature(temperature).to_dict()}, novelty=novelty)
+                  attachments=table_attachment(table), calibration={served: Temperature(temperature).to_dict()},
+                  novelty=novelty)
+
+
+def table_attachment(table: Any) -> dict[str, str] | None:
+    """The attachments of a model folder served with the desired-slip ``table`` (None: none)."""
+    return None if table is None else {TABLE_FILE: table.to_json() + "\n"}

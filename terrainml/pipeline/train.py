@@ -5,7 +5,7 @@ A's and B's probabilities, :class:`~terrainml.models.ensemble.ProbabilityAverage
 (:mod:`terrainml.evaluation.cv`, seeded) and a final fit on all windows, measures per-window
 latency, runs the SVM feature-set ablation (kinematic / currents / imu / all) on the same folds,
 then writes the artifact (:mod:`terrainml.models.artifacts`) with the desired-slip table as an
-attachment (:data:`TABLE_FILE`, when the class set is ours) and the report
+attachment (:data:`~terrainml.models.artifacts.TABLE_FILE`, when the class set is ours) and the report
 (:mod:`terrainml.evaluation.report`) into one folder whose manifest hashes every file. The model
 with the best CV balanced accuracy is the folder's default (served) model.
 
@@ -59,7 +59,7 @@ from terrainml.models.svm import SVMClassifier
 from terrainml.models.trees import BoostedTrees
 from terrainml.pipeline.candidates import MODEL_KINDS, parse_models
 from terrainml.pipeline.dataset import Dataset
-from terrainml.pipeline.fold_replay import FoldModel, FoldMember, replay_folds, served_novelty
+from terrainml.pipeline.fold_replay import FoldModel, FoldMember, replay_folds, served_novelty, table_attachment
 from terrainml.pipeline.train_options import ReplayOptions, TrainOptions
 from terrainml.pipeline.progress import report
 from terrainml.pipeline.preflight import MIN_RUNS_PER_CLASS, SINGLE_RUN_RULE, table_for_classes
@@ -298,7 +298,7 @@ def train(ds: Dataset, out: str | Path, models: Sequence[str] = ("svm",), option
     metrics_summary = {k: r["cv"].summary for k, r in results.items()}
     save_artifact(out, fitted, provenance_of(ds, plan.classes.tolist(), plan.names),
                   metrics_summary=metrics_summary, default_model=default, novelty=novelty,
-                  attachments={TABLE_FILE: table.to_json() + "\n"} if table is not None else None,
+                  attachments=table_attachment(table),
                   extra={"folds": len(plan.folds), "seed": seed, "n_windows": len(W),
                          "latency_ms": {k: r["latency"] for k, r in results.items()},
                          "excluded_classes": summary["excluded_classes"]})
