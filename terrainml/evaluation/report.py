@@ -337,14 +337,14 @@ def replay_markdown(rep: dict, fold_word: str = "fold") -> list[str]:
           f"{rep['segment_s']:.0f} s of each of the fold's held-out runs (classes interleaved) tick by tick. "
           "Right: the labelled class served on a moving tick (a fallback is never right). Sensor members: "
           "those the fold's model is served with, as the saved folder is (one for each sensor group its held-out "
-          "runs flag invalid somewhere, fitted on the fold's training windows).", "",
+          "runs flag invalid somewhere, fitted on the fold's training windows), and the ticks each served.", "",
           markdown_table(["fold", "runs", "moving ticks", "right %", "right % (3 s after changes left out)",
                           "fallback %", "classifications / m", "median m to the right class after a change",
                           "changes never served right", "sensor members"],
                          [[f["fold"] + 1, f["runs"], f.get("moving_ticks", 0), _f(f.get("right_share"), 1, 100),
                            _f(f.get("right_share_settled"), 1, 100), _f(f.get("fallback_share"), 1, 100),
                            _f(f.get("classifications_per_m"), 2), _f(f.get("median_change_m"), 2),
-                           f.get("changes_never_right", "n/a"), ", ".join(f.get("members") or []) or "-"]
+                           f.get("changes_never_right", "n/a"), _members_served(f)]
                           for f in fr]
                          + [["all", sum(f["runs"] for f in fr), pooled.get("moving_ticks", 0),
                              _f(pooled.get("right_share"), 1, 100), "", _f(pooled.get("fallback_share"), 1, 100),
@@ -356,6 +356,12 @@ def replay_markdown(rep: dict, fold_word: str = "fold") -> list[str]:
         md += [f"**Refused:** {rep['refusal']}" + (" (saved anyway: `--allow-unproven`)." if rep.get("overridden")
                                                   else "; no model saved."), ""]
     return md
+
+
+def _members_served(fold: dict) -> str:
+    """A fold's sensor members and the ticks each served, e.g. ``no_imu (2995 ticks)``; ``-``: none."""
+    served = fold.get("member_ticks") or {}
+    return ", ".join(f"{m} ({served.get(m, 0)} ticks)" for m in fold.get("members") or []) or "-"
 
 
 def tick_losses_markdown(rows: list[tuple[str, dict | None]], fold_word: str = "fold") -> list[str]:

@@ -65,12 +65,18 @@ def test_a_held_out_run_without_imu_is_served_by_the_fold_member_without_it(fold
     notes: list = []
     without, with_members = replay_folds([plain, served], tables, None, None, 0, notes.append)
     assert without["members"] == [] and with_members["members"] == ["no_imu"]
+    # the member served the run without IMU data (16 s at 100 Hz), the model nothing of it
+    assert without["member_ticks"] == {} and 1400 <= with_members["member_ticks"]["no_imu"] <= 1600
     # the run without IMU: the fold's model falls back on it, its member serves it right
     assert without["fallback_reasons"].get("estimator_unhealthy", 0) > 0.3 * without["moving_ticks"]
     assert with_members["fallback_reasons"].get("estimator_unhealthy", 0) == 0
     assert with_members["right_share"] > without["right_share"] + 0.3
     assert with_members["right_share"] > 0.8
     assert any("member no_imu" in str(n) for n in notes)
+    from terrainml.evaluation.report import replay_markdown
+
+    table = "\n".join(replay_markdown({"folds": [without, with_members], "pooled": {}, "segment_s": 16.0}))
+    assert f"| no_imu ({with_members['member_ticks']['no_imu']} ticks) |" in table and "| - |" in table
 
 
 @pytest.mark.parametrize("extra, members", [((), True), (("--no-members",), False),

@@ -175,7 +175,8 @@ def score_served(t, lab, served, odo, reasons, settle_s: float, st: dict, rim_sp
     t, lab, served, odo, reasons : per tick (n,): time s, label, served class, odometer m,
         fallback reason (:class:`ServedTicks`' fields).
     settle_s : s after each label change left out of ``right_share_settled``.
-    st : the predictor's counters (``classifications``, ``distance_m``).
+    st : the predictor's counters (``classifications``, ``distance_m``, ``member_ticks``: ticks
+        served by the model and by each of its sensor members, when it has members).
     rim_speed_mps : per tick (n,) or None, m/s: which unhealthy ticks move (:func:`moving_ticks`).
     """
     moving = moving_ticks(t, lab, served, odo, reasons, rim_speed_mps)
@@ -204,6 +205,7 @@ def score_served(t, lab, served, odo, reasons, settle_s: float, st: dict, rim_sp
             "classifications_per_m": float(st.get("classifications", 0) / dist) if dist > 0 else float("nan"),
             "changes": int(len(change)), "median_change_m": float(np.median(dists)) if dists else float("nan"),
             "changes_never_right": int(never),
+            "member_ticks": {str(k): int(v) for k, v in (st.get("member_ticks") or {}).items()},
             "fallback_reasons": {r: int(sum(1 for i in np.flatnonzero(fb) if reasons[i] == r))
                                  for r in sorted({reasons[i] for i in np.flatnonzero(fb)})}}
 
