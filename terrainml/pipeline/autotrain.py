@@ -141,11 +141,9 @@ def _replay_folds(sel: Selection, data: dict, tables, table, serve: ReplayOption
         W = data[spec].windows
         train_idx = np.flatnonzero(~np.isin(np.asarray(W.groups).astype(str), o["runs"])
                                    & np.isin(W.y, sel.class_ids))
-        folds.append(fold_model(data[spec], o["runs"], fitted, name, W.subset(train_idx), opt.seed,
-                                o["temperature"], o["chosen"], held=tables if serve.members else None,
-                                segment_s=serve.segment_s))
-    return replay_folds(folds, tables, table, serve.segment_s, opt.seed, say, opt.novelty_false_alarm,
-                        n_jobs=opt.n_jobs)
+        folds.append(fold_model(data[spec], o["runs"], fitted, name, W.subset(train_idx), tables, serve, opt.seed,
+                                o["temperature"], o["chosen"]))
+    return replay_folds(folds, table, opt.seed, say, opt.novelty_false_alarm, n_jobs=opt.n_jobs)
 
 
 def train_auto(tables: Sequence[pd.DataFrame] | None, robot: RobotSpec, out: str | Path,

@@ -26,7 +26,7 @@ from terrainml.models.calibration import Temperature
 from terrainml.models.ensemble import ProbabilityAverage
 from terrainml.models.novelty import DEFAULT_FALSE_ALARM, NoveltyError, fit_model_novelty
 from terrainml.pipeline.progress import report
-from terrainml.pipeline.replay import make_course, replay_course
+from terrainml.pipeline.replay import replay_course
 
 __all__ = ["FoldModel", "FoldMember", "replay_folds", "served_novelty", "table_attachment"]
 
@@ -61,6 +61,9 @@ class FoldModel:
     provenance : saved with the model (its classes are the fitted model's).
     temperature : of the served model's probabilities (1: uncalibrated). label : report label.
     members : the sensor members its held-out runs call on, fitted in its replay.
+    course : the replayed pieces of its held-out runs end to end
+    (:func:`~terrainml.pipeline.replay.make_course`), None when none of them has a table.
+    replayed : the held-out runs in the course.
     """
 
     runs: list
@@ -71,6 +74,8 @@ class FoldModel:
     temperature: float = 1.0
     label: str = ""
     members: list = field(default_factory=list)
+    course: pd.DataFrame | None = None
+    replayed: list = field(default_factory=list)
 
 
 def served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], None],
@@ -87,9 +92,8 @@ def served_novelty(model: Any, name: str, W, seed: int, say: Callable[[str], Non
     return name, scorer, info
 
 
-def replay_folds(folds: Sequence[FoldModel], tables: Sequence[pd.DataFrame], table: Any, segment_s: float,
-                 seed: int, say: Callable[[str], None], novelty_false_alarm: float = DEFAULT_FALSE_ALARM,
-                 n_jobs: int = 1) -> list[dict]:
+def replay_folds(folds: Sequence[FoldModel], table: Any, seed: int, say: Callable[[str], None],
+                 novelty_false_alarm: float = DEFAULT_FALSE_ALARM, n_jobs: int = 1) -> list[dict]:
     """Replay of every fold's held-out runs through its model and its novelty score (fitted on the
     fold's training windows only), saved and loaded as ``terrainml predict`` loads them.
 
@@ -105,10 +109,7 @@ def replay_folds(folds: Sequence[FoldModel], tables: Sequence[pd.DataFrame], tab
     members served with it) and :func:`~terrainml.pipeline.replay.replay_course`'s figures,
     ``replay_s``.
     """
-    by_id = {str(t["run_id"].iloc[0]): t for t in tables if len(t)}
-    calls = [delayed(_replay_fold)(k, f, [by_id[r] for r in f.runs if r in by_id], table, segment_s, seed,
-                                   novelty_false_alarm)
-             for k, f in enumerate(folds)]
+    calls = [delayed(_replay_fold)(k, f, table, seed, novelty_false_alarm) for k, f in enumerate(folds)]
     at_once = max(1, min(len(folds), effective_n_jobs(n_jobs)))
     n_members = sum(len(f.members) for f in folds)
     report(say, "served replay", 0, len(folds), "folds",
@@ -126,12 +127,11 @@ def replay_folds(folds: Sequence[FoldModel], tables: Sequence[pd.DataFrame], tab
     return out
 
 
-def _replay_fold(k: int, f: FoldModel, tables: list, table: Any, segment_s: float, seed: int,
+def _replay_fold(k: int, f: FoldModel, table: Any, seed: int,
                  novelty_false_alarm: float) -> tuple[dict, list[str]]:
     """(figures, notes) of one fold's replay (:func:`replay_folds`); runs in a joblib worker."""
     notes: list[str] = []
-    runs = [str(t["run_id"].iloc[0]) for t in tables]
-    if not runs:
+    if f.course is None:
         return {"fold": k, "runs": 0, "moving_ticks": 0, "chosen": f.label or f.served, "members": []}, notes
     novelty = served_novelty(f.fitted[f.served], f.served, f.train_windows, seed, notes.append, novelty_false_alarm)
     with TemporaryDirectory() as tmp:
@@ -142,10 +142,9 @@ def _replay_fold(k: int, f: FoldModel, tables: list, table: Any, segment_s: floa
             _fit_member(folder / MEMBERS_DIR / m.name, m, table, seed, novelty_false_alarm, notes.append)
         if f.members:
             attach_members(folder, [m.name for m in f.members])
-        course = make_course(tables, runs, segment_s=segment_s)
         t0 = time.perf_counter()
-        res = replay_course(folder, course)
-    return {"fold": k, "chosen": f.label or f.served, "runs": len(runs), "members": [m.name for m in f.members],
+        res = replay_course(folder, f.course)
+    return {"fold": k, "chosen": f.label or f.served, "runs": len(f.replayed), "members": [m.name for m in f.members],
             **res, "replay_s": time.perf_counter() - t0}, notes
 
 

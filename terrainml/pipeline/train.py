@@ -404,10 +404,9 @@ def _served_replay(ds: Dataset, plan: _CVPlan, default: str, results: dict, tabl
         fitted = dict(zip(parts, fold_models))
         if len(parts) > 1:
             fitted[default] = ProbabilityAverage.from_fitted(fold_models)
-        folds.append(fold_model(ds, sorted(set(groups[te].tolist())), fitted, default, Wcv.subset(tr), opt.seed,
-                                held=tables if serve.members else None, segment_s=serve.segment_s))
-    per_fold = replay_folds(folds, tables, table, serve.segment_s, opt.seed, say, opt.novelty_false_alarm,
-                            n_jobs=opt.n_jobs)
+        folds.append(fold_model(ds, sorted(set(groups[te].tolist())), fitted, default, Wcv.subset(tr), tables,
+                                serve, opt.seed))
+    per_fold = replay_folds(folds, table, opt.seed, say, opt.novelty_false_alarm, n_jobs=opt.n_jobs)
     pooled = pooled_replay([f for f in per_fold if f.get("moving_ticks")])
     refusal = replay_refusal(pooled, serve.min_classified_share)
     return {"folds": per_fold, "pooled": pooled, "refusal": refusal,
@@ -415,25 +414,27 @@ def _served_replay(ds: Dataset, plan: _CVPlan, default: str, results: dict, tabl
             "min_classified_share": serve.min_classified_share}
 
 
-def fold_model(ds: Dataset, runs: Sequence[str], fitted: dict, served: str, train_windows: Any, seed: int,
-               temperature: float = 1.0, label: str = "", held: Sequence[pd.DataFrame] | None = None,
-               segment_s: float | None = None) -> FoldModel:
+def fold_model(ds: Dataset, runs: Sequence[str], fitted: dict, served: str, train_windows: Any,
+               tables: Sequence[pd.DataFrame], serve: ReplayOptions, seed: int, temperature: float = 1.0,
+               label: str = "") -> FoldModel:
     """One fold's model for :func:`~terrainml.pipeline.fold_replay.replay_folds`: fitted on
     ``train_windows`` (windows of ``ds``), held out ``runs``, saved with the provenance of ``ds``'s
-    windows of its classes.
+    windows of its classes, its course the ``serve.segment_s`` pieces of its held-out runs.
 
-    ``held``: the run tables when the saved folder is served with sensor members (None: it is
-    not). The fold then gets each member of a model on ``ds``'s groups
-    (:func:`~terrainml.pipeline.sensor_subsets.member_subsets`) whose dropped group the replayed
-    pieces (``segment_s``) of its held-out runs flag invalid
+    With ``serve.members`` (the saved folder is served with sensor members) the fold gets each
+    member of a model on ``ds``'s groups (:func:`~terrainml.pipeline.sensor_subsets.member_subsets`)
+    whose dropped group its course flags invalid
     (:func:`~terrainml.pipeline.sensor_subsets.flagged_groups`): the fold's served model kinds on
     the fold's training windows with the member's channels (``train`` fits a saved member on
     windows cut again for its groups where that gives more; a fold member does with the fold's).
     """
     classes = sorted(int(c) for c in np.asarray(fitted[served].classes_).tolist())
     f = FoldModel(list(runs), fitted, served, train_windows, provenance_of(ds, classes), temperature, label)
-    own = [t for t in held or () if len(t) and str(t["run_id"].iloc[0]) in set(f.runs)]
-    flagged = flagged_groups([make_course(own, segment_s=segment_s)]) if own else set()
+    by_id = {str(t["run_id"].iloc[0]): t for t in tables if len(t)}
+    f.replayed = [r for r in f.runs if r in by_id]
+    if f.replayed:
+        f.course = make_course([by_id[r] for r in f.replayed], f.replayed, segment_s=serve.segment_s)
+    flagged = flagged_groups([f.course]) if serve.members and f.course is not None else set()
     fold_ds = replace(ds, windows=train_windows)
     for name, subset in member_subsets(ds.sensors).items():
         if MEMBER_DROPS[name] in flagged:

@@ -114,6 +114,7 @@ def test_folds_replayed_in_parallel_give_the_serial_figures_in_fold_order(log_di
     from terrainml.pipeline.dataset import build_from_tables, find_logs
     from terrainml.pipeline.fold_replay import replay_folds
     from terrainml.pipeline.train import fold_model, make_factory
+    from terrainml.pipeline.train_options import ReplayOptions
     from terrainml.robot import load_robot
 
     robot = load_robot("agrimaro")
@@ -125,10 +126,10 @@ def test_folds_replayed_in_parallel_give_the_serial_figures_in_fold_order(log_di
     for held in (runs[0::2], runs[1::2]):
         train = W.subset(np.flatnonzero(~np.isin(np.asarray(W.groups).astype(str), held)))
         model = make_factory("hgb", ds, 0, params={"max_iter": 20})().fit(train, train.y)
-        folds.append(fold_model(ds, held, {"hgb": model}, "hgb", train, 0))
+        folds.append(fold_model(ds, held, {"hgb": model}, "hgb", train, tables, ReplayOptions(segment_s=4.0), 0))
     notes1, notes2 = [], []
-    serial = replay_folds(folds, tables, None, 4.0, 0, notes1.append, n_jobs=1)
-    parallel = replay_folds(folds, tables, None, 4.0, 0, notes2.append, n_jobs=2)
+    serial = replay_folds(folds, None, 0, notes1.append, n_jobs=1)
+    parallel = replay_folds(folds, None, 0, notes2.append, n_jobs=2)
     for a, b in zip(serial, parallel):
         assert {k: v for k, v in a.items() if k != "replay_s"} == {k: v for k, v in b.items() if k != "replay_s"}
     assert [f["fold"] for f in parallel] == [0, 1] and parallel[0]["moving_ticks"] > 0

@@ -17,6 +17,7 @@ from terrainml.pipeline.dataset import build_from_tables
 from terrainml.pipeline.fold_replay import replay_folds
 from terrainml.pipeline.sensor_subsets import flagged_groups
 from terrainml.pipeline.train import fold_model, make_factory
+from terrainml.pipeline.train_options import ReplayOptions
 from terrainml.robot import load_robot
 from terrainml.testing import kinematic_run, trapezoid_speed
 
@@ -57,13 +58,13 @@ def test_flagged_groups_are_those_invalid_somewhere():
 
 def test_a_held_out_run_without_imu_is_served_by_the_fold_member_without_it(fold):
     tables, ds, held, train, model = fold
-    plain = fold_model(ds, held, {"hgb": model}, "hgb", train, 0)
-    served = fold_model(ds, held, {"hgb": model}, "hgb", train, 0, held=tables, segment_s=None)
+    plain = fold_model(ds, held, {"hgb": model}, "hgb", train, tables, ReplayOptions(segment_s=16.0), 0)
+    served = fold_model(ds, held, {"hgb": model}, "hgb", train, tables, ReplayOptions(segment_s=16.0, members=True), 0)
     assert plain.members == [] and [m.name for m in served.members] == ["no_imu"]
     (member,) = served.members
     assert len(member.windows) == len(train) and not any(c.startswith("imu_") for c in member.windows.channels)
     notes: list = []
-    without, with_members = replay_folds([plain, served], tables, None, None, 0, notes.append)
+    without, with_members = replay_folds([plain, served], None, 0, notes.append)
     assert without["members"] == [] and with_members["members"] == ["no_imu"]
     # the member served the run without IMU data (16 s at 100 Hz), the model nothing of it
     assert without["member_ticks"] == {} and 1400 <= with_members["member_ticks"]["no_imu"] <= 1600
